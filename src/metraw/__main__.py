@@ -1,0 +1,5 @@
+import sys
+
+from metraw.cli import main
+
+sys.exit(main())

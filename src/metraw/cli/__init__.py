@@ -1,0 +1,54 @@
+"""The ``metraw`` command line.
+
+Each subcommand lives in its own module ``metraw.cli.<name>`` exposing
+``register(subparsers)``, which adds its parser and sets ``func(args) -> int``.
+Errors caused by the input (``MetrawError``, unreadable files) print one line on stderr
+and exit with status 2; nothing half-written is left (outputs are written atomically).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import importlib.util
+import sys
+
+from metraw import __version__
+from metraw.errors import MetrawError
+
+#: Subcommand modules in the order shown by ``metraw --help``.
+COMMANDS = ("info", "ingest", "calibrate", "scenes", "encode", "decode", "verify", "emulate",
+            "train", "evaluate", "compress", "aggregate", "check", "normalise")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="metraw", description="Metrologically correct raw images: "
+                                     "ingest, calibrate, emulate, compress, segment, specify.")
+    parser.add_argument("--version", action="version", version=f"metraw {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in COMMANDS:
+        module_name = f"metraw.cli.{name}"
+        if importlib.util.find_spec(module_name) is None:
+            continue
+        importlib.import_module(module_name).register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except MetrawError as exc:
+        print(f"metraw {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"metraw {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,247 @@
+"""Dataset store: many RawImages in one sharded zarr v3 group.
+
+Layout of ``NAME.zarr``:
+
+- ``raw``   (N, H, W) uint16 DN, one chunk per image, ``images_per_shard`` images per file;
+- ``mask``  (N, H, W) float32 label fraction (0 where an image has no mask);
+- ``flags`` (N, H, W) uint8 ``RawImage.flags``;
+- root attributes ``metraw``: store version, image count, and per image its shape,
+  profile (JSON), provenance, meta and whether it has a mask.
+
+Images smaller than the store's (H, W) are zero-padded; their true shape is in the
+attributes and reading returns exactly the image that was written. The image count in the
+attributes is written last, so an interrupted append never exposes a half-written image.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any, Callable, Iterable, Iterator
+
+import numpy as np
+
+from metraw.atomic import atomic_path
+from metraw.errors import MetrawError
+from metraw.image import RawImage
+from metraw.profile import CalibrationProfile
+
+STORE_VERSION = 1
+#: Target bytes of uncompressed raw data per shard file.
+SHARD_TARGET_BYTES = 64 * 2**20
+
+#: A function (first image's profile) -> list of zarr bytes-to-bytes / array-to-bytes codecs
+#: for the ``raw`` array; ``None`` means the default lossless zstd.
+RawCodecFactory = Callable[[CalibrationProfile], dict[str, Any]]
+
+
+def _zarr():
+    import zarr
+
+    return zarr
+
+
+def _default_raw_codecs(profile: CalibrationProfile) -> dict[str, Any]:
+    zarr = _zarr()
+    return {"compressors": [zarr.codecs.ZstdCodec(level=3)]}
+
+
+class RawStore:
+    """A dataset of RawImages backed by a zarr v3 group (see module docstring).
+
+    Create with ``RawStore.create(path)`` (a context manager: the store appears at ``path``
+    only when the ``with`` block completes), open with ``RawStore.open(path)``.
+    """
+
+    def __init__(self, root: Path, group, mode: str, raw_codecs: RawCodecFactory | None = None,
+                 images_per_shard: int | None = None):
+        self.path = root
+        self._group = group
+        self._mode = mode
+        self._raw_codecs = raw_codecs or _default_raw_codecs
+        self._images_per_shard = images_per_shard
+        self._pending: list[RawImage] = []
+        attrs = dict(group.attrs.get("metraw", {}))
+        if mode == "r" or attrs:
+            if attrs.get("store_version") != STORE_VERSION:
+                raise MetrawError(f"{root} is not a metraw store (store_version {attrs.get('store_version')!r})")
+        self._records: list[dict[str, Any]] = list(attrs.get("images", []))
+        self._attrs_extra: dict[str, Any] = dict(attrs.get("extra", {}))
+
+    # ----------------------------------------------------------------- construction
+    @classmethod
+    def create(cls, path: str | os.PathLike, overwrite: bool = False, raw_codecs: RawCodecFactory | None = None,
+               images_per_shard: int | None = None) -> "_AtomicStore":
+        """A new store at ``path``, written atomically (use as a context manager)."""
+        return _AtomicStore(Path(path), overwrite, raw_codecs, images_per_shard)
+
+    @classmethod
+    def open(cls, path: str | os.PathLike, mode: str = "r") -> "RawStore":
+        """Open an existing store for reading (``"r"``) or appending (``"a"``)."""
+        zarr = _zarr()
+        path = Path(path)
+        if not (path / "zarr.json").is_file():
+            raise MetrawError(f"{path} is not a zarr v3 store (no zarr.json)")
+        try:
+            group = zarr.open_group(str(path), mode="r" if mode == "r" else "r+", zarr_format=3)
+        except Exception as exc:  # zarr raises several types for damaged metadata
+            raise MetrawError(f"cannot open store {path}: {exc}") from None
+        return cls(path, group, mode)
+
+    # ----------------------------------------------------------------- reading
+    def __len__(self) -> int:
+        return len(self._records) + len(self._pending)
+
+    def __getitem__(self, index: int) -> RawImage:
+        n = len(self)
+        if not -n <= index < n:
+            raise IndexError(f"image index {index} out of range for a store of {n} images")
+        index %= n
+        if index >= len(self._records):
+            return self._pending[index - len(self._records)]
+        rec = self._records[index]
+        h, w = rec["shape"]
+        data = np.asarray(self._group["raw"][index, :h, :w])
+        mask = np.asarray(self._group["mask"][index, :h, :w]) if rec["has_mask"] else None
+        flags = np.asarray(self._group["flags"][index, :h, :w]) if rec["has_flags"] else None
+        return RawImage(data=data, profile=CalibrationProfile.from_dict(rec["profile"]), mask=mask, flags=flags,
+                        provenance=rec["provenance"], meta=rec["meta"])
+
+    def __iter__(self) -> Iterator[RawImage]:
+        for i in range(len(self)):
+            yield self[i]
+
+    def profile(self, index: int) -> CalibrationProfile:
+        return CalibrationProfile.from_dict(self._records[index]["profile"])
+
+    def meta(self, index: int) -> dict[str, Any]:
+        return self._records[index]["meta"]
+
+    def shape(self, index: int) -> tuple[int, int]:
+        return tuple(self._records[index]["shape"])  # type: ignore[return-value]
+
+    @property
+    def attrs(self) -> dict[str, Any]:
+        """Dataset-level descriptive attributes (e.g. generator parameters)."""
+        return self._attrs_extra
+
+    # ----------------------------------------------------------------- writing
+    def append(self, image: RawImage) -> None:
+        """Add an image; data is buffered and written a whole shard at a time."""
+        if self._mode == "r":
+            raise MetrawError(f"store {self.path} is open read-only")
+        if not isinstance(image, RawImage):
+            raise MetrawError("only RawImage objects can be stored")
+        self._pending.append(image)
+        if len(self._pending) >= self._shard_images(image.shape):
+            self.flush()
+
+    def extend(self, images: Iterable[RawImage], progress: bool = False, total: int | None = None) -> None:
+        from metraw.progress import progress_bar
+
+        for image in progress_bar(images, total=total, desc="store", disable=not progress):
+            self.append(image)
+
+    def set_attrs(self, **values: Any) -> None:
+        self._attrs_extra.update(values)
+        self._write_attrs()
+
+    def flush(self) -> None:
+        """Write buffered images, then publish the new count in the attributes."""
+        if not self._pending:
+            return
+        start = len(self._records)
+        images = self._pending
+        self._ensure_arrays(images)
+        h_max = max(img.shape[0] for img in images)
+        w_max = max(img.shape[1] for img in images)
+        arr_raw = self._group["raw"]
+        _, H, W = arr_raw.shape
+        new_shape = (start + len(images), max(H, h_max), max(W, w_max))
+        for name in ("raw", "mask", "flags"):
+            self._group[name].resize(new_shape)
+        _, H, W = new_shape
+        raw = np.zeros((len(images), H, W), np.uint16)
+        mask = np.zeros((len(images), H, W), np.float32)
+        flags = np.zeros((len(images), H, W), np.uint8)
+        for i, img in enumerate(images):
+            h, w = img.shape
+            raw[i, :h, :w] = img.data
+            if img.mask is not None:
+                mask[i, :h, :w] = img.mask
+            if img.flags is not None:
+                flags[i, :h, :w] = img.flags
+        sl = slice(start, start + len(images))
+        self._group["raw"][sl] = raw
+        self._group["mask"][sl] = mask
+        self._group["flags"][sl] = flags
+        for img in images:
+            self._records.append({
+                "shape": list(img.shape),
+                "profile": img.profile.to_dict(),
+                "provenance": img.provenance,
+                "meta": img.meta,
+                "has_mask": img.mask is not None,
+                "has_flags": img.flags is not None,
+            })
+        self._pending = []
+        self._write_attrs()
+
+    def close(self) -> None:
+        if self._mode != "r":
+            self.flush()
+
+    # ----------------------------------------------------------------- internals
+    def _shard_images(self, shape: tuple[int, int]) -> int:
+        if self._images_per_shard:
+            return self._images_per_shard
+        return max(1, SHARD_TARGET_BYTES // (2 * shape[0] * shape[1]))
+
+    def _ensure_arrays(self, images: list[RawImage]) -> None:
+        if "raw" in self._group:
+            return
+        h = max(img.shape[0] for img in images)
+        w = max(img.shape[1] for img in images)
+        k = self._shard_images((h, w))
+        self._images_per_shard = k
+        zarr = _zarr()
+        common = dict(shape=(0, h, w), chunks=(1, h, w), shards=(k, h, w), fill_value=0)
+        self._group.create_array("raw", dtype="uint16", **common, **self._raw_codecs(images[0].profile))
+        self._group.create_array("mask", dtype="float32", compressors=[zarr.codecs.ZstdCodec(level=3)], **common)
+        self._group.create_array("flags", dtype="uint8", compressors=[zarr.codecs.ZstdCodec(level=3)], **common)
+
+    def _write_attrs(self) -> None:
+        self._group.attrs["metraw"] = {
+            "store_version": STORE_VERSION,
+            "count": len(self._records),
+            "images_per_shard": self._images_per_shard,
+            "images": self._records,
+            "extra": self._attrs_extra,
+        }
+
+
+class _AtomicStore:
+    """Context manager behind ``RawStore.create``: build in a temporary path, rename at the end."""
+
+    def __init__(self, path: Path, overwrite: bool, raw_codecs: RawCodecFactory | None, images_per_shard: int | None):
+        self._ctx = atomic_path(path, overwrite=overwrite)
+        self._raw_codecs = raw_codecs
+        self._images_per_shard = images_per_shard
+        self.store: RawStore | None = None
+
+    def __enter__(self) -> RawStore:
+        zarr = _zarr()
+        tmp = self._ctx.__enter__()
+        group = zarr.open_group(str(tmp), mode="w", zarr_format=3)
+        self.store = RawStore(tmp, group, "w", self._raw_codecs, self._images_per_shard)
+        self.store._write_attrs()
+        return self.store
+
+    def __exit__(self, exc_type, exc, tb):
+        if exc_type is None:
+            try:
+                self.store.close()
+            except BaseException as err:  # the partial store must not survive a failed flush
+                self._ctx.__exit__(type(err), err, err.__traceback__)
+                raise
+        return self._ctx.__exit__(exc_type, exc, tb)
