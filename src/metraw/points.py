@@ -1,0 +1,89 @@
+"""Parameter points of the study, derived from params.yaml in one place.
+
+The nominal target point plus one-at-a-time sweeps (DESIGN.md section 6). Snakemake rules,
+DVC stages and the aggregate all take the point list from here, never from a glob of
+existing outputs, so stale results are never picked up.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from metraw.errors import MetrawError
+
+NOMINAL = "nominal"
+
+
+def load_params(path: str | Path = "params.yaml") -> dict[str, Any]:
+    """Read params.yaml (validated against the workflow's JSON schema when available)."""
+    path = Path(path)
+    try:
+        params = yaml.safe_load(path.read_text())
+    except FileNotFoundError:
+        raise MetrawError(f"parameter file {path} not found") from None
+    except yaml.YAMLError as exc:
+        raise MetrawError(f"parameter file {path} is not valid YAML: {exc}") from None
+    if not isinstance(params, dict):
+        raise MetrawError(f"parameter file {path} must hold a mapping")
+    validate_params(params, path)
+    return params
+
+
+def validate_params(params: dict[str, Any], origin: str | Path = "params") -> None:
+    """Validate against workflow/schemas/params.schema.yaml (shipped with the package too)."""
+    import jsonschema
+
+    schema = yaml.safe_load(_schema_path().read_text())
+    try:
+        jsonschema.validate(params, schema)
+    except jsonschema.ValidationError as exc:
+        where = "/".join(str(p) for p in exc.absolute_path) or "(top level)"
+        raise MetrawError(f"{origin}: {where}: {exc.message}") from None
+
+
+def _schema_path() -> Path:
+    here = Path(__file__).resolve()
+    for candidate in (here.parents[2] / "workflow" / "schemas" / "params.schema.yaml",
+                      here.parent / "schemas" / "params.schema.yaml"):
+        if candidate.is_file():
+            return candidate
+    raise MetrawError("params schema not found (workflow/schemas/params.schema.yaml)")
+
+
+def format_value(value: float) -> str:
+    """Stable, file-name-safe text of a parameter value (repr of the float, 'e' kept)."""
+    text = repr(float(value))
+    return text[:-2] if text.endswith(".0") else text
+
+
+def point_name(parameter: str, value: float) -> str:
+    return f"{parameter}-{format_value(value)}"
+
+
+def parameter_points(params: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """Ordered mapping point name -> target overrides relative to the nominal point.
+
+    ``nominal`` has no overrides; each sweep value gives ``"<parameter>-<value>"`` (e.g. ``diameter_m-0.5``). A sweep
+    value equal to the nominal value is the nominal point itself and is not repeated.
+    """
+    nominal = params["target"]["nominal"]
+    points: dict[str, dict[str, Any]] = {NOMINAL: {}}
+    for parameter, values in (params["target"].get("sweeps") or {}).items():
+        if parameter not in nominal:
+            raise MetrawError(f"sweep parameter {parameter!r} is not a field of target.nominal")
+        for value in values:
+            if float(value) == float(nominal[parameter]):
+                continue
+            points[point_name(parameter, value)] = {parameter: value}
+    return points
+
+
+def target_params(params: dict[str, Any], point: str) -> dict[str, Any]:
+    """The full target parameter set of a point (nominal updated with its overrides)."""
+    points = parameter_points(params)
+    if point not in points:
+        raise MetrawError(f"unknown parameter point {point!r}; known: {', '.join(points)}")
+    return {**params["target"]["nominal"], **points[point]}

@@ -1,0 +1,41 @@
+# Source data: the embedded synthetic drone scenes or the real KIT aerial path
+# (params.yaml source.dataset), then a calibration check of the stored profiles.
+
+if config["source"]["dataset"] == "synthetic":
+
+    rule source_store:
+        output:
+            directory(SOURCE_STORE),
+        params:
+            synthetic=config["source"]["synthetic"],
+            camera=config["source"]["camera"],
+        log:
+            "logs/source_store.log",
+        shell:
+            "metraw scenes --n {params.synthetic[n_scenes]} --seed {params.synthetic[seed]}"
+            " --size {params.synthetic[size_px]} --params params.yaml --out {output} 2> {log}"
+
+else:
+
+    rule source_store:
+        output:
+            directory(SOURCE_STORE),
+        params:
+            path=config["source"]["kit_ais"]["path"],
+            camera=config["source"]["camera"],
+        log:
+            "logs/source_store.log",
+        shell:
+            "metraw ingest {params.path} --labels yolo --params params.yaml --out {output} 2> {log}"
+
+
+rule calibrate_source:
+    """Single-frame noise calibration of source images against the profile they carry."""
+    input:
+        SOURCE_STORE,
+    output:
+        "results/source/calibration.json",
+    log:
+        "logs/calibrate_source.log",
+    script:
+        "../scripts/calibrate_store.py"
