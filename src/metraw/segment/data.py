@@ -1,0 +1,169 @@
+"""Segmentation data from a RawStore: VST'd packed CFA planes and car-fraction targets.
+
+Input representation (one per image, computed once and cached in memory):
+
+1. generalised Anscombe transform of the DN values with the image's own profile
+   (``metraw.vst.anscombe``): the noise of every pixel becomes ~N(0, 1) in these units, so the
+   network sees unit-variance noise at every parameter point;
+2. centring: subtract the image's median VST value (a constant: the noise stays unit variance;
+   colour differences between planes are kept);
+3. packing: the mosaic is shifted by at most one pixel so that its CFA cell reads R G / G B,
+   then packed into 4 planes (canonical site order R, G, G, B; 1 plane for mono) at half
+   resolution (``metraw.cfa.pack_planes``).
+
+Targets: the car area fraction per packed cell (mean of the mosaic mask over the 2 x 2 cell);
+a cell counts as car when its fraction is >= 0.5 (``TARGET_THRESHOLD``).
+
+Augmentation acts on the mosaic *before* packing: one of the 8 dihedral transforms (flips,
+rot90), then the one-pixel shift that restores the canonical R G / G B cell, so every plane
+keeps its colour and the sub-pixel geometry of the CFA is respected.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from metraw.cfa import cell_size, color_index, pack_planes
+from metraw.errors import MetrawError
+from metraw.image import RawImage
+from metraw.progress import progress_bar
+from metraw.sensor import rng_from_seed
+from metraw.vst import anscombe
+
+#: A packed cell is "car" when its car-area fraction is >= this value.
+TARGET_THRESHOLD = 0.5
+
+
+def split_indices(n_images: int, test_fraction: float, split_seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Fixed train/test split by image index: (sorted train indices, sorted test indices).
+
+    The same (n_images, test_fraction, split_seed) gives the same split for every parameter
+    point, so emulated stores (image i emulated from source image i) share it.
+    """
+    if not 0.0 < test_fraction < 1.0:
+        raise MetrawError(f"test_fraction must be in (0, 1), got {test_fraction}")
+    n_test = int(round(n_images * test_fraction))
+    if n_images < 2 or n_test < 1 or n_test >= n_images:
+        raise MetrawError(f"cannot split {n_images} images with test_fraction {test_fraction}: "
+                          "need at least one training and one test image")
+    perm = rng_from_seed(split_seed).permutation(n_images)
+    return np.sort(perm[n_test:]), np.sort(perm[:n_test])
+
+
+def vst_mosaic(image: RawImage) -> np.ndarray:
+    """Generalised Anscombe of the image's DN with its own profile, minus its median (float32).
+
+    Noise is ~unit variance per pixel for signals >~ 1 e-; the median subtraction is a constant.
+    """
+    z = anscombe(image.data, image.profile)
+    return (z - np.median(z)).astype(np.float32)
+
+
+def _canonical_offset(ci: np.ndarray, mono: bool) -> tuple[int, int]:
+    """(dy, dx) in {0, 1}^2 where the colour-index map ``ci`` has its R G / G B cell."""
+    if mono:
+        return 0, 0
+    ci = np.tile(ci[:2, :2], (2, 2)) if ci.shape[0] < 3 or ci.shape[1] < 3 else ci
+    for dy in (0, 1):
+        for dx in (0, 1):
+            if ci[dy, dx] == 0 and ci[dy + 1, dx + 1] == 2:
+                return dy, dx
+    raise MetrawError("internal error: no canonical CFA offset found")
+
+
+def dihedral(a: np.ndarray, k: int) -> np.ndarray:
+    """One of the 8 dihedral transforms of the last two axes: k in 0..7 (rot90 k%4, then flip if k>=4)."""
+    a = np.rot90(a, k % 4, axes=(-2, -1))
+    return a[..., :, ::-1] if k >= 4 else a
+
+
+def canonical_pack(z: np.ndarray, mask: np.ndarray | None, pattern: str, k: int = 0
+                   ) -> tuple[np.ndarray, np.ndarray | None]:
+    """Transform (``dihedral`` k), shift to the canonical R G / G B cell and pack.
+
+    Returns planes (S, h, w) float32 and the per-cell car fraction (h, w) float32 (or None).
+    The result covers whole cells only (at most one mosaic row/column is dropped per side).
+    """
+    mono = pattern == "mono"
+    step = cell_size(pattern)
+    ci = dihedral(color_index(pattern, z.shape), k)
+    z = dihedral(z, k)
+    dy, dx = _canonical_offset(ci, mono)
+    h = (z.shape[-2] - dy) // step * step
+    w = (z.shape[-1] - dx) // step * step
+    if h < step or w < step:
+        raise MetrawError(f"image of shape {z.shape} is too small to pack")
+    planes = pack_planes(np.ascontiguousarray(z[dy:dy + h, dx:dx + w]), "mono" if mono else "RGGB")
+    frac = None
+    if mask is not None:
+        m = dihedral(mask, k)[dy:dy + h, dx:dx + w].astype(np.float32)
+        frac = m.reshape(h // step, step, w // step, step).mean(axis=(1, 3))
+    return planes.astype(np.float32, copy=False), frac
+
+
+@dataclass
+class PreparedImage:
+    """Cached preprocessed image: centred VST mosaic (float32), car mask (float16), CFA pattern."""
+
+    z: np.ndarray
+    mask: np.ndarray
+    pattern: str
+    index: int
+
+    @property
+    def packed_shape(self) -> tuple[int, int]:
+        s = cell_size(self.pattern)
+        dy, dx = _canonical_offset(color_index(self.pattern, (2, 2)) if s > 1 else None, s == 1)
+        return (self.z.shape[0] - dy) // s, (self.z.shape[1] - dx) // s
+
+    def full(self) -> tuple[np.ndarray, np.ndarray]:
+        """Whole image, untransformed: planes (S, h, w) and car fraction (h, w)."""
+        return canonical_pack(self.z, self.mask.astype(np.float32), self.pattern, 0)
+
+    def crop(self, crop_px: int, rng: np.random.Generator, augment: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """A random crop of ``crop_px`` packed pixels (or the whole image if smaller), augmented."""
+        s = cell_size(self.pattern)
+        side = crop_px * s + (s - 1)  # one spare row/column for the canonical shift
+        H, W = self.z.shape
+        ch, cw = min(side, H), min(side, W)
+        y0 = int(rng.integers(0, H - ch + 1))
+        x0 = int(rng.integers(0, W - cw + 1))
+        k = int(rng.integers(0, 8)) if augment else 0
+        z = self.z[y0:y0 + ch, x0:x0 + cw]
+        m = self.mask[y0:y0 + ch, x0:x0 + cw]
+        # the colour pattern of the crop is the store pattern shifted by (y0, x0)
+        pattern = _shifted_pattern(self.pattern, y0, x0)
+        planes, frac = canonical_pack(z, m.astype(np.float32), pattern, k)
+        c = min(crop_px, planes.shape[-2], planes.shape[-1])
+        return planes[:, :c, :c], frac[:c, :c]
+
+
+def _shifted_pattern(pattern: str, dy: int, dx: int) -> str:
+    """The CFA pattern seen from pixel (dy, dx) of a mosaic with ``pattern``."""
+    if pattern == "mono":
+        return pattern
+    cell = [[pattern[0], pattern[1]], [pattern[2], pattern[3]]]
+    return "".join(cell[(dy + i) % 2][(dx + j) % 2] for i in (0, 1) for j in (0, 1))
+
+
+def prepare(image: RawImage, index: int = -1) -> PreparedImage:
+    """Preprocess one RawImage for the segmenter (needs a label mask)."""
+    if image.mask is None:
+        raise MetrawError(f"image {index} has no label mask; segmentation needs masks")
+    return PreparedImage(vst_mosaic(image), image.mask.astype(np.float16), image.cfa_pattern, index)
+
+
+def prepare_store(store, indices, progress: bool | None = None) -> list[PreparedImage]:
+    """Preprocess the images ``indices`` of a RawStore (read once, cached in memory)."""
+    disable = None if progress is None else not progress
+    return [prepare(store[int(i)], int(i)) for i in progress_bar(list(indices), desc="load", disable=disable)]
+
+
+def batch_crops(images: list[PreparedImage], crop_px: int, rng: np.random.Generator, augment: bool = True
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Stack one random crop per image; all crops cut to the smallest common packed side."""
+    xs, ys = zip(*(img.crop(crop_px, rng, augment) for img in images))
+    c = min(min(x.shape[-2:]) for x in xs)
+    return (np.stack([x[:, :c, :c] for x in xs]), np.stack([y[:c, :c] for y in ys]))

@@ -1,0 +1,220 @@
+"""Training of the car segmenter on one parameter point (one RawStore).
+
+One architecture, one set of hyperparameters (a ``TrainConfig`` from the ``training:`` section
+of params.yaml) and one fixed split (``split_seed``, by image index) for every parameter point,
+so points differ only by their data. Deterministic on CPU: same seed and data give the same
+weights and the same IoU (seeded torch, deterministic algorithms, fixed thread count, all
+random crops and augmentations drawn from one seeded numpy generator in the main process).
+CUDA is used when present (deterministic algorithms requested, warn-only there).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from metraw.errors import MetrawError
+from metraw.segment.data import PreparedImage, batch_crops, prepare_store, split_indices
+from metraw.sensor import rng_from_seed
+
+CHECKPOINT = "model.pt"
+TRAIN_METRICS = "train.json"
+
+
+@dataclass
+class TrainConfig:
+    """Hyperparameters of the segmenter (same for every parameter point).
+
+    ``crop_px``: side of training crops in packed (CFA-cell) pixels; images smaller than this
+    are used whole. ``min_grid_px``: if > 0, inputs are upsampled bilinearly by the integer
+    factor ceil(min_grid_px / smallest packed side) (0: native resolution).
+    ``crops_per_image``: random crops drawn per training image per epoch.
+    """
+
+    epochs: int = 8
+    learning_rate: float = 2e-3
+    batch_size: int = 8
+    crop_px: int = 128
+    base_channels: int = 16
+    depth: int = 3
+    min_grid_px: int = 0
+    crops_per_image: int = 1
+    weight_decay: float = 1e-4
+    seed: int = 0
+    threads: int = 2
+    split_seed: int = 0
+    test_fraction: float = 0.2
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "TrainConfig":
+        known = {f.name for f in fields(cls)}
+        unknown = set(d) - known
+        if unknown:
+            raise MetrawError(f"unknown training parameter(s): {', '.join(sorted(unknown))}")
+        return cls(**d)
+
+
+def load_config(params_path: str | os.PathLike, profile: str | None = None) -> TrainConfig:
+    """The ``training:`` section of params.yaml for ``profile`` (default: ``training.profile``)."""
+    import yaml
+
+    try:
+        params = yaml.safe_load(Path(params_path).read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise MetrawError(f"cannot read params file {params_path}: {exc}") from None
+    tr = (params or {}).get("training")
+    if not isinstance(tr, dict) or "profiles" not in tr:
+        raise MetrawError(f"{params_path} has no training.profiles section")
+    name = profile or tr.get("profile", "default")
+    if name not in tr["profiles"]:
+        raise MetrawError(f"training profile {name!r} not in {params_path} (have {', '.join(tr['profiles'])})")
+    d = dict(tr["profiles"][name])
+    for key in ("split_seed", "test_fraction"):
+        if key in tr:
+            d.setdefault(key, tr[key])
+    return TrainConfig.from_dict(d)
+
+
+def default_device() -> str:
+    import torch
+
+    return "cuda" if torch.cuda.is_available() else "cpu"
+
+
+def set_determinism(seed: int, threads: int, device: str) -> None:
+    """Seed torch, request deterministic algorithms and fix the CPU thread count."""
+    import torch
+
+    os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
+    torch.manual_seed(seed)
+    torch.use_deterministic_algorithms(True, warn_only=device != "cpu")
+    torch.set_num_threads(threads)
+    if device != "cpu":
+        torch.backends.cudnn.benchmark = False
+
+
+def upsample_factor(images: list[PreparedImage], min_grid_px: int) -> int:
+    """Integer bilinear upsampling factor bringing the smallest packed side to >= min_grid_px."""
+    if min_grid_px <= 0:
+        return 1
+    side = min(min(img.packed_shape) for img in images)
+    return max(1, math.ceil(min_grid_px / side))
+
+
+def segmentation_loss(logits, target):
+    """Binary cross-entropy against the (fractional) car cover plus soft Dice (1 - Dice)."""
+    import torch.nn.functional as F
+
+    bce = F.binary_cross_entropy_with_logits(logits, target)
+    p = logits.sigmoid()
+    inter = (p * target).sum()
+    dice = (2 * inter + 1.0) / (p.sum() + target.sum() + 1.0)
+    return bce + (1.0 - dice)
+
+
+def build_model(in_channels: int, config: TrainConfig, upsample: int):
+    from metraw.segment.model import Segmenter
+
+    return Segmenter(in_channels, config.base_channels, config.depth, upsample)
+
+
+def fit(images: list[PreparedImage], config: TrainConfig, device: str | None = None,
+        progress: bool | None = None, upsample: int | None = None) -> tuple[Any, dict[str, Any]]:
+    """Train a fresh model on prepared images; returns (model, training record)."""
+    import torch
+
+    from metraw.progress import progress_bar
+
+    if not images:
+        raise MetrawError("no training images")
+    device = device or default_device()
+    set_determinism(config.seed, config.threads, device)
+    f = upsample_factor(images, config.min_grid_px) if upsample is None else upsample
+    in_ch = 1 if images[0].pattern == "mono" else 4
+    if any((img.pattern == "mono") != (in_ch == 1) for img in images):
+        raise MetrawError("cannot train on a mix of mono and CFA images")
+    model = build_model(in_ch, config, f).to(device)
+    opt = torch.optim.AdamW(model.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)
+    order_per_epoch = len(images) * config.crops_per_image
+    steps_per_epoch = math.ceil(order_per_epoch / config.batch_size)
+    total = steps_per_epoch * config.epochs
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=config.learning_rate, total_steps=total,
+                                                pct_start=0.15)
+    rng = rng_from_seed(config.seed)
+    losses = []
+    t0 = time.perf_counter()
+    bar = progress_bar(range(config.epochs), desc="train", disable=None if progress is None else not progress)
+    for _epoch in bar:
+        model.train()
+        order = np.concatenate([rng.permutation(len(images)) for _ in range(config.crops_per_image)])
+        run = 0.0
+        for s in range(steps_per_epoch):
+            batch = [images[i] for i in order[s * config.batch_size:(s + 1) * config.batch_size]]
+            x, y = batch_crops(batch, config.crop_px, rng, augment=True)
+            x = torch.from_numpy(x).to(device)
+            y = torch.from_numpy(y)[:, None].to(device)
+            loss = segmentation_loss(model(x), y)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            sched.step()
+            run += float(loss.detach())
+        losses.append(run / steps_per_epoch)
+        if hasattr(bar, "set_postfix"):
+            bar.set_postfix(loss=f"{losses[-1]:.4f}")
+    record = {"epochs": config.epochs, "steps": total, "loss_per_epoch": losses,
+              "training_time_s": time.perf_counter() - t0, "device": device, "upsample": f,
+              "in_channels": in_ch, "n_train": len(images)}
+    return model, record
+
+
+def train_store(store_path: str | os.PathLike, out_dir: str | os.PathLike, config: TrainConfig,
+                device: str | None = None, progress: bool | None = None, overwrite: bool = False
+                ) -> dict[str, Any]:
+    """Train on the training split of a store; write ``model.pt`` and ``train.json`` into ``out_dir``."""
+    import torch
+
+    from metraw.atomic import atomic_path
+    from metraw.store import RawStore
+
+    store = RawStore.open(store_path)
+    train_idx, test_idx = split_indices(len(store), config.test_fraction, config.split_seed)
+    t0 = time.perf_counter()
+    images = prepare_store(store, train_idx, progress)
+    prep_s = time.perf_counter() - t0
+    model, record = fit(images, config, device, progress)
+    record.update({"store": str(store_path), "n_images": len(store), "train_indices": train_idx.tolist(),
+                   "test_indices": test_idx.tolist(), "preprocess_time_s": prep_s, "config": asdict(config)})
+    with atomic_path(out_dir, overwrite=overwrite) as tmp:
+        tmp.mkdir(parents=True)
+        torch.save({"state_dict": {k: v.cpu() for k, v in model.state_dict().items()},
+                    "config": asdict(config), "upsample": record["upsample"],
+                    "in_channels": record["in_channels"], "test_indices": test_idx.tolist()},
+                   tmp / CHECKPOINT)
+        (tmp / TRAIN_METRICS).write_text(json.dumps(record, indent=2))
+    return record
+
+
+def load_model(model_dir: str | os.PathLike, device: str | None = None):
+    """(model, checkpoint dict, training record) from a directory written by ``train_store``."""
+    import torch
+
+    model_dir = Path(model_dir)
+    ckpt_path = model_dir / CHECKPOINT
+    if not ckpt_path.is_file():
+        raise MetrawError(f"{model_dir} holds no {CHECKPOINT} (train a model with `metraw train` first)")
+    ckpt = torch.load(ckpt_path, map_location="cpu", weights_only=True)
+    config = TrainConfig.from_dict(ckpt["config"])
+    model = build_model(ckpt["in_channels"], config, ckpt["upsample"])
+    model.load_state_dict(ckpt["state_dict"])
+    model.to(device or default_device())
+    record_path = model_dir / TRAIN_METRICS
+    record = json.loads(record_path.read_text()) if record_path.is_file() else {}
+    return model, ckpt, record

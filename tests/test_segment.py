@@ -1,0 +1,169 @@
+"""Tests of metraw.segment: VST input statistics, CFA-respecting packing, IoU, training, CLI."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from metraw.cfa import pack_planes
+from metraw.errors import MetrawError
+from metraw.image import RawImage
+from metraw.segment.data import canonical_pack, prepare, split_indices, vst_mosaic
+from metraw.segment.evaluate import confusion, iou, scores, summarise
+from metraw.segment.toy import toy_profile, toy_scene, toy_store
+from metraw.sensor import expose, rng_from_seed
+
+
+# ----------------------------------------------------------------- input representation
+@pytest.mark.parametrize("mean_e", [30.0, 2000.0])
+def test_vst_input_has_unit_noise_variance_on_flat_image(mean_e):
+    profile = toy_profile()
+    img = RawImage(expose(np.full((512, 512), mean_e), profile, rng_from_seed(3)), profile,
+                   mask=np.zeros((512, 512), np.float32))
+    planes, _ = prepare(img).full()
+    x = planes.ravel().astype(np.float64)
+    n = x.size
+    var = x.var(ddof=1)
+    se = math.sqrt(2.0 / (n - 1))  # standard error of a Gaussian sample variance at unit variance
+    # Anscombe's residual bias at >= 30 e- is < 0.3 %; allow 5 standard errors on top.
+    assert abs(var - 1.0) < 5 * se + 0.003, (var, se)
+    assert abs(np.median(x)) < 0.05  # centred
+
+
+def test_canonical_pack_restores_rggb_for_every_pattern_and_transform():
+    # A mosaic whose value encodes its colour: R=0, G=1, B=2 -> packed planes must read R, G, G, B.
+    from metraw.cfa import color_index
+
+    for pattern in ("RGGB", "BGGR", "GRBG", "GBRG"):
+        ci = color_index(pattern, (10, 14)).astype(np.float32)
+        for k in range(8):
+            planes, frac = canonical_pack(ci, np.ones_like(ci), pattern, k)
+            assert planes.shape[0] == 4
+            for site, colour in enumerate((0, 1, 1, 2)):
+                assert np.all(planes[site] == colour), (pattern, k, site)
+            assert np.all(frac == 1.0)
+
+
+def test_mask_fraction_is_mean_over_cell():
+    z = np.zeros((4, 4), np.float32)
+    mask = np.array([[1, 1, 0, 0], [1, 0, 0, 0], [0, 0, 1, 1], [0, 0, 1, 1]], np.float32)
+    _, frac = canonical_pack(z, mask, "RGGB", 0)
+    np.testing.assert_array_equal(frac, [[0.75, 0.0], [0.0, 1.0]])
+    np.testing.assert_array_equal(pack_planes(z, "RGGB").shape, (4, 2, 2))
+
+
+def test_split_is_fixed_and_disjoint():
+    tr, te = split_indices(50, 0.2, 7)
+    tr2, te2 = split_indices(50, 0.2, 7)
+    assert np.array_equal(tr, tr2) and np.array_equal(te, te2)
+    assert len(te) == 10 and len(set(tr) | set(te)) == 50 and not set(tr) & set(te)
+    assert not np.array_equal(split_indices(50, 0.2, 8)[1], te)
+    with pytest.raises(MetrawError):
+        split_indices(1, 0.2, 0)
+
+
+# ----------------------------------------------------------------- metrics
+def test_iou_on_hand_made_masks():
+    target = np.zeros((4, 4), bool)
+    target[0:2, 0:2] = True          # 4 cells
+    pred = np.zeros((4, 4), bool)
+    pred[1:3, 1:3] = True            # 4 cells, overlap 1
+    assert confusion(pred, target) == (1, 3, 3)
+    assert iou(pred, target) == pytest.approx(1 / 7)
+    s = scores(1, 3, 3)
+    assert s["precision"] == pytest.approx(0.25) and s["recall"] == pytest.approx(0.25)
+    assert iou(target, target) == 1.0
+    assert iou(np.zeros((3, 3), bool), np.zeros((3, 3), bool)) is None
+    assert iou(np.ones((3, 3), bool), np.zeros((3, 3), bool)) == 0.0
+    # pooled IoU sums counts; the mean per-image IoU skips undefined images
+    recs = [{"tp": 1, "fp": 3, "fn": 3, "iou": 1 / 7}, {"tp": 4, "fp": 0, "fn": 0, "iou": 1.0},
+            {"tp": 0, "fp": 0, "fn": 0, "iou": None}]
+    out = summarise(recs)
+    assert out["iou"] == pytest.approx(5 / 11)
+    assert out["mean_image_iou"] == pytest.approx((1 / 7 + 1) / 2)
+
+
+# ----------------------------------------------------------------- training
+@pytest.fixture(scope="module")
+def tiny_store(tmp_path_factory):
+    path = tmp_path_factory.mktemp("seg") / "toy.zarr"
+    toy_store(path, 12, 96, seed=2)
+    return path
+
+
+def _cfg(**kw):
+    from metraw.segment.train import TrainConfig
+
+    base = dict(epochs=2, learning_rate=3e-3, batch_size=4, crop_px=32, base_channels=8, depth=2, seed=0,
+                test_fraction=0.25)
+    base.update(kw)
+    return TrainConfig(**base)
+
+
+def test_training_is_deterministic_and_evaluates(tiny_store, tmp_path):
+    from metraw.segment.evaluate import evaluate_store
+    from metraw.segment.train import train_store
+
+    out = []
+    for run in ("a", "b"):
+        rec = train_store(tiny_store, tmp_path / run, _cfg(), device="cpu", progress=False)
+        assert rec["training_time_s"] < 20
+        out.append(evaluate_store(tiny_store, tmp_path / run, device="cpu", progress=False))
+    assert out[0]["iou"] == out[1]["iou"] and out[0]["per_image"] == out[1]["per_image"]
+    assert out[0]["n_images"] == 3 and len(out[0]["per_image"]) == 3
+    assert 0.0 <= out[0]["iou"] <= 1.0
+    rec_c = train_store(tiny_store, tmp_path / "c", _cfg(seed=1), device="cpu", progress=False)
+    first = json.loads((tmp_path / "a" / "train.json").read_text())
+    assert rec_c["loss_per_epoch"] != first["loss_per_epoch"]  # the seed matters
+
+
+def test_training_reduces_loss_and_upsampling_keeps_native_grid(tiny_store):
+    import torch
+
+    from metraw.segment.data import prepare_store
+    from metraw.segment.train import fit
+
+    images = prepare_store(__import__("metraw.store", fromlist=["RawStore"]).RawStore.open(tiny_store), range(8),
+                           progress=False)
+    model, rec = fit(images, _cfg(epochs=4, min_grid_px=96), device="cpu", progress=False)
+    assert rec["upsample"] == 2  # 48 packed px -> factor 2 to reach 96
+    assert rec["loss_per_epoch"][-1] < rec["loss_per_epoch"][0]
+    planes, frac = images[0].full()
+    with torch.no_grad():
+        y = model(torch.from_numpy(planes)[None])
+    assert tuple(y.shape[-2:]) == frac.shape
+
+
+def test_cli_train_evaluate_and_errors(tiny_store, tmp_path, capsys):
+    import yaml
+
+    from metraw.cli import main
+
+    params = tmp_path / "params.yaml"
+    params.write_text(yaml.safe_dump({"training": {"profile": "tiny", "split_seed": 0, "test_fraction": 0.25,
+                                                   "profiles": {"tiny": dict(epochs=1, batch_size=4, crop_px=32,
+                                                                             base_channels=8, depth=2)}}}))
+    assert main(["train", str(tiny_store), "--out", str(tmp_path / "m"), "--params", str(params)]) == 0
+    assert main(["evaluate", str(tiny_store), "--model", str(tmp_path / "m"), "--out", str(tmp_path / "e.json")]) == 0
+    metrics = json.loads((tmp_path / "e.json").read_text())
+    for key in ("iou", "per_image", "precision", "recall", "training_time_s", "epochs"):
+        assert key in metrics
+    assert metrics["epochs"] == 1
+    capsys.readouterr()
+    assert main(["train", str(tiny_store), "--out", str(tmp_path / "m2"), "--params", str(params),
+                 "--profile", "nope"]) == 2
+    assert "training profile 'nope'" in capsys.readouterr().err
+    assert not (tmp_path / "m2").exists()
+    assert main(["evaluate", str(tiny_store), "--model", str(tmp_path / "none"), "--out", str(tmp_path / "x.json")]) == 2
+    assert not (tmp_path / "x.json").exists()
+
+
+def test_image_without_mask_is_rejected():
+    img = toy_scene(32, 0)
+    img.mask = None
+    with pytest.raises(MetrawError):
+        prepare(img)
+    assert vst_mosaic(img).dtype == np.float32
