@@ -1,0 +1,150 @@
+"""Reading raw images into ``RawImage`` and writing them losslessly.
+
+``read_raw(path, **metadata)`` recognises the file by its content (and suffix where content
+cannot tell):
+
+- camera raws (DNG, CR2, NEF, ...) through rawpy/LibRaw            -> ``metraw.io.camera``
+- raw TIFF (MicaSense x16 data, BlackLevel tag), GeoTIFF pan, metraw TIFF -> ``metraw.io.tiff``
+- headerless ``.raw`` / ``.bin`` with explicit metadata              -> ``metraw.io.headerless``
+- processed 8-bit RGB (PNG, JPEG) + labels -> approximate raw      -> ``metraw.io.processed``
+
+Every failure caused by the file (corrupt, truncated, unsupported, NaN, wrong dtype, missing
+metadata, malformed labels) is a ``MetrawError`` with one line naming the file.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+from metraw.errors import MetrawError
+from metraw.image import RawImage
+from metraw.io._unknown import noise_model_known, unknown_fields
+from metraw.io.camera import RAW_SUFFIXES, read_camera_raw
+from metraw.io.headerless import HEADERLESS_SUFFIXES, read_headerless
+from metraw.io.labels import is_label_file
+from metraw.io.processed import PROCESSED_SUFFIXES, approximate_raw, read_processed, srgb_to_linear
+from metraw.io.tiff import is_tiff, read_tiff, tiff_kind, write_tiff
+from metraw.profile import CalibrationProfile
+
+__all__ = ["read_raw", "write_tiff", "default_camera", "approximate_raw", "srgb_to_linear", "image_files",
+           "noise_model_known", "unknown_fields", "SUPPORTED_SUFFIXES"]
+
+SUPPORTED_SUFFIXES = RAW_SUFFIXES | HEADERLESS_SUFFIXES | PROCESSED_SUFFIXES | {".tif", ".tiff"}
+
+#: Profile fields a stated camera may fill in when a raw file does not give them.
+_FILLABLE = ("gain_dn_per_e", "read_noise_e", "dark_current_e_per_s", "full_well_e", "qe_per_channel",
+             "pixel_pitch_m", "focal_length_m", "aperture_diameter_m", "obscuration_ratio", "altitude_m",
+             "exposure_s", "ground_speed_m_per_s", "optical_transmission")
+
+
+def read_raw(path: str | os.PathLike, *, camera: CalibrationProfile | None = None, labels: str = "auto",
+             seed: int = 0, white_fraction: float = 1.0, gsd_m: float | None = None, **metadata: Any) -> RawImage:
+    """Read one image file as a ``RawImage`` (see the module docstring for formats).
+
+    ``camera``: for processed images, the camera whose photoelectrons and sensor model the
+    approximate raw gets (default: ``default_camera()``, the source camera of params.yaml); for
+    real raws, it fills gain / read noise / geometry the file does not state (``uncertainty``
+    then comes from the camera profile). ``labels``: "auto", "yolo", "mask" or "none" (processed
+    images). ``seed``: makes the approximate raw's noise reproducible. ``gsd_m``: ground sample
+    distance of a processed photo [m]. ``metadata``: headerless raw fields (width, height, ...).
+    """
+    path = Path(path)
+    if not path.exists():
+        raise MetrawError(f"{path}: no such file")
+    if path.is_dir():
+        raise MetrawError(f"{path}: is a directory, not an image file")
+    suffix = path.suffix.lower()
+    if suffix in HEADERLESS_SUFFIXES:
+        return _with_camera(read_headerless(path, **metadata), camera)
+    if metadata:
+        raise MetrawError(f"{path}: metadata {sorted(metadata)} is only used for headerless .raw files")
+    if path.stat().st_size == 0:
+        raise MetrawError(f"{path}: empty file")
+    with open(path, "rb") as fh:
+        head = fh.read(16)
+    if is_tiff(head):
+        kind = "cfa" if suffix in RAW_SUFFIXES else tiff_kind(path)
+        if kind == "cfa":
+            return _with_camera(read_camera_raw(path), camera)
+        if kind != "rgb8":
+            return _with_camera(read_tiff(path), camera)
+    elif not (head[:8] == b"\x89PNG\r\n\x1a\n" or head[:3] == b"\xff\xd8\xff"):
+        if suffix in PROCESSED_SUFFIXES | {".tif", ".tiff"}:
+            raise MetrawError(f"{path}: corrupt file (content does not match its {suffix} suffix)")
+        return _with_camera(read_camera_raw(path), camera)  # LibRaw sniffs; refuses unknown formats
+    return read_processed(path, camera if camera is not None else default_camera(), labels=labels, seed=seed,
+                          white_fraction=white_fraction, gsd_m=gsd_m)
+
+
+def image_files(inputs: list[str | os.PathLike]) -> list[Path]:
+    """Expand files and directories (non-recursive) into the image files to ingest, sorted per directory."""
+    out: list[Path] = []
+    for item in inputs:
+        p = Path(item)
+        if p.is_dir():
+            found = sorted(f for f in p.iterdir() if f.is_file() and f.suffix.lower() in SUPPORTED_SUFFIXES
+                           and not is_label_file(f) and not f.name.startswith("."))
+            if not found:
+                raise MetrawError(f"{p}: directory holds no supported image files")
+            out.extend(found)
+        elif p.exists():
+            out.append(p)
+        else:
+            raise MetrawError(f"{p}: no such file or directory")
+    return out
+
+
+def default_camera(params_path: str | os.PathLike | None = None) -> CalibrationProfile:
+    """The source camera of params.yaml (``source.camera``), from ``params_path``, the working
+    directory or the repository this package is installed from."""
+    import yaml
+
+    candidates = [Path(params_path)] if params_path else [Path.cwd() / "params.yaml",
+                                                           Path(__file__).resolve().parents[3] / "params.yaml"]
+    for candidate in candidates:
+        if candidate.is_file():
+            try:
+                params = yaml.safe_load(candidate.read_text())
+                cam = dict(params["source"]["camera"])
+            except (yaml.YAMLError, KeyError, TypeError) as exc:
+                raise MetrawError(f"{candidate}: no readable source.camera ({exc})") from None
+            return CalibrationProfile.from_dict({"schema_version": 1, **cam})
+    raise MetrawError("no camera profile given (--camera) and no params.yaml with source.camera found")
+
+
+def load_camera(path: str | os.PathLike) -> CalibrationProfile:
+    """A camera profile from a JSON file (``CalibrationProfile.to_json``) or a params.yaml."""
+    p = Path(path)
+    if not p.is_file():
+        raise MetrawError(f"{p}: camera profile not found")
+    if p.suffix.lower() in (".yaml", ".yml"):
+        return default_camera(p)
+    return CalibrationProfile.from_json(p.read_text())
+
+
+def _with_camera(image: RawImage, camera: CalibrationProfile | None) -> RawImage:
+    """Fill what the file does not state (unknown noise terms, missing geometry) from ``camera``."""
+    if camera is None:
+        return image
+    prof = image.profile
+    unknown = set(unknown_fields(prof))
+    changes: dict[str, Any] = {}
+    uncertainty = dict(prof.uncertainty)
+    for name in _FILLABLE:
+        current = getattr(prof, name)
+        if name in unknown or current is None:
+            changes[name] = getattr(camera, name)
+            uncertainty.pop(name, None)
+            if name in camera.uncertainty:
+                uncertainty[name] = camera.uncertainty[name]
+    if "qe_per_channel" in changes and set(camera.qe_per_channel) != set(prof.channels):
+        changes.pop("qe_per_channel")
+    if not changes:
+        return image
+    meta = dict(image.meta)
+    meta["filled_from_camera"] = {"camera": camera.camera, "fields": sorted(changes)}
+    meta["unknown"] = {k: v for k, v in meta.get("unknown", {}).items() if k not in changes}
+    return RawImage(data=image.data, profile=prof.replace(uncertainty=uncertainty, **changes), mask=image.mask,
+                    flags=image.flags, provenance=image.provenance, meta=meta)

@@ -1,0 +1,93 @@
+"""Camera raw files (DNG, CR2, NEF, ARW, ...) through rawpy / LibRaw.
+
+Reads the visible (active) area of the sensor as it was digitised: no demosaicing, no scaling.
+Black level per channel: a scalar when the channels agree, else their mean with the spread noted
+in ``meta`` and in the profile's black-level uncertainty. White level and CFA pattern come from
+LibRaw (``white_level``, ``raw_colors_visible`` + ``color_desc``). The ADC bit depth is the
+smallest that holds the white level. Gain and read noise are not in these files: they are marked
+unknown (see ``metraw.io._unknown``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from metraw.cfa import BAYER_PATTERNS
+from metraw.errors import MetrawError
+from metraw.image import RawImage
+from metraw.io._dn import as_dn, bits_needed
+from metraw.io._unknown import UNKNOWN_GAIN_DN_PER_E, UNKNOWN_READ_NOISE_E, unknown_uncertainty
+from metraw.profile import CalibrationProfile
+
+#: File suffixes handed to LibRaw without sniffing.
+RAW_SUFFIXES = {".dng", ".cr2", ".cr3", ".crw", ".nef", ".nrw", ".arw", ".srf", ".sr2", ".orf", ".rw2",
+                ".raf", ".pef", ".srw", ".x3f", ".3fr", ".fff", ".iiq", ".erf", ".kdc", ".mef", ".mos",
+                ".mrw", ".rwl", ".dcr"}
+
+
+def read_camera_raw(path: Path) -> RawImage:
+    import rawpy
+
+    try:
+        with rawpy.imread(str(path)) as raw:
+            data = np.array(raw.raw_image_visible, copy=True)
+            colors = np.array(raw.raw_colors_visible[:2, :2])
+            desc = raw.color_desc.decode("ascii", "replace")
+            blacks = [float(b) for b in raw.black_level_per_channel]
+            white = float(raw.white_level)
+            sizes = raw.sizes
+            raw_type = str(raw.raw_type)
+            n_colors = int(raw.num_colors)
+    except rawpy.LibRawFileUnsupportedError:
+        raise MetrawError(f"{path}: unsupported format (LibRaw does not recognise it as a camera raw)") from None
+    except (rawpy.LibRawError, OSError) as exc:
+        raise MetrawError(f"{path}: corrupt or truncated camera raw ({exc})") from None
+    if "Stack" in raw_type or data.ndim != 2:
+        raise MetrawError(f"{path}: raw type {raw_type} (linear/demosaiced DNG) is not a single-sensor mosaic")
+    pattern = _pattern(colors, desc, n_colors, path)
+    data = as_dn(data, str(path))
+    meta: dict[str, Any] = {"source_file": str(path), "format": "camera raw (rawpy/LibRaw)",
+                            "raw_area": {"top_margin": int(sizes.top_margin), "left_margin": int(sizes.left_margin),
+                                         "raw_height": int(sizes.raw_height), "raw_width": int(sizes.raw_width)},
+                            "unknown": {"gain_dn_per_e": "not stated in the file", "read_noise_e": "not stated in the file"}}
+    uncertainty = unknown_uncertainty("gain_dn_per_e", "read_noise_e")
+    black = blacks[0]
+    if len(set(blacks)) > 1:
+        black = float(np.mean(blacks))
+        meta["black_level_per_channel_dn"] = blacks
+        meta["note"] = "black level differs per channel; profile holds their mean, spread in uncertainty"
+        uncertainty["black_level_dn"] = float(np.std(blacks))
+    camera = _camera_name(path)
+    profile = CalibrationProfile(
+        gain_dn_per_e=UNKNOWN_GAIN_DN_PER_E, black_level_dn=black, read_noise_e=UNKNOWN_READ_NOISE_E,
+        white_level_dn=white, adc_bits=bits_needed(white), cfa_pattern=pattern, camera=camera,
+        uncertainty=uncertainty)
+    return RawImage(data=data, profile=profile, provenance=[{"function": "io.read_camera_raw",
+                    "params": {"path": str(path), "crop": "visible area"}}], meta=meta)
+
+
+def _pattern(colors: np.ndarray, desc: str, n_colors: int, path: Path) -> str:
+    if colors.shape != (2, 2) or max(colors.ravel()) >= len(desc):
+        raise MetrawError(f"{path}: CFA layout {colors.tolist()} / {desc!r} is not a 2x2 Bayer pattern")
+    letters = "".join(desc[i] for i in colors.ravel())
+    if letters not in BAYER_PATTERNS:
+        raise MetrawError(f"{path}: CFA pattern {letters!r} ({desc!r}) is not supported (need one of "
+                          f"{', '.join(BAYER_PATTERNS)})")
+    return letters
+
+
+def _camera_name(path: Path) -> str:
+    try:
+        import tifffile
+
+        with tifffile.TiffFile(str(path)) as tif:
+            tags = tif.pages[0].tags
+            make = str(tags["Make"].value).strip() if "Make" in tags else ""
+            model = str(tags["Model"].value).strip() if "Model" in tags else ""
+            name = model if model.lower().startswith(make.lower()) else f"{make} {model}".strip()
+            return name or "unknown"
+    except Exception:  # non-TIFF camera raws: the name is descriptive only
+        return "unknown"

@@ -1,0 +1,152 @@
+"""Processed 8-bit RGB images (PNG, JPEG, RGB TIFF) -> *approximate* raw images.
+
+A processed photo has been demosaiced, white-balanced, tone-mapped and (often) compressed; its
+noise is no longer the sensor's. It can still feed the raw workflow as an approximation:
+
+1. invert the sRGB transfer curve (IEC 61966-2-1) -> linear relative intensity in [0, 1];
+2. remosaic: keep, at each pixel, the colour the stated CFA has there;
+3. scale to the photoelectrons of a stated camera: linear 1.0 of channel c ->
+   ``white_fraction * saturation_e * qe_c / max(qe)`` (white balance undone by the camera's QE);
+4. apply the camera's sensor model (``metraw.sensor.expose``: Poisson shot noise, dark current,
+   read noise, gain, black level, ADC) with a seeded generator.
+
+The result is a valid raw image with a noise model for the *added* noise; the photo's own
+(processed, correlated) noise and its tone mapping remain, hence ``approximate=True``.
+"""
+
+from __future__ import annotations
+
+import zlib
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from metraw.cfa import color_index
+from metraw.errors import MetrawError
+from metraw.image import RawImage
+from metraw.profile import CalibrationProfile
+from metraw.sensor import expose
+
+PROCESSED_SUFFIXES = {".png", ".jpg", ".jpeg"}
+
+APPROXIMATE_REASON = ("made from a processed 8-bit RGB image: sRGB curve inverted, remosaicked and re-exposed "
+                      "with the stated camera model; the photo's own demosaicing, tone mapping, compression "
+                      "and noise are not undone")
+
+
+def decode_image(path: Path) -> np.ndarray:
+    """Decode PNG / JPEG / TIFF to an array (H, W[, C]); one clear error when the file is damaged."""
+    import imagecodecs
+
+    head = path.read_bytes()
+    try:
+        if head[:8] == b"\x89PNG\r\n\x1a\n":
+            return imagecodecs.png_decode(head)
+        if head[:3] == b"\xff\xd8\xff":
+            return imagecodecs.jpeg8_decode(head)
+        if head[:4] in (b"II*\x00", b"MM\x00*"):
+            return imagecodecs.tiff_decode(head)
+    except Exception as exc:  # imagecodecs raises codec-specific errors
+        raise MetrawError(f"{path}: corrupt or truncated image ({exc})") from None
+    raise MetrawError(f"{path}: unsupported image format (expected PNG, JPEG or TIFF)")
+
+
+def srgb_to_linear(values: np.ndarray) -> np.ndarray:
+    """Inverse sRGB transfer function (IEC 61966-2-1) on values in [0, 1] -> linear [0, 1]."""
+    v = np.asarray(values, dtype=np.float64)
+    return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
+
+
+def seed_for(path: Path, seed: int) -> np.random.Generator:
+    """A generator that depends on ``seed`` and the file *name* (not the order of ingestion)."""
+    ss = np.random.SeedSequence([int(seed), zlib.crc32(path.name.encode("utf-8"))])
+    return np.random.Generator(np.random.PCG64(ss))
+
+
+def approximate_raw(rgb8: np.ndarray, camera: CalibrationProfile, rng: np.random.Generator, *,
+                    white_fraction: float = 1.0, gsd_m: float | None = None, source: str = "") -> RawImage:
+    """Approximate raw image from an 8-bit sRGB array (H, W, 3) using ``camera``'s sensor model.
+
+    ``white_fraction``: fraction of the camera's saturation (photoelectrons) that sRGB white maps to
+    for the channel with the highest QE. ``gsd_m``: ground sample distance of the photo [m]; the
+    profile's altitude is set so that ``profile.gsd_m == gsd_m`` (unknown geometry when None).
+    """
+    a = np.asarray(rgb8)
+    if a.dtype != np.uint8:
+        raise MetrawError(f"{source}: processed image must be 8-bit, got {a.dtype}")
+    if a.ndim == 3 and a.shape[-1] == 4:
+        a = a[..., :3]
+    if a.ndim != 3 or a.shape[-1] != 3:
+        raise MetrawError(f"{source}: processed image must be RGB (H, W, 3), got shape {a.shape}")
+    if not 0 < white_fraction <= 1:
+        raise MetrawError(f"white_fraction must be in (0, 1], got {white_fraction}")
+    pattern = camera.cfa_pattern
+    channels = ["R", "G", "B"]
+    if pattern == "mono":
+        raise MetrawError("approximate raw needs a colour camera (CFA pattern), got mono")
+    h, w = a.shape[:2]
+    idx = color_index(pattern, (h, w))  # index into ("R", "G", "B")
+    mosaic8 = np.take_along_axis(a, idx[..., None].astype(np.intp), axis=2)[..., 0]
+    lut = srgb_to_linear(np.arange(256) / 255.0)
+    qe = np.array([camera.qe_per_channel[c] for c in channels])
+    scale_e = white_fraction * camera.saturation_e * qe / qe.max()
+    mean_e = lut[mosaic8] * scale_e[idx]
+    data = expose(mean_e, camera, rng)
+    changes: dict[str, Any] = {"approximate": True, "approximate_reason": APPROXIMATE_REASON}
+    if gsd_m is not None:
+        if not (gsd_m > 0 and camera.pixel_pitch_m and camera.focal_length_m):
+            raise MetrawError("gsd_m needs a positive value and a camera with pixel_pitch_m and focal_length_m")
+        changes["altitude_m"] = gsd_m * camera.focal_length_m / camera.pixel_pitch_m
+    else:
+        changes["altitude_m"] = None
+    profile = camera.replace(**changes)
+    params = {"source": source, "transfer": "sRGB (IEC 61966-2-1) inverted", "cfa_pattern": pattern,
+              "white_fraction": white_fraction, "electrons_at_white": dict(zip(channels, scale_e.tolist())),
+              "camera": camera.camera, "gsd_m": gsd_m}
+    return RawImage(data=data, profile=profile, provenance=[{"function": "io.approximate_raw", "params": params}],
+                    meta={"source_file": source, "format": "processed 8-bit RGB -> approximate raw",
+                          "gsd_m": gsd_m})
+
+
+def read_processed(path: Path, camera: CalibrationProfile, *, labels: str = "auto", seed: int = 0,
+                   white_fraction: float = 1.0, gsd_m: float | None = None,
+                   class_names: list[str] | None = None) -> RawImage:
+    """Read a processed RGB image (+ labels) as an approximate raw (see module docstring)."""
+    from metraw.io import labels as lab
+
+    rgb = decode_image(path)
+    image = approximate_raw(rgb, camera, seed_for(path, seed), white_fraction=white_fraction, gsd_m=gsd_m,
+                            source=str(path))
+    image.provenance[0]["params"]["seed"] = int(seed)
+    shape = image.shape
+    yolo = path.with_suffix(".txt")
+    mask_path = lab.mask_file_for(path)
+    kind, mask = labels, None
+    if labels == "auto":
+        kind = "yolo" if yolo.is_file() else "mask" if mask_path else "none"
+    if kind == "yolo":
+        if not yolo.is_file():
+            raise MetrawError(f"{path}: no YOLO label file {yolo.name}")
+        names = class_names if class_names is not None else lab.find_class_names(path.parent)
+        if names is None:
+            raise MetrawError(f"{path}: YOLO labels need class names (a *.names or classes.txt file next to it)")
+        boxes = lab.read_yolo(yolo)
+        bad = sorted({int(c) for c in boxes[:, 0] if int(c) >= len(names)})
+        if bad:
+            raise MetrawError(f"{yolo}: class ids {bad} not in the {len(names)} class names")
+        cars = lab.car_class_ids(names)
+        is_car = np.isin(boxes[:, 0].astype(int), sorted(cars))
+        mask = lab.box_area_fraction(lab.boxes_to_pixels(boxes[is_car], shape), shape)
+        counts = {names[c]: int(np.sum(boxes[:, 0] == c)) for c in range(len(names))}
+        image.meta.update({"labels": "yolo", "label_file": str(yolo), "mask_kind": "box-approximate: union of "
+                           "axis-aligned YOLO boxes, area fraction per pixel", "boxes_per_class": counts,
+                           "car_classes": [names[c] for c in sorted(cars)], "car_boxes": int(is_car.sum())})
+    elif kind == "mask":
+        if mask_path is None:
+            raise MetrawError(f"{path}: no mask image {path.stem}{lab.MASK_SUFFIXES[0]}")
+        mask = lab.read_mask_image(mask_path, shape)
+        image.meta.update({"labels": "mask", "label_file": str(mask_path), "mask_kind": "mask image"})
+    elif kind != "none":
+        raise MetrawError(f"unknown label kind {labels!r} (use yolo, mask, none or auto)")
+    return RawImage(data=image.data, profile=image.profile, mask=mask, provenance=image.provenance, meta=image.meta)
