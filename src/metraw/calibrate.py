@@ -502,8 +502,8 @@ def _fit_channel(mu: np.ndarray, v: np.ndarray, black: float, n_per_block: int, 
     span = (float(x.min()), float(x.max()))
     if not (a > 0 and ua < MAX_RELATIVE_GAIN_UNCERTAINTY * a):
         raise MetrawError(f"channel {channel}: the frame does not constrain the gain (K = {a:.3g} +- {ua:.2g} DN/e-, "
-                          f"signal range {span[0]:.1f}..{span[1]:.1f} DN above black); it needs smooth regions over a "
-                          f"wider range of brightness, or use a flat/dark series")
+                          f"signal range {span[0]:.1f}..{span[1]:.1f} DN above black): too flat or too textured; it needs smooth "
+                          f"regions over a wide range of brightness, or use a flat/dark series")
     rn, rn_u = _read_noise(b, ub, a, ua)
     if b - 1.0 / 12.0 <= 0:
         notes.append(f"channel {channel}: read noise not resolved above quantisation")
