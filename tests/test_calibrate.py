@@ -189,3 +189,57 @@ def test_real_canon_dng_channels_agree():
     # One ADC: the colour channels must agree within their uncertainties; K is physical (0.1..5 DN/e-).
     assert max(gains) - min(gains) <= KSIG * np.hypot(max(us), max(us))
     assert 0.1 < res.profile.gain_dn_per_e < 5 and 1 < res.profile.read_noise_e < 30
+
+
+# ------------------------------------------------------------------------------ CLI
+def _tiff(tmp_path: Path, name: str, data: np.ndarray) -> Path:
+    write_tiff = pytest.importorskip("metraw.io").write_tiff
+    path = tmp_path / name
+    write_tiff(path, RawImage(data, PROFILE.replace(gain_dn_per_e=1.0, read_noise_e=0.0)))
+    return path
+
+
+def test_cli_single_image_writes_profile(tmp_path, scene_image, capsys):
+    from metraw.cli import main
+
+    src = _tiff(tmp_path, "scene.tif", scene_image)
+    out = tmp_path / "profile.json"
+    assert main(["calibrate", str(src), "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "single-frame" in text and "+-" in text
+    prof = CalibrationProfile.from_json(out.read_text())
+    assert abs(prof.gain_dn_per_e - K_TRUE) <= KSIG * prof.uncertainty["gain_dn_per_e"]
+
+
+def test_cli_series(tmp_path, capsys):
+    from metraw.cli import main
+
+    flats, darks = flat_series(PROFILE, (64, 96), [1000, 5000, 10000, 20000], seed=3)
+    flat_paths = [str(_tiff(tmp_path, f"f{i}{j}.tif", f)) for i, lv in enumerate(flats) for j, f in enumerate(lv)]
+    dark_paths = [str(_tiff(tmp_path, f"d{j}.tif", d)) for j, d in enumerate(darks)]
+    out = tmp_path / "p.json"
+    assert main(["calibrate", "--flats", *flat_paths, "--darks", *dark_paths, "--out", str(out)]) == 0
+    assert "photon transfer" in capsys.readouterr().out
+    prof = CalibrationProfile.from_json(out.read_text())
+    assert abs(prof.gain_dn_per_e - K_TRUE) <= KSIG * prof.uncertainty["gain_dn_per_e"]
+
+
+@pytest.mark.parametrize("case", ["not_an_image", "flat_frame", "odd_flats"])
+def test_cli_bad_input_leaves_nothing(tmp_path, capsys, case):
+    from metraw.cli import main
+
+    out = tmp_path / "profile.json"
+    if case == "not_an_image":
+        src = tmp_path / "junk.tif"
+        src.write_bytes(b"this is not an image\n")
+        argv = ["calibrate", str(src)]
+    elif case == "flat_frame":
+        src = _tiff(tmp_path, "flat.tif", expose(np.full((256, 256), 5000.0), PROFILE, rng_from_seed(7)))
+        argv = ["calibrate", str(src)]
+    else:
+        src = _tiff(tmp_path, "a.tif", np.full((32, 32), 3000, np.uint16))
+        argv = ["calibrate", "--flats", str(src), str(src), str(src), "--darks", str(src), str(src)]
+    assert main(argv + ["--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("metraw calibrate: error:")
+    assert not out.exists() and not any(p.name.endswith(".partial") for p in tmp_path.iterdir())

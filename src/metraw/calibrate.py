@@ -234,7 +234,7 @@ def _build_profile(base: CalibrationProfile | None, rad: _Radiometry, channels: 
         bl, bl_u, _ = _weighted_mean([channels[c].black_level_dn for c in names],
                                      [channels[c].black_level_dn_u for c in names])
     else:
-        bl, bl_u = rad.black_dn, 0.0
+        bl, bl_u = rad.black_dn, max(ch.black_level_dn_u for ch in channels.values())
     if not k > 0:
         raise MetrawError(f"fitted gain is not positive (K = {k:.4g} DN/e-): the data do not follow the noise model")
     uncertainty = {"gain_dn_per_e": k_u, "read_noise_e": rn_u, "black_level_dn": bl_u}
@@ -446,7 +446,9 @@ def _fit_ptc(x: np.ndarray, y: np.ndarray, sy: np.ndarray, quadratic: bool = Tru
 
 
 def _fit_channel(mu: np.ndarray, v: np.ndarray, black: float, n_per_block: int, channel: str,
-                 notes: list[str]) -> ChannelCalibration:
+                 notes: list[str], black_u: float = 0.0) -> ChannelCalibration:
+    """Bin blocks by mean, fit the photon-transfer curve; ``black_u`` (the black level's
+    uncertainty) enters the intercept: b shifts by K * delta_black."""
     nblk = mu.size
     if nblk < MIN_BLOCKS:
         raise MetrawError(f"channel {channel}: only {nblk} smooth unclipped blocks "
@@ -504,13 +506,13 @@ def _fit_channel(mu: np.ndarray, v: np.ndarray, black: float, n_per_block: int, 
         raise MetrawError(f"channel {channel}: the frame does not constrain the gain (K = {a:.3g} +- {ua:.2g} DN/e-, "
                           f"signal range {span[0]:.1f}..{span[1]:.1f} DN above black): too flat or too textured; it needs smooth "
                           f"regions over a wide range of brightness, or use a flat/dark series")
-    rn, rn_u = _read_noise(b, ub, a, ua)
+    rn, rn_u = _read_noise(b, math.hypot(ub, a * black_u), a, ua)
     if b - 1.0 / 12.0 <= 0:
         notes.append(f"channel {channel}: read noise not resolved above quantisation")
     prnu = math.sqrt(c) / 1.0 if c > 0 else 0.0
     uc = math.sqrt(cov[2, 2]) if np.isfinite(cov[2, 2]) else float("inf")
     prnu_u = uc / (2 * prnu) if prnu > 0 else math.sqrt(uc)
-    return ChannelCalibration(channel, a, ua, rn, rn_u, black, 0.0, int(sum(counts)), span, chi2,
+    return ChannelCalibration(channel, a, ua, rn, rn_u, black, black_u, int(sum(counts)), span, chi2,
                               prnu=prnu, prnu_u=prnu_u)
 
 
@@ -532,6 +534,9 @@ def from_image(image: RawImage | np.ndarray, *, black_level_dn: float | None = N
     if rad.black_dn is None:
         raise MetrawError("from_image needs the black level (black_level_dn): a single frame cannot separate it "
                           "from the read noise")
+    black_u = 0.0
+    if black_level_dn is None and base is not None:
+        black_u = float(base.uncertainty.get("black_level_dn", 0.0)) / rad.scale
     native = _native(data, rad.shift)
     n = block_cells * block_cells
     f_crit = stats.f.ppf(1.0 - texture_p, n // 4, n)
@@ -557,6 +562,6 @@ def from_image(image: RawImage | np.ndarray, *, black_level_dn: float | None = N
         mus, vs = per_channel.get(colour, ([], []))
         mu = np.concatenate(mus) if mus else np.empty(0)
         v = np.concatenate(vs) if vs else np.empty(0)
-        channels[colour] = _fit_channel(mu, v, rad.black_dn, n, colour, notes)
+        channels[colour] = _fit_channel(mu, v, rad.black_dn, n, colour, notes, black_u)
     prof = _build_profile(base, rad, channels, None)
     return CalibrationResult(prof, "single_frame_poisson_gaussian", channels, rad.shift, notes)
