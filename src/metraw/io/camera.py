@@ -10,8 +10,12 @@ unknown (see ``metraw.io._unknown``).
 
 from __future__ import annotations
 
+import contextlib
+import os
+import sys
+import tempfile
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 
@@ -31,8 +35,9 @@ RAW_SUFFIXES = {".dng", ".cr2", ".cr3", ".crw", ".nef", ".nrw", ".arw", ".srf", 
 def read_camera_raw(path: Path) -> RawImage:
     import rawpy
 
+    libraw_said: list[str] = []
     try:
-        with rawpy.imread(str(path)) as raw:
+        with _c_stderr_to(libraw_said), rawpy.imread(str(path)) as raw:
             data = np.array(raw.raw_image_visible, copy=True)
             colors = np.array(raw.raw_colors_visible[:2, :2])
             desc = raw.color_desc.decode("ascii", "replace")
@@ -44,7 +49,9 @@ def read_camera_raw(path: Path) -> RawImage:
     except rawpy.LibRawFileUnsupportedError:
         raise MetrawError(f"{path}: unsupported format (LibRaw does not recognise it as a camera raw)") from None
     except (rawpy.LibRawError, OSError) as exc:
-        raise MetrawError(f"{path}: corrupt or truncated camera raw ({exc})") from None
+        detail = "; ".join(libraw_said) or (exc.args[0].decode("utf-8", "replace")
+                                            if exc.args and isinstance(exc.args[0], bytes) else str(exc))
+        raise MetrawError(f"{path}: corrupt or truncated camera raw ({detail})") from None
     if "Stack" in raw_type or data.ndim != 2:
         raise MetrawError(f"{path}: raw type {raw_type} (linear/demosaiced DNG) is not a single-sensor mosaic")
     pattern = _pattern(colors, desc, n_colors, path)
@@ -91,3 +98,21 @@ def _camera_name(path: Path) -> str:
             return name or "unknown"
     except Exception:  # non-TIFF camera raws: the name is descriptive only
         return "unknown"
+
+
+@contextlib.contextmanager
+def _c_stderr_to(lines: list[str]) -> Iterator[None]:
+    """Capture what C code (LibRaw) writes to file descriptor 2, so errors stay one clean line."""
+    fd = 2
+    sys.stderr.flush()
+    saved = os.dup(fd)
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), fd)
+        try:
+            yield
+        finally:
+            os.dup2(saved, fd)
+            os.close(saved)
+            tmp.seek(0)
+            text = tmp.read().decode("utf-8", "replace")
+            lines.extend(line.split(": ", 1)[-1].strip() for line in text.splitlines() if line.strip())

@@ -96,12 +96,24 @@ def read_tiff(path: Path) -> RawImage:
 
 # ----------------------------------------------------------------------------- helpers
 def _open(path: Path):
+    import logging
+
     import tifffile
 
+    logging.getLogger("tifffile").setLevel(logging.ERROR)  # damaged files are reported as one MetrawError
+
     try:
-        return tifffile.TiffFile(str(path))
+        tif = tifffile.TiffFile(str(path))
     except Exception as exc:
         raise MetrawError(f"{path}: corrupt or truncated TIFF ({exc})") from None
+    try:
+        if len(tif.pages) == 0:
+            raise ValueError("no image pages")
+        tif.pages[0].tags  # noqa: B018 - parse the first IFD now, inside the error handler
+    except Exception as exc:
+        tif.close()
+        raise MetrawError(f"{path}: corrupt or truncated TIFF ({exc})") from None
+    return tif
 
 
 def _check_extent(tif, path: Path) -> None:
