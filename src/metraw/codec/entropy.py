@@ -146,7 +146,7 @@ def _rans_encode(freq: np.ndarray, cum: np.ndarray, lanes: int) -> tuple[np.ndar
     f = np.concatenate([freq.astype(np.uint32), np.ones(pad, np.uint32)]).reshape(steps, lanes)
     c = np.concatenate([cum.astype(np.uint32), np.zeros(pad, np.uint32)]).reshape(steps, lanes)
     inv = 1.0 / f.astype(np.float64)
-    xmax = f << np.uint32(32 - PROB_BITS)
+    xmax = f.astype(np.uint64) << np.uint64(32 - PROB_BITS)  # 2^32 when f = 2^P: keep 64 bits
     fill = PROB_SCALE - f
     valid_last = np.arange(lanes) < lanes - pad
     x = np.full(lanes, RANS_L, dtype=np.uint32)

