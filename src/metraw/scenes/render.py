@@ -226,12 +226,14 @@ def render(scene: Scene, camera: CalibrationProfile, size_px: int, rng: np.rando
     sky_view = np.where(np.asarray(scene.crown, bool), np.float32(CROWN_SKY_VIEW), np.float32(1.0))
 
     # irradiance factors per sample: direct (n . s, zero in shadow) and sky view
-    lit = caster_h <= np.take(heights + np.float32(0.05), obj)
-    direct = np.take(sun_cos, obj)
+    lut = np.stack([heights + np.float32(0.05), sun_cos, sky_view], axis=1)
+    per = np.take(lut, obj.astype(np.intp), axis=0)            # one gather for three fields
+    lit = caster_h <= per[..., 0]
+    direct = np.ascontiguousarray(per[..., 1])
     _apply_crown_shading(direct, obj, crowns, scene.sun_vector)
     np.multiply(direct, lit, out=direct)
-    sky = np.take(sky_view, obj)
-    sky *= np.where(lit, np.float32(1.0), np.float32(SHADOW_SKY_VIEW))
+    sky = np.where(lit, np.float32(1.0), np.float32(SHADOW_SKY_VIEW)) * per[..., 2]
+    del per
 
     # texture at pixel resolution (constant over a pixel's samples)
     coarse = value_noise(rng, size_px, (256, 64, 16, 4), slope=1.0)

@@ -1,0 +1,166 @@
+"""Tests of the synthetic source dataset (metraw.scenes)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from metraw.cli import main
+from metraw.scenes import default_camera, generate, generate_one
+from metraw.scenes.layout import Scene, add_vehicle, make_scene, rect
+from metraw.scenes.radiance import electrons_per_reflectance, solar_toa_irradiance_w_m2_m
+from metraw.scenes.render import RenderSettings, render
+from metraw.sensor import rng_from_seed
+from metraw.store import RawStore
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _flat_scene(size_m: float, refl=(0.2, 0.3, 0.25)) -> Scene:
+    scene = Scene("rural", size_m, 30.0, 45.0)
+    scene.poly(rect(size_m / 2, size_m / 2, 3 * size_m, 3 * size_m, 0.0), scene.new_object(refl, texture=(0.0, 0.0)))
+    return scene
+
+
+def test_same_seed_same_bytes_and_different_seed_differs():
+    a = generate_one(4, 11, size_px=128)
+    b = generate_one(4, 11, size_px=128)
+    c = generate_one(4, 12, size_px=128)
+    assert a.data.tobytes() == b.data.tobytes()
+    assert a.mask.tobytes() == b.mask.tobytes() and a.flags.tobytes() == b.flags.tobytes()
+    assert a.meta == b.meta
+    assert a.data.tobytes() != c.data.tobytes()
+
+
+def test_bytes_do_not_depend_on_worker_count_or_start():
+    serial = list(generate(3, 5, size_px=64, workers=1))
+    parallel = list(generate(3, 5, size_px=64, workers=2))
+    tail = list(generate(1, 5, size_px=64, start=2))
+    for s, p in zip(serial, parallel):
+        assert s.data.tobytes() == p.data.tobytes() and s.mask.tobytes() == p.mask.tobytes()
+    assert tail[0].data.tobytes() == serial[2].data.tobytes()
+    assert [img.meta["scene_type"] for img in serial] == ["urban", "suburban", "rural"]
+
+
+@pytest.mark.parametrize("angle_deg", [0.0, 17.0, 63.5])
+def test_mask_is_exactly_the_rendered_car(angle_deg):
+    """Untextured car of known reflectance on flat ground: each pixel's expected signal is
+    ground + mask * (car - ground), so the mask and the rendered car are the same geometry."""
+    cam = default_camera()
+    size = 160
+    scene = _flat_scene(size * cam.gsd_m, refl=(0.1, 0.1, 0.1))
+    car = scene.new_object((0.5, 0.5, 0.5), 1.5, texture=(0.0, 0.0), vehicle=True)
+    poly = rect(4.7, 4.6, 4.5, 1.8, math.radians(angle_deg))
+    scene.poly(poly, car)
+    img, mean_e = render(scene, cam, size, rng_from_seed(1), RenderSettings(blur_px=0.0))
+    k = electrons_per_reflectance(cam, scene.sun_elevation_deg, img.profile.exposure_s)
+    cidx = img.color_index()
+    for ci, c in enumerate("RGB"):
+        kd, ks = k[c]
+        e_per_refl = kd * scene.sun_cos[0] + ks
+        sel = cidx == ci
+        expected = e_per_refl * (0.1 + 0.4 * img.mask[sel])
+        np.testing.assert_allclose(mean_e[sel], expected, rtol=2e-5)
+    # area of the mask equals the polygon area up to the sampling of its edges
+    area_true = 4.5 * 1.8
+    area_mask = float(img.mask.sum()) * cam.gsd_m**2
+    perimeter = 2 * (4.5 + 1.8)
+    assert abs(area_mask - area_true) < 0.25 * perimeter * cam.gsd_m
+    assert set(np.unique(img.mask)).issubset({0.0, 0.25, 0.5, 0.75, 1.0})
+
+
+def test_tree_hides_car_from_the_mask():
+    cam = default_camera()
+    size = 160
+    scene = _flat_scene(size * cam.gsd_m)
+    add_vehicle(scene, rng_from_seed(0), 4.7, 4.7, 0.0, vclass="car")
+    full = scene.vehicles[0]["length_m"] * scene.vehicles[0]["width_m"]
+    leaf = scene.new_object((0.04, 0.08, 0.03), 8.0, texture=(0.0, 0.0), crown=True)
+    scene.disc(4.7 + 1.5, 4.7, 1.5, leaf)  # crown over the front half
+    img, _ = render(scene, cam, size, rng_from_seed(0), RenderSettings(blur_px=0.0))
+    visible = float(img.mask.sum()) * cam.gsd_m**2
+    assert 0.3 * full < visible < 0.85 * full
+
+
+def test_flat_patch_noise_matches_profile():
+    """Uniform ground, no texture, no blur: mean and variance of each colour plane match the
+    EMVA model of the image's profile within 4 standard errors."""
+    cam = default_camera()
+    size = 256
+    scene = _flat_scene(size * cam.gsd_m)
+    img, mean_e = render(scene, cam, size, rng_from_seed(3), RenderSettings(blur_px=0.0))
+    p = img.profile
+    dark = p.dark_current_e_per_s * p.exposure_s
+    for ci in range(3):
+        sel = img.color_index() == ci
+        mu_e = float(mean_e[sel][0])
+        assert np.all(mean_e[sel] == mu_e)
+        x = img.data[sel].astype(np.float64)
+        n = x.size
+        mean_dn = p.black_level_dn + p.gain_dn_per_e * (mu_e + dark)
+        var_dn = float(p.variance_dn2(mean_dn))
+        assert abs(x.mean() - mean_dn) < 4 * math.sqrt(var_dn / n)
+        assert abs(x.var(ddof=1) - var_dn) < 4 * var_dn * math.sqrt(2 / (n - 1))
+
+
+def test_daylight_photon_counts_are_physical():
+    lam = np.linspace(200e-9, 10e-6, 200000)
+    total = float(np.trapezoid(solar_toa_irradiance_w_m2_m(lam), lam))
+    assert abs(total - 1361.0) < 0.02 * 1361.0  # solar constant
+    cam = default_camera()
+    k = electrons_per_reflectance(cam, 45.0, 1e-3)
+    e_grey = {c: 0.3 * (kd * math.sin(math.radians(45)) + ks) for c, (kd, ks) in k.items()}
+    assert all(2000 < e < cam.full_well_e for e in e_grey.values())  # thousands of e- for bright ground
+    # e- scale with aperture area and exposure, not with altitude (etendue)
+    k2 = electrons_per_reflectance(cam.replace(aperture_diameter_m=2 * cam.aperture_diameter_m,
+                                               altitude_m=500.0), 45.0, 2e-3)
+    assert math.isclose(k2["G"][0], 8 * k["G"][0], rel_tol=1e-12)
+    img = generate_one(0, 0, size_px=256)
+    assert 1000 < float(np.median(img.electrons())) < cam.full_well_e
+
+
+def test_car_geometry_is_realistic():
+    rng = rng_from_seed(2)
+    lengths, widths = [], []
+    for i in range(6):
+        scene = make_scene(("urban", "suburban", "rural")[i % 3], rng, 60.0)
+        lengths += [v["length_m"] for v in scene.vehicles if v["class"] == "car"]
+        widths += [v["width_m"] for v in scene.vehicles if v["class"] == "car"]
+    assert len(lengths) > 20
+    assert 4.0 < np.median(lengths) < 4.8 and 1.7 < np.median(widths) < 1.9
+
+
+def test_default_camera_matches_params_yaml():
+    params = ROOT / "params.yaml"
+    if not params.is_file():
+        pytest.skip("params.yaml not present")
+    import yaml
+
+    src = yaml.safe_load(params.read_text())["source"]["camera"]
+    cam = default_camera()
+    for key, value in src.items():
+        assert getattr(cam, key) == value, key
+
+
+def test_cli_writes_store_and_contact_sheet(tmp_path, capsys):
+    out = tmp_path / "s.zarr"
+    png = tmp_path / "sheet.png"
+    assert main(["scenes", "--n", "3", "--seed", "1", "--size", "64", "--out", str(out), "--workers", "1",
+                 "--contact-sheet", str(png), "--real-dir", str(tmp_path / "none")]) == 0
+    store = RawStore.open(out)
+    assert len(store) == 3
+    assert [store.meta(i)["scene_type"] for i in range(3)] == ["urban", "suburban", "rural"]
+    ref = generate_one(1, 1, size_px=64)
+    assert store[1].data.tobytes() == ref.data.tobytes() and store[1].mask.tobytes() == ref.mask.tobytes()
+    assert png.stat().st_size > 1000
+
+
+def test_cli_bad_input_writes_nothing(tmp_path, capsys):
+    out = tmp_path / "bad.zarr"
+    assert main(["scenes", "--n", "2", "--size", "63", "--out", str(out)]) == 2
+    assert main(["scenes", "--n", "2", "--kinds", "desert", "--size", "32", "--out", str(out), "--workers", "1"]) == 2
+    assert "error" in capsys.readouterr().err
+    assert not out.exists() and not list(tmp_path.glob(".bad.zarr*"))
