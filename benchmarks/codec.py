@@ -1,0 +1,151 @@
+"""Codec benchmark: metraw at steps 0.5/1/2 vs lossless and near-lossless peers on real frames.
+
+Real data: ../shared/data/real (canon_dng, micasense, spacenet_pan; see each SOURCE.txt).
+Profiles: calibrated from each frame (metraw.calibrate.from_image). Timings side by side in one
+run (2 threads for metraw). Writes docs/figures/codec_rd.png.  Run: nice -n 5 python benchmarks/codec.py
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import imagecodecs
+import numpy as np
+
+from metraw import codec
+from metraw.calibrate import from_image
+from metraw.codec import prepare
+from metraw.codec.selfcheck import self_check
+from metraw.image import RawImage
+from metraw.io import read_raw
+from metraw.profile import CalibrationProfile
+from metraw.sensor import expose, rng_from_seed
+
+REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
+
+
+def frames():
+    out = []
+    for rel in ("canon_dng/colorchart.dng", "micasense/IMG_0000_1.tif", "spacenet_pan/pan1.tif"):
+        path = REAL / rel
+        if not path.exists():
+            continue
+        img = read_raw(path)
+        res = from_image(img)
+        data = img.data >> res.unused_low_bits if res.unused_low_bits else img.data
+        out.append((rel.split("/")[0], RawImage(data, res.profile)))
+    prof = CalibrationProfile(gain_dn_per_e=0.5, black_level_dn=100, read_noise_e=3, white_level_dn=16000, adc_bits=14)
+    yy, xx = np.mgrid[0:1024, 0:1536]
+    mean = 50 + 20000 * (0.5 + 0.5 * np.sin(xx / 150.0) * np.cos(yy / 97.0))
+    out.append(("synthetic", RawImage(expose(mean, prof, rng_from_seed(1)), prof)))
+    return out
+
+
+def timed(fn, reps=3):
+    best = math.inf
+    for _ in range(reps):
+        t = time.perf_counter()
+        r = fn()
+        best = min(best, time.perf_counter() - t)
+    return r, best
+
+
+def err_stats(img, dec_data, step_for_sigma=None):
+    sig = prepare.sigma_t_dn(img.data, img.profile)
+    e = (dec_data.astype(np.float64) - img.data) / sig
+    ok = ~prepare.escape_mask(img.data, img.profile)
+    ev = e[ok]
+    c = np.corrcoef(e[:, :-2][ok[:, :-2] & ok[:, 2:]], e[:, 2:][ok[:, :-2] & ok[:, 2:]])[0, 1] if ev.std() > 0 else 0.0
+    return ev.mean(), math.sqrt(np.mean(ev * ev)), c
+
+
+def main() -> int:
+    rows = []
+    rd = {}
+    for name, img in frames():
+        d = img.data
+        mb = d.nbytes / 1e6
+        n = d.size
+
+        def row(method, blob_len, te, td, bias, rms, corr):
+            rows.append((name, method, 8 * blob_len / n, 16 * n / 8 / blob_len, mb / te, mb / td, bias, rms, corr))
+
+        jl, te = timed(lambda: imagecodecs.jpegls_encode(d))
+        _, td = timed(lambda: imagecodecs.jpegls_decode(jl))
+        row("jpegls lossless", len(jl), te, td, 0, 0, 0)
+        z, te = timed(lambda: imagecodecs.zstd_encode(d.tobytes(), level=9))
+        _, td = timed(lambda: imagecodecs.zstd_decode(z))
+        row("zstd-9", len(z), te, td, 0, 0, 0)
+        try:
+            a, te = timed(lambda: imagecodecs.aec_encode(d, bitspersample=16))
+            _, td = timed(lambda: imagecodecs.aec_decode(a))
+            row("aec (ccsds-121)", len(a), te, td, 0, 0, 0)
+        except Exception as exc:  # noqa: BLE001
+            print(f"# aec failed on {name}: {exc}", file=sys.stderr)
+        try:
+            x, te = timed(lambda: imagecodecs.jpegxl_encode(d, lossless=True, effort=3), reps=1)
+            _, td = timed(lambda: imagecodecs.jpegxl_decode(x), reps=1)
+            row("jpegxl lossless e3", len(x), te, td, 0, 0, 0)
+        except Exception as exc:  # noqa: BLE001
+            print(f"# jpegxl failed on {name}: {exc}", file=sys.stderr)
+        sig_med = float(np.median(prepare.sigma_t_dn(d, img.profile)))
+        for step in (0.5, 1.0, 2.0):
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                blob, te = timed(lambda: codec.encode(img, step, 0))
+            dec, td = timed(lambda: codec.decode(blob))
+            s = self_check(img, dec, step)
+            row(f"metraw q={step}", len(blob), te, td, s["mean_error_sigma"], s["rms_error_sigma"], s["neighbour_corr"])
+            rows[-1] = rows[-1] + (math.log2(math.sqrt(2 * math.pi * math.e) / step), s["worst_decile_mean_sigma"],
+                                   s["bound_violations"], s["mean_error_se_sigma"])
+            rd.setdefault(name, {}).setdefault("metraw", []).append((s["rms_error_sigma"], 8 * len(blob) / n))
+            # JPEG-LS near-lossless with the same max error as metraw's median-sigma bound
+            near = max(1, int(step * sig_med / 2))
+            jn, te = timed(lambda: imagecodecs.jpegls_encode(d, level=near))
+            dn, td = timed(lambda: imagecodecs.jpegls_decode(jn))
+            b, r, c = err_stats(img, dn)
+            row(f"jpegls near={near}", len(jn), te, td, b, r, c)
+            rd[name].setdefault("jpegls-nl", []).append((r, 8 * len(jn) / n))
+            try:
+                lz, te = timed(lambda: imagecodecs.lerc_encode(d, level=float(near)))
+                ld, td = timed(lambda: imagecodecs.lerc_decode(lz))
+                b, r, c = err_stats(img, np.asarray(ld))
+                row(f"lerc maxerr={near}", len(lz), te, td, b, r, c)
+                rd[name].setdefault("lerc", []).append((r, 8 * len(lz) / n))
+            except Exception as exc:  # noqa: BLE001
+                print(f"# lerc failed: {exc}", file=sys.stderr)
+    print(f"{'frame':12s} {'method':20s} {'bpp':>6s} {'ratio':>6s} {'encMB/s':>8s} {'decMB/s':>8s} "
+          f"{'bias[s]':>9s} {'rms[s]':>7s} {'nbcorr':>7s} {'bound':>6s} {'worstdec':>9s} {'viol':>4s} {'biasSE':>8s}")
+    for r in rows:
+        extra = f" {r[9]:6.3f} {r[10]:9.2e} {int(r[11]):4d} {r[12]:8.1e}" if len(r) > 9 else ""
+        print(f"{r[0]:12s} {r[1]:20s} {r[2]:6.3f} {r[3]:6.2f} {r[4]:8.1f} {r[5]:8.1f} {r[6]:9.2e} {r[7]:7.4f} {r[8]:7.4f}{extra}")
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+        fig, ax = plt.subplots(figsize=(6, 4))
+        for name, methods in rd.items():
+            for m, pts in methods.items():
+                pts = sorted(pts)
+                ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-" if m == "metraw" else "x--", label=f"{name} {m}")
+        q = np.linspace(0.4, 2.2, 50)
+        ax.plot(q / math.sqrt(12), np.log2(math.sqrt(2 * math.pi * math.e) / q), "k:", label="log2(sqrt(2 pi e)/q)")
+        ax.set_xlabel("rms added error [sigma]")
+        ax.set_ylabel("bits/pixel")
+        ax.legend(fontsize=5)
+        out = Path(__file__).resolve().parents[1] / "docs" / "figures" / "codec_rd.png"
+        out.parent.mkdir(parents=True, exist_ok=True)
+        fig.tight_layout()
+        fig.savefig(out, dpi=120)
+        print(f"# wrote {out}")
+    except Exception as exc:  # noqa: BLE001
+        print(f"# plot failed: {exc}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
