@@ -1,0 +1,223 @@
+"""``metraw aggregate``: per-point results -> GP response surfaces, tolerances, spec.yaml, figures.
+
+The point list comes from params.yaml (`metraw.points.parameter_points`), never from a glob;
+every point's metrics (and compression) file must exist. Outputs under ``--out``:
+``spec.yaml``, ``aggregate.json``, ``figures/*.png`` and ``plots/*.csv`` (for ``dvc plots``).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from metraw.atomic import atomic_path
+from metraw.errors import MetrawError
+
+DEFAULT_METRICS = "{results}/{point}/metrics.json"
+DEFAULT_COMPRESSION = "{results}/{point}/compression.json"
+
+#: Figure file names (seed study numbering) per swept parameter.
+IOU_FIGS = {"focal_length_m": "fig7c_iou_focal_length.png", "diameter_m": "fig7d_iou_diameter.png",
+            "exposure_s": "fig7e_iou_exposure.png"}
+RATIO_FIGS = {"focal_length_m": "fig8a_ratio_focal_length.png", "exposure_s": "fig8b_ratio_exposure.png",
+              "diameter_m": "fig8c_ratio_diameter.png"}
+
+
+def register(sub) -> None:
+    p = sub.add_parser("aggregate", help="fit GPs over the parameter points; write spec.yaml, figures, tables",
+                       description=__doc__.split("\n\n")[0])
+    p.add_argument("--params", default="params.yaml", help="parameter file (point list, spec.required_iou)")
+    p.add_argument("--results", default="results", help="folder of per-point results")
+    p.add_argument("--out", default="results", help="output folder (spec.yaml, aggregate.json, figures/, plots/)")
+    p.add_argument("--metrics-pattern", default=DEFAULT_METRICS,
+                   help="path of a point's segmenter metrics; {results} and {point} are filled in")
+    p.add_argument("--compression-pattern", default=DEFAULT_COMPRESSION,
+                   help="path of a point's compression.json ({results}, {point}); '' to leave compression out")
+    p.add_argument("--stores-pattern", default="",
+                   help="path of a point's emulated store (e.g. 'data/targets/{point}.zarr') for Fig. 6 examples")
+    p.add_argument("--example-index", type=int, default=0, help="image index shown in Fig. 6")
+    p.add_argument("--extrapolate", type=float, default=0.0,
+                   help="extend tolerance search beyond the sampled range by this fraction of it (flagged)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the GP optimiser restarts")
+    p.set_defaults(func=run)
+
+
+def _read_json(path: Path, what: str) -> dict[str, Any]:
+    if not path.is_file():
+        raise MetrawError(f"{what} {path} is missing (run its rule first; the point list comes from params.yaml)")
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise MetrawError(f"{what} {path} is not valid JSON: {exc}") from None
+
+
+def iou_measurement(metrics: dict[str, Any], where: str) -> tuple[float, float]:
+    """Test-split IoU and the variance of that estimate from the per-image IoUs (var / n).
+
+    The pooled IoU is not the mean of per-image IoUs, but over a test set its sampling variance
+    is approximated by that of the per-image mean; one image gives no variance (0).
+    """
+    if metrics.get("iou") is None:
+        raise MetrawError(f"{where}: metrics have no test-split 'iou'")
+    vals = np.array([v for v in metrics.get("per_image_iou", []) if v is not None], dtype=np.float64)
+    var = float(vals.var(ddof=1) / vals.size) if vals.size > 1 else 0.0
+    return float(metrics["iou"]), var
+
+
+def load_point_results(params: dict[str, Any], results: str, metrics_pattern: str, compression_pattern: str
+                       ) -> list[dict[str, Any]]:
+    """One record per point of params.yaml: parameters, IoU (+variance), compression (+variance)."""
+    from metraw.points import parameter_points, target_params
+
+    names = list((params["target"].get("sweeps") or {}))
+    if not names:
+        raise MetrawError("params.yaml has no target.sweeps: nothing to fit")
+    rows = []
+    missing = []
+    for point in parameter_points(params):
+        mpath = Path(metrics_pattern.format(results=results, point=point))
+        cpath = Path(compression_pattern.format(results=results, point=point)) if compression_pattern else None
+        for path in (mpath, cpath):
+            if path is not None and not path.is_file():
+                missing.append(str(path))
+        if missing:
+            continue
+        metrics = _read_json(mpath, "metrics file")
+        iou, iou_var = iou_measurement(metrics, str(mpath))
+        tp = target_params(params, point)
+        row = {"point": point, **{n: float(tp[n]) for n in names}, "iou": iou, "iou_sd": math.sqrt(iou_var),
+               "precision": metrics.get("precision"), "recall": metrics.get("recall"),
+               "n_test_images": len([v for v in metrics.get("per_image_iou", []) if v is not None]),
+               "train_time_s": metrics.get("train_time_s"), "epochs": metrics.get("epochs")}
+        if cpath is not None:
+            comp = _read_json(cpath, "compression file")
+            ratios = np.array([im["ratio"] for im in comp["images"]], dtype=np.float64)
+            row.update({"ratio": float(comp["overall"]["ratio"]),
+                        "ratio_sd": float(ratios.std(ddof=1) / math.sqrt(ratios.size)) if ratios.size > 1 else 0.0,
+                        "bits_per_pixel": float(comp["overall"]["bits_per_pixel"]),
+                        **{f"ratio_{c}": v["ratio"] for c, v in comp["channels"].items()},
+                        "_signal": comp.get("signal_e")})
+        rows.append(row)
+    if missing:
+        raise MetrawError(f"{len(missing)} per-point result file(s) missing, e.g. {missing[0]}")
+    return rows
+
+
+def _csv(rows: list[dict[str, Any]], cols: list[str]) -> str:
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=cols, extrasaction="ignore", lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow({c: ("" if r.get(c) is None else r.get(c)) for c in cols})
+    return buf.getvalue()
+
+
+def _write_text(path: Path, text: str) -> None:
+    with atomic_path(path, overwrite=True) as tmp:
+        tmp.write_text(text)
+
+
+def run(args) -> int:
+    from metraw import figures
+    from metraw.points import NOMINAL, load_params, target_params
+    from metraw.spec import build_spec
+    from metraw.tolerance import BAND_SIGMA, ResponseGP, joint_region, tolerance_interval
+
+    params = load_params(args.params)
+    required = float(params.get("spec", {}).get("required_iou", math.nan))
+    if not 0 < required < 1:
+        raise MetrawError(f"{args.params}: spec.required_iou must lie in (0, 1), got {required}")
+    rows = load_point_results(params, args.results, args.metrics_pattern, args.compression_pattern)
+    names = list(params["target"]["sweeps"])
+    nominal = target_params(params, NOMINAL)
+    at = {n: float(nominal[n]) for n in names}
+    X = np.array([[r[n] for n in names] for r in rows])
+
+    iou_gp = ResponseGP(names, X, [r["iou"] for r in rows], [r["iou_sd"] ** 2 for r in rows], seed=args.seed)
+    iou_loo = iou_gp.leave_one_out()
+    tols = {n: tolerance_interval(iou_gp, n, required, at, extrapolate=args.extrapolate) for n in names}
+    joint = joint_region(iou_gp, required, tols)
+    has_ratio = bool(args.compression_pattern)
+    ratio_gp = ratio_loo = None
+    if has_ratio:
+        ratio_gp = ResponseGP(names, X, [r["ratio"] for r in rows], [r["ratio_sd"] ** 2 for r in rows], seed=args.seed)
+        ratio_loo = ratio_gp.leave_one_out()
+    nominal_row = next(r for r in rows if r["point"] == NOMINAL)
+    spec = build_spec(tols, nominal, required, nominal_row.get("_signal"),
+                      context={"params_file": str(args.params), "loo_share_inside_2sigma": iou_loo["share_inside"]})
+
+    for r, rec in zip(rows, iou_loo["points"]):
+        r["iou_loo_pred"], r["iou_loo_sd"], r["iou_loo_inside"] = rec["predicted"], rec["sd"], rec["inside"]
+    examples = []
+    if args.stores_pattern:
+        from metraw.store import RawStore
+
+        for r in rows:
+            spath = Path(args.stores_pattern.format(point=r["point"], results=args.results))
+            if not spath.exists():
+                raise MetrawError(f"store {spath} of point {r['point']} is missing (needed for Fig. 6)")
+            store = RawStore.open(spath)
+            if not 0 <= args.example_index < len(store):
+                raise MetrawError(f"--example-index {args.example_index} out of range for {spath} ({len(store)} images)")
+            examples.append((r["point"], store[args.example_index]))
+
+    # ---- everything computed: write outputs (each atomically)
+    out = Path(args.out)
+    figdir, plotdir = out / "figures", out / "plots"
+    summary = {
+        "required_iou": required, "band_sigma": BAND_SIGMA, "parameters": names, "nominal": at,
+        "points": [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows],
+        "iou_gp": {"kernel": iou_gp.kernel_description(), "white_sd": math.sqrt(iou_gp.white_variance),
+                   "leave_one_out": iou_loo},
+        "ratio_gp": None if ratio_gp is None else {
+            "kernel": ratio_gp.kernel_description(), "white_sd": math.sqrt(ratio_gp.white_variance),
+            "leave_one_out": ratio_loo},
+        "tolerances": {n: {k: v for k, v in t.__dict__.items()} for n, t in tols.items()},
+        "joint_region": joint,
+    }
+    spec.save(out / "spec.yaml")
+    _write_text(out / "aggregate.json", json.dumps(summary, indent=2, default=float) + "\n")
+    pcols = ["point", *names, "iou", "iou_sd", "iou_loo_pred", "iou_loo_sd", "iou_loo_inside", "precision", "recall"]
+    if has_ratio:
+        pcols += ["ratio", "ratio_sd", "bits_per_pixel"] + sorted(k for k in rows[0] if k.startswith("ratio_")
+                                                                   and k != "ratio_sd")
+    _write_text(plotdir / "points.csv", _csv(rows, pcols))
+    for n in names:
+        on_line = [r for r in rows if all(r[m] == at[m] for m in names if m != n)]
+        t = figures.line_table(iou_gp, n, at)
+        _write_text(plotdir / f"iou_{n}.csv", _csv([dict(zip(t, v)) for v in zip(*t.values())], list(t)))
+        figures.response_line(iou_gp, n, at, figdir / IOU_FIGS.get(n, f"iou_{n}.png"), ylabel="IoU (test split)",
+                              points=[(r[n], r["iou"], r["iou_sd"]) for r in on_line], required=required,
+                              tolerance=tols[n], title=f"IoU vs {n} (others nominal)")
+        if ratio_gp is not None:
+            t = figures.line_table(ratio_gp, n, at)
+            _write_text(plotdir / f"ratio_{n}.csv", _csv([dict(zip(t, v)) for v in zip(*t.values())], list(t)))
+            figures.response_line(ratio_gp, n, at, figdir / RATIO_FIGS.get(n, f"ratio_{n}.png"),
+                                  ylabel="compression ratio vs 16 bit",
+                                  points=[(r[n], r["ratio"], r["ratio_sd"]) for r in on_line],
+                                  title=f"compression ratio vs {n} (others nominal)")
+    if "focal_length_m" in names and "diameter_m" in names:
+        figures.response_map(iou_gp, "focal_length_m", "diameter_m", at, figdir / "fig7b_iou_map.png",
+                             label="IoU (GP mean)", required=required,
+                             points=[(r["focal_length_m"], r["diameter_m"]) for r in rows],
+                             title="IoU over focal length x diameter (exposure nominal)")
+    if examples:
+        figures.example_images(examples, figdir / "fig6_examples.png")
+    print(f"aggregate: {len(rows)} points; IoU LOO share inside 2 sigma {iou_loo['share_inside']:.2f} "
+          f"(+- {iou_loo['share_inside_se']:.2f}, expected {iou_loo['expected_share']:.3f})"
+          + ("" if ratio_loo is None else f"; ratio LOO {ratio_loo['share_inside']:.2f}"))
+    for n, t in tols.items():
+        if t.meets_requirement:
+            print(f"  {n}: optimal {t.optimal:.4g}, min {t.min:.4g} ({t.min_limited_by}), "
+                  f"max {t.max:.4g} ({t.max_limited_by})")
+        else:
+            print(f"  {n}: lower 2-sigma bound {t.lower_at_optimal:.3f} < required {required} even at the optimum")
+    print(f"  joint region: share of the tolerance box meeting the requirement = {joint.get('share_of_box_ok')}")
+    print(f"wrote {out / 'spec.yaml'}, {out / 'aggregate.json'}, {figdir}/, {plotdir}/")
+    return 0

@@ -1,0 +1,94 @@
+"""``metraw check``: PASS / NORMALISE / REJECT an image against a specification (results/spec.yaml).
+
+Reads the image (a raw file via `metraw.io.read_raw`, or image ``--index`` of a metraw store),
+compares its profile geometry (GSD, diffraction and smear on the ground) and the signal level
+measured from its pixels with the spec, checks the profile's noise model against the pixels
+(single-frame fit), and prints the verdict with its reasons and, for NORMALISE, the chain of raw
+functions that brings the image to spec (see `metraw.spec`).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from metraw.atomic import atomic_path
+from metraw.errors import MetrawError
+from metraw.image import RawImage
+
+
+def add_input_arguments(p) -> None:
+    p.add_argument("image", help="raw image file, or a metraw store (.zarr) with --index")
+    p.add_argument("--index", type=int, default=None, help="image index in a store")
+    p.add_argument("--spec", default="results/spec.yaml", help="specification (default results/spec.yaml)")
+    p.add_argument("--profile", default=None, help="calibration profile JSON replacing the image's own")
+
+
+def load_image(args) -> RawImage:
+    """The image named on the command line (store + index, or a file), with ``--profile`` applied."""
+    path = Path(args.image)
+    if (path / "zarr.json").is_file():
+        from metraw.store import RawStore
+
+        if args.index is None:
+            raise MetrawError(f"{path} is a store: choose an image with --index")
+        store = RawStore.open(path)
+        if not -len(store) <= args.index < len(store):
+            raise MetrawError(f"--index {args.index} out of range for {path} ({len(store)} images)")
+        image = store[args.index]
+    else:
+        if args.index is not None:
+            raise MetrawError("--index applies to a store only")
+        from metraw.io import read_raw
+
+        image = read_raw(path)
+    if args.profile:
+        from metraw.profile import CalibrationProfile
+
+        try:
+            text = Path(args.profile).read_text()
+        except OSError as exc:
+            raise MetrawError(f"cannot read profile {args.profile}: {exc}") from None
+        image = RawImage(image.data, CalibrationProfile.from_json(text), image.mask, image.flags,
+                         image.provenance, image.meta)
+    return image
+
+
+def register(sub) -> None:
+    p = sub.add_parser("check", help="PASS / NORMALISE / REJECT an image against results/spec.yaml",
+                       description=__doc__.split("\n\n")[0])
+    add_input_arguments(p)
+    p.add_argument("--json", default=None, help="also write the full decision as JSON here")
+    p.add_argument("--no-noise", action="store_true", help="skip the single-frame noise check")
+    p.set_defaults(func=run)
+
+
+def format_decision(decision) -> str:
+    lines = [decision.verdict]
+    lines += [f"  reason: {r}" for r in decision.reasons]
+    for name, f in decision.properties.items():
+        v = "unknown" if f["value"] is None else f"{f['value']:.4g}"
+        lines.append(f"  {name}: {v} {f['unit']} ({f['source']}), spec [{f['min']:.4g}, {f['max']:.4g}], "
+                     f"optimal {f['optimal']:.4g}: {f['status']}")
+    if decision.noise and decision.noise.get("measured"):
+        for name, c in decision.noise["checks"].items():
+            lines.append(f"  noise {name}: measured {c['measured']:.4g} +- {c['measured_u']:.2g}, claimed "
+                         f"{c['claimed']:.4g}{' CONTRADICTS' if c['contradicts'] else ''}")
+    for i, step in enumerate(decision.chain, 1):
+        lines.append(f"  step {i}: {step['function']}({', '.join(f'{k}={v:.4g}' if isinstance(v, float) else f'{k}={v}' for k, v in step['params'].items())})"
+                     f"  # {step['effect']}")
+    return "\n".join(lines)
+
+
+def run(args) -> int:
+    from metraw.spec import Specification, check
+
+    spec = Specification.load(args.spec)
+    image = load_image(args)
+    decision = check(image, spec, measure_noise=not args.no_noise)
+    print(format_decision(decision))
+    if args.json:
+        with atomic_path(args.json, overwrite=True) as tmp:
+            tmp.write_text(json.dumps({"image": str(args.image), "index": args.index, **decision.to_dict()},
+                                      indent=1, default=float) + "\n")
+    return 0

@@ -1,0 +1,460 @@
+"""Specification vector and the runtime decision: PASS, NORMALISE or REJECT an image.
+
+The spec (``results/spec.yaml``, the form of the seed study's Fig. 2) lists per system parameter
+its optimal value, min, max and unit, from the Gaussian-process tolerances (`metraw.tolerance`).
+An image does not carry "a focal length": what it carries are *image properties*, each
+objectively measurable from the image and its profile, all in ground units so they do not
+change when pixels are binned:
+
+- ``gsd_m``: ground sample distance, pitch * altitude / focal length (profile);
+- ``diffraction_m``: diffraction blur on the ground, lambda_ref * altitude / D (profile,
+  lambda_ref = 550 nm; the obscuration changes the Airy shape, not this scale);
+- ``smear_m``: motion smear, ground speed * exposure (profile);
+- ``signal_e``: median photoelectrons per pixel, (DN - black) / K over unsaturated pixels
+  (measured from the pixels; scene dependent, so its limits include the 5-95 % spread of the
+  training scenes at the nominal point).
+
+The property limits follow from the one-at-a-time parameter intervals with the others at
+nominal (gsd from focal length, diffraction from diameter, smear from exposure, signal from all
+three through the photon budget ~ D^2 t / f^2). They form a box; the joint-region share in
+aggregate.json says how safe the corners of that box are.
+
+Decision, per property: inside [min, max] -> fine; on the *worse* side (coarser GSD, more blur,
+less light) -> REJECT; on the *better* side -> NORMALISE to the optimal value with raw functions
+that only degrade (binning same-colour pixels to a coarser GSD, photon redistribution through a
+blur kernel, binomial thinning of light); if no such move reaches the spec -> REJECT. A property
+that cannot be established (missing geometry) -> REJECT. Independently, the noise model claimed
+by the profile is checked against the pixels (single-frame fit, `metraw.calibrate.from_image`):
+a profile that contradicts the pixels -> REJECT with measured vs claimed numbers.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+import yaml
+
+from metraw.atomic import atomic_path
+from metraw.errors import MetrawError
+from metraw.image import RawImage
+
+SPEC_VERSION = 1
+#: Reference wavelength of the diffraction scale [m].
+WAVELENGTH_REF_M = 550e-9
+#: Gaussian sigma of the Airy core in units of lambda/D (best-fit Gaussian to the Airy disc).
+AIRY_SIGMA_PER_LAMBDA_D = 0.42
+#: A profile contradicts its pixels when |measured - claimed| exceeds this many combined
+#: standard uncertainties *and* this relative difference (guards against tiny uncertainties).
+NOISE_Z_LIMIT = 3.0
+NOISE_REL_LIMIT = 0.10
+
+UNITS = {"focal_length_m": "m", "diameter_m": "m", "exposure_s": "s", "pixel_pitch_m": "m",
+         "altitude_m": "m", "gsd_m": "m", "diffraction_m": "m", "smear_m": "m", "signal_e": "e-", "haze_e": "e-"}
+#: Which direction is "better" for an image property.
+BETTER = {"gsd_m": "lower", "diffraction_m": "lower", "smear_m": "lower", "signal_e": "higher"}
+
+
+@dataclass
+class Limit:
+    """One line of the spec: optimal value, min, max, unit (+ free-form details)."""
+
+    optimal: float | None
+    min: float | None
+    max: float | None
+    unit: str
+    details: dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"optimal": _f(self.optimal), "min": _f(self.min), "max": _f(self.max), "unit": self.unit,
+                **{k: _plain(v) for k, v in self.details.items()}}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "Limit":
+        try:
+            return cls(d["optimal"], d["min"], d["max"], d["unit"],
+                       {k: v for k, v in d.items() if k not in ("optimal", "min", "max", "unit")})
+        except KeyError as exc:
+            raise MetrawError(f"spec entry lacks {exc.args[0]!r}") from None
+
+
+@dataclass
+class Specification:
+    """Parameters (system, Fig. 2 form) and image properties with their limits."""
+
+    required_iou: float
+    parameters: dict[str, Limit]
+    properties: dict[str, Limit]
+    context: dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"spec_version": SPEC_VERSION, "required_iou": float(self.required_iou),
+                "parameters": {k: v.to_dict() for k, v in self.parameters.items()},
+                "image_properties": {k: v.to_dict() for k, v in self.properties.items()},
+                "context": _plain(self.context)}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "Specification":
+        if not isinstance(d, Mapping) or d.get("spec_version") != SPEC_VERSION:
+            raise MetrawError(f"not a metraw spec (spec_version {d.get('spec_version') if isinstance(d, Mapping) else None!r},"
+                              f" this metraw reads {SPEC_VERSION})")
+        try:
+            return cls(float(d["required_iou"]), {k: Limit.from_dict(v) for k, v in d["parameters"].items()},
+                       {k: Limit.from_dict(v) for k, v in d["image_properties"].items()}, dict(d.get("context") or {}))
+        except KeyError as exc:
+            raise MetrawError(f"spec lacks {exc.args[0]!r}") from None
+
+    def save(self, path: str | Path, overwrite: bool = True) -> None:
+        with atomic_path(path, overwrite=overwrite) as tmp:
+            tmp.write_text("# metraw specification vector (see metraw.spec); generated by metraw aggregate\n"
+                           + yaml.safe_dump(self.to_dict(), sort_keys=False))
+
+    @classmethod
+    def load(cls, path: str | Path) -> "Specification":
+        try:
+            data = yaml.safe_load(Path(path).read_text())
+        except FileNotFoundError:
+            raise MetrawError(f"spec file {path} not found") from None
+        except yaml.YAMLError as exc:
+            raise MetrawError(f"spec file {path} is not valid YAML: {exc}") from None
+        return cls.from_dict(data)
+
+
+def _f(v):
+    return None if v is None else float(v)
+
+
+def _plain(v):
+    if isinstance(v, dict):
+        return {str(k): _plain(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_plain(x) for x in v]
+    if isinstance(v, np.generic):
+        return v.item()
+    return v
+
+
+# ---------------------------------------------------------------------- building the spec
+def photon_budget(values: Mapping[str, float], nominal: Mapping[str, float]) -> float:
+    """Photoelectrons per pixel relative to nominal: (D^2 (1 - eps^2)) t / f^2 (pitch, altitude fixed)."""
+    def g(name):
+        return float(values.get(name, nominal[name]))
+    eps, eps0 = g("obscuration_ratio") if "obscuration_ratio" in nominal else 0.0, nominal.get("obscuration_ratio", 0.0)
+    num = g("diameter_m") ** 2 * (1 - eps**2) * g("exposure_s") / g("focal_length_m") ** 2
+    den = nominal["diameter_m"] ** 2 * (1 - eps0**2) * nominal["exposure_s"] / nominal["focal_length_m"] ** 2
+    return num / den
+
+
+def image_properties_of(values: Mapping[str, float]) -> dict[str, float]:
+    """gsd_m, diffraction_m, smear_m of a system (needs altitude, pitch, f, D, speed, exposure)."""
+    h = float(values["altitude_m"])
+    return {"gsd_m": float(values["pixel_pitch_m"]) * h / float(values["focal_length_m"]),
+            "diffraction_m": WAVELENGTH_REF_M * h / float(values["diameter_m"]),
+            "smear_m": float(values.get("ground_speed_m_per_s", 0.0)) * float(values["exposure_s"])}
+
+
+def build_spec(tolerances: Mapping[str, Any], nominal: Mapping[str, Any], required_iou: float,
+               signal_reference_e: Mapping[str, float] | None = None, context: Mapping[str, Any] | None = None,
+               ) -> Specification:
+    """The specification from `metraw.tolerance.Tolerance` objects (keyed by parameter name).
+
+    ``nominal``: full nominal target parameters (altitude_m, pixel_pitch_m, ...).
+    ``signal_reference_e``: ``{"median": ..., "p05": ..., "p95": ...}`` per-image median
+    photoelectrons per pixel over the nominal point's images (scene spread); without it the
+    spec has no ``signal_e`` line.
+    """
+    params: dict[str, Limit] = {}
+    for name, t in tolerances.items():
+        params[name] = Limit(t.optimal, t.min, t.max, UNITS.get(name, ""), {
+            "iou_at_optimal": t.mean_at_optimal, "iou_lower_2sigma_at_optimal": t.lower_at_optimal,
+            "required_iou": required_iou, "meets_requirement": t.meets_requirement,
+            "nominal": float(nominal[name]),
+            "min_limited_by": t.min_limited_by, "max_limited_by": t.max_limited_by,
+            "min_extrapolated": t.min_extrapolated, "max_extrapolated": t.max_extrapolated,
+            "sampled_range": [t.sampled_min, t.sampled_max]})
+    nominal_f = {k: v for k, v in nominal.items() if isinstance(v, (int, float))}
+    optimum = {**nominal_f, **{k: v.optimal for k, v in params.items()}}
+    props: dict[str, Limit] = {}
+    which = {"gsd_m": "focal_length_m", "diffraction_m": "diameter_m", "smear_m": "exposure_s"}
+    for prop, par in which.items():
+        lim = params.get(par)
+        if lim is None or lim.min is None:
+            continue
+        ends = [image_properties_of({**nominal_f, par: v})[prop] for v in (lim.min, lim.max)]
+        if prop == "smear_m" and not nominal_f.get("ground_speed_m_per_s"):
+            continue
+        props[prop] = Limit(image_properties_of(optimum)[prop], min(ends), max(ends), "m",
+                            {"better": BETTER[prop], "from_parameter": par})
+    if signal_reference_e and all(p in params and params[p].min is not None
+                                  for p in ("focal_length_m", "diameter_m", "exposure_s")):
+        factors = [photon_budget({p: v}, nominal_f) for p in ("focal_length_m", "diameter_m", "exposure_s")
+                   for v in (params[p].min, params[p].max)]
+        props["signal_e"] = Limit(
+            signal_reference_e["median"] * photon_budget(optimum, nominal_f),
+            signal_reference_e["p05"] * min(factors), signal_reference_e["p95"] * max(factors), "e-",
+            {"better": "higher", "from_parameter": "focal_length_m, diameter_m, exposure_s (photon budget)",
+             "nominal_scene_median_e": signal_reference_e["median"],
+             "nominal_scene_p05_e": signal_reference_e["p05"], "nominal_scene_p95_e": signal_reference_e["p95"]})
+    ctx = {"wavelength_ref_m": WAVELENGTH_REF_M, "altitude_m": nominal.get("altitude_m"),
+           "pixel_pitch_m": nominal.get("pixel_pitch_m"), "ground_speed_m_per_s": nominal.get("ground_speed_m_per_s"),
+           "cfa_pattern": nominal.get("cfa_pattern"), "optimum": optimum,
+           "property_box": "one-at-a-time limits, others at nominal (see aggregate.json joint region)"}
+    ctx.update(context or {})
+    return Specification(float(required_iou), params, props, ctx)
+
+
+# ---------------------------------------------------------------------- measuring an image
+def median_signal_e(image: RawImage) -> float:
+    """Median photoelectrons per pixel, (DN - black) / K over unsaturated pixels."""
+    e = image.electrons()
+    ok = ~image.saturated()
+    if not ok.any():
+        raise MetrawError("every pixel is saturated: no signal level can be measured")
+    return float(np.median(e[ok]))
+
+
+def profile_properties(image: RawImage) -> dict[str, float | None]:
+    """gsd_m, diffraction_m, smear_m from the profile (None where geometry is missing)."""
+    p = image.profile
+    h = p.altitude_m
+    return {"gsd_m": p.gsd_m,
+            "diffraction_m": None if h is None or not p.aperture_diameter_m else WAVELENGTH_REF_M * h / p.aperture_diameter_m,
+            "smear_m": None if p.exposure_s is None else p.ground_speed_m_per_s * p.exposure_s}
+
+
+def noise_consistency(image: RawImage) -> dict[str, Any]:
+    """Single-frame noise fit vs the profile's gain and read noise (in the image's stored DN).
+
+    Returns ``{"measured": bool, "consistent": bool | None, "checks": {...}, "note": ...}``;
+    ``consistent`` is False when a quantity differs by more than NOISE_Z_LIMIT combined sigma
+    and NOISE_REL_LIMIT relative.
+    """
+    from metraw.calibrate import from_image
+
+    try:
+        res = from_image(image)
+    except MetrawError as exc:
+        return {"measured": False, "consistent": None, "note": f"noise not measurable from the pixels: {exc}"}
+    scale = float(1 << res.unused_low_bits)
+    claimed = image.profile
+    checks = {}
+    consistent = True
+    for name, meas, meas_u, claim in (
+            ("gain_dn_per_e", res.profile.gain_dn_per_e * scale, res.profile.uncertainty.get("gain_dn_per_e", 0.0) * scale,
+             claimed.gain_dn_per_e),
+            ("read_noise_e", res.profile.read_noise_e, res.profile.uncertainty.get("read_noise_e", 0.0),
+             claimed.read_noise_e)):
+        claim_u = claimed.uncertainty.get(name, 0.0)
+        comb = math.hypot(meas_u, claim_u)
+        diff = meas - claim
+        z = diff / comb if comb > 0 else math.inf
+        rel = abs(diff) / abs(claim) if claim else math.inf
+        bad = abs(z) > NOISE_Z_LIMIT and rel > NOISE_REL_LIMIT
+        # Read noise near zero is poorly constrained by one frame: judge it by z alone only if K agrees.
+        checks[name] = {"measured": meas, "measured_u": meas_u, "claimed": claim, "claimed_u": claim_u,
+                        "z": z if math.isfinite(z) else None, "relative_difference": rel, "contradicts": bad}
+        consistent &= not bad
+    return {"measured": True, "consistent": consistent, "checks": checks, "notes": list(res.notes)}
+
+
+# ---------------------------------------------------------------------- decision
+@dataclass
+class Decision:
+    """Outcome of `check`: verdict, reasons, per-property findings and the normalisation chain."""
+
+    verdict: str
+    reasons: list[str]
+    properties: dict[str, dict[str, Any]]
+    chain: list[dict[str, Any]]
+    noise: dict[str, Any] | None
+
+    def to_dict(self) -> dict[str, Any]:
+        return _plain({"verdict": self.verdict, "reasons": self.reasons, "properties": self.properties,
+                       "chain": self.chain, "noise": self.noise})
+
+
+def _fmt(v: float | None, unit: str) -> str:
+    return "unknown" if v is None else f"{v:.4g} {unit}"
+
+
+def check(image: RawImage, spec: Specification, measure_noise: bool = True) -> Decision:
+    """PASS / NORMALISE / REJECT for one image (see module docstring)."""
+    reasons: list[str] = []
+    reject: list[str] = []
+    found: dict[str, dict[str, Any]] = {}
+    values: dict[str, float | None] = dict(profile_properties(image))
+    bin_factor = None
+    if "gsd_m" in spec.properties and values["gsd_m"] is not None:
+        bin_factor = binning_factor(values["gsd_m"], spec.properties["gsd_m"])
+    if "signal_e" in spec.properties:
+        values["signal_e"] = median_signal_e(image)
+        if bin_factor:
+            # Binning to the spec's GSD sums m^2 pixels: judge the light at the GSD the image will have.
+            values["signal_e"] *= bin_factor**2
+            reasons.append(f"signal_e judged after the planned {bin_factor} x {bin_factor} binning "
+                           f"(x{bin_factor**2} per pixel)")
+    pattern = spec.context.get("cfa_pattern")
+    if pattern and image.profile.cfa_pattern != pattern:
+        reject.append(f"CFA pattern {image.profile.cfa_pattern} differs from the spec's {pattern}")
+    better_side: dict[str, float] = {}
+    for prop, lim in spec.properties.items():
+        v = values.get(prop)
+        status = "pass"
+        if v is None:
+            status = "unknown"
+            reject.append(f"{prop} cannot be determined (profile lacks the geometry: altitude, focal length, "
+                          f"pitch, aperture or exposure)")
+        else:
+            lower_is_better = lim.details.get("better", BETTER.get(prop)) == "lower"
+            below, above = v < lim.min, v > lim.max
+            if (below and not lower_is_better) or (above and lower_is_better):
+                status = "worse"
+                reject.append(f"{prop} = {_fmt(v, lim.unit)} is worse than the spec limit "
+                              f"{_fmt(lim.max if lower_is_better else lim.min, lim.unit)}")
+            elif below or above:
+                status = "better"
+                better_side[prop] = v
+                reasons.append(f"{prop} = {_fmt(v, lim.unit)} is better than the spec range "
+                               f"[{_fmt(lim.min, lim.unit)}, {_fmt(lim.max, lim.unit)}]: normalise to "
+                               f"{_fmt(lim.optimal, lim.unit)}")
+        found[prop] = {"value": v, "min": lim.min, "max": lim.max, "optimal": lim.optimal, "unit": lim.unit,
+                       "status": status, "source": "pixels" if prop == "signal_e" else "profile"}
+    noise = noise_consistency(image) if measure_noise else None
+    if noise and noise.get("consistent") is False:
+        for name, c in noise["checks"].items():
+            if c["contradicts"]:
+                reject.append(f"profile contradicts the pixels: {name} measured {c['measured']:.4g} "
+                              f"+- {c['measured_u']:.2g}, claimed {c['claimed']:.4g} "
+                              f"({100 * c['relative_difference']:.0f} % apart, z = {c['z']:.1f})")
+    elif noise and not noise["measured"]:
+        reasons.append(noise["note"] + " (profile taken as claimed)")
+    if image.profile.approximate:
+        reasons.append(f"profile is approximate: {image.profile.approximate_reason or 'no reason given'}")
+    chain: list[dict[str, Any]] = []
+    if not reject and better_side:
+        chain, problems = plan_normalisation(image, spec, values)
+        reject.extend(problems)
+    if reject:
+        return Decision("REJECT", reject + reasons, found, [], noise)
+    if chain:
+        return Decision("NORMALISE", reasons, found, chain, noise)
+    return Decision("PASS", reasons or ["every property within the spec"], found, [], noise)
+
+
+def plan_normalisation(image: RawImage, spec: Specification, values: Mapping[str, float | None]
+                       ) -> tuple[list[dict[str, Any]], list[str]]:
+    """The chain of degrading raw functions bringing better-than-spec properties to spec.
+
+    Order: bin to a coarser GSD (integer same-colour factor closest to the optimal GSD within the
+    spec; binning multiplies the signal per pixel by factor^2), then extra blur (diffraction and
+    smear, photon redistribution through a Gaussian / along-track box kernel whose variance adds
+    to the image's own), then binomial thinning of light to the optimal signal.
+    Returns (chain, problems): problems are reasons no physical move reaches the spec.
+    """
+    from metraw.cfa import cell_size
+
+    props = spec.properties
+    chain: list[dict[str, Any]] = []
+    problems: list[str] = []
+    gsd = values.get("gsd_m")
+    signal = values.get("signal_e")
+    step = cell_size(image.profile.cfa_pattern)
+    if "gsd_m" in props and gsd is not None and gsd < props["gsd_m"].min:
+        lim = props["gsd_m"]
+        m = binning_factor(gsd, lim)
+        if m is None:
+            problems.append(f"gsd_m = {gsd:.4g} m: no integer same-colour binning factor lands in "
+                            f"[{lim.min:.4g}, {lim.max:.4g}] m")
+        else:
+            chain.append({"function": "bin_same_colour", "params": {"factor": m},
+                          "effect": f"gsd_m {gsd:.4g} -> {gsd * m:.4g} m"})
+            gsd = gsd * m
+        # values["signal_e"] was already judged at the binned GSD by `check`.
+    blur_var_m2 = 0.0
+    blur_notes = []
+    if "diffraction_m" in props and values.get("diffraction_m") is not None \
+            and values["diffraction_m"] < props["diffraction_m"].min:
+        have, want = values["diffraction_m"], props["diffraction_m"].optimal
+        blur_var_m2 = (AIRY_SIGMA_PER_LAMBDA_D ** 2) * (want**2 - have**2)
+        blur_notes.append(f"diffraction_m {have:.4g} -> {want:.4g} m (Gaussian approximation of the Airy core)")
+    if blur_var_m2 > 0 and gsd:
+        sigma_cells = math.sqrt(blur_var_m2) / (gsd * step)
+        chain.append({"function": "redistribute", "params": {"kernel": "gaussian", "sigma_cells": sigma_cells},
+                      "effect": "; ".join(blur_notes), "profile_changes": {
+                          "aperture_diameter_m": WAVELENGTH_REF_M * image.profile.altitude_m
+                          / props["diffraction_m"].optimal}})
+    if "smear_m" in props and values.get("smear_m") is not None and values["smear_m"] < props["smear_m"].min:
+        have, want = values["smear_m"], props["smear_m"].optimal
+        extra = math.sqrt(max(want**2 - have**2, 0.0))  # box variances add: L^2/12
+        speed = image.profile.ground_speed_m_per_s
+        chain.append({"function": "redistribute", "params": {"kernel": "box_along_track", "length_cells": extra / (gsd * step)},
+                      "effect": f"smear_m {have:.4g} -> {want:.4g} m (box variances add; along-track = image columns)",
+                      "profile_changes": {"exposure_s": want / speed} if speed else {}})
+    if "signal_e" in props and signal is not None and signal > props["signal_e"].max:
+        p = props["signal_e"].optimal / signal
+        if p >= 1:
+            problems.append("signal_e: thinning cannot raise the light level")
+        else:
+            chain.append({"function": "thin", "params": {"p": p},
+                          "effect": f"signal_e {signal:.4g} -> {props['signal_e'].optimal:.4g} e- per pixel"})
+    return chain, problems
+
+
+def binning_factor(gsd_m: float, lim: Limit, largest: int = 64) -> int | None:
+    """Integer same-colour binning factor taking a finer-than-spec GSD into [min, max], closest
+    to the optimal GSD (log distance); None when the GSD is not finer than min or no factor fits."""
+    if not gsd_m < lim.min:
+        return None
+    factors = [m for m in range(2, largest + 1) if lim.min <= gsd_m * m <= lim.max]
+    if not factors:
+        return None
+    return min(factors, key=lambda k: abs(math.log(gsd_m * k / lim.optimal)))
+
+
+def _gaussian_kernel(sigma: float) -> np.ndarray:
+    r = max(1, int(math.ceil(4.0 * sigma)))
+    x = np.arange(-r, r + 1, dtype=np.float64)
+    g = np.exp(-0.5 * (x / sigma) ** 2)
+    return np.outer(g, g) / g.sum() ** 2
+
+
+def _box_kernel(length: float) -> np.ndarray:
+    """1-D box of ``length`` cells along columns (fractional end weights), as an odd (1, n) kernel."""
+    half = length / 2.0
+    r = max(1, int(math.ceil(half - 0.5)))
+    x = np.arange(-r, r + 1, dtype=np.float64)
+    w = np.clip(np.minimum(x + 0.5, half) - np.maximum(x - 0.5, -half), 0.0, None)
+    return (w / w.sum())[None, :]
+
+
+def apply_chain(image: RawImage, chain: list[dict[str, Any]], seed: int = 0) -> RawImage:
+    """Apply a normalisation chain with `metraw.rawfunc` (deterministic for a given seed)."""
+    from metraw import rawfunc
+    from metraw.sensor import rng_from_seed
+
+    rng = rng_from_seed(seed)
+    out = image
+    for step in chain:
+        fn, par = step["function"], step["params"]
+        if fn == "bin_same_colour":
+            out = rawfunc.bin_same_colour(out, int(par["factor"]))
+        elif fn == "redistribute":
+            if par["kernel"] == "gaussian":
+                kernel = _gaussian_kernel(float(par["sigma_cells"]))
+            elif par["kernel"] == "box_along_track":
+                kernel = _box_kernel(float(par["length_cells"]))
+            else:
+                raise MetrawError(f"unknown normalisation kernel {par['kernel']!r}")
+            out = rawfunc.redistribute(out, kernel, seed=rng)
+            if step.get("profile_changes"):
+                # The blurred image stands for the equivalent system (larger blur scale): say so.
+                out.profile = out.profile.replace(**step["profile_changes"])
+                out.provenance[-1]["params"]["profile_changes"] = dict(step["profile_changes"])
+        elif fn == "thin":
+            out = rawfunc.thin(out, float(par["p"]), seed=rng)
+        else:
+            raise MetrawError(f"unknown normalisation step {fn!r}")
+    return out

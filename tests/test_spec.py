@@ -1,0 +1,158 @@
+"""Specification vector, runtime check (PASS / NORMALISE / REJECT) and normalisation."""
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from metraw.errors import MetrawError
+from metraw.image import RawImage
+from metraw.profile import CalibrationProfile
+from metraw.sensor import expose, rng_from_seed
+from metraw.spec import Limit, Specification, build_spec, check, apply_chain, WAVELENGTH_REF_M
+from metraw.tolerance import Tolerance
+
+H = 600e3
+PITCH = 2.4e-6
+SPEED = 6900.0
+
+
+def real_data_dir() -> Path:
+    return Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
+
+
+def make_spec() -> Specification:
+    props = {
+        "gsd_m": Limit(0.9, 0.8, 1.0, "m", {"better": "lower"}),
+        "diffraction_m": Limit(1.65, 1.4, 2.2, "m", {"better": "lower"}),
+        "smear_m": Limit(1.2, 0.6, 2.0, "m", {"better": "lower"}),
+        "signal_e": Limit(150.0, 60.0, 400.0, "e-", {"better": "higher"}),
+    }
+    params = {"focal_length_m": Limit(1.6, 1.44, 1.8, "m")}
+    return Specification(0.6, params, props, {"cfa_pattern": "RGGB"})
+
+
+def make_image(gsd=0.9, diameter=0.2, exposure=180e-6, level_e=150.0, size=256, seed=1,
+               claimed_gain=None) -> RawImage:
+    prof = CalibrationProfile(gain_dn_per_e=1.0, black_level_dn=64, read_noise_e=3.0, white_level_dn=4095,
+                              adc_bits=12, cfa_pattern="RGGB", full_well_e=10000.0,
+                              pixel_pitch_m=PITCH, focal_length_m=PITCH * H / gsd, aperture_diameter_m=diameter,
+                              altitude_m=H, exposure_s=exposure, ground_speed_m_per_s=SPEED)
+    yy, xx = np.mgrid[0:size, 0:size]
+    mean = level_e * (0.3 + 1.4 * xx / size)  # smooth ramp: the single-frame noise fit needs a range
+    img = RawImage(expose(mean, prof, rng_from_seed(seed)), prof)
+    if claimed_gain is not None:
+        img = RawImage(img.data, prof.replace(gain_dn_per_e=claimed_gain), None, None)
+    return img
+
+
+def test_spec_yaml_round_trip(tmp_path):
+    spec = make_spec()
+    spec.save(tmp_path / "spec.yaml")
+    back = Specification.load(tmp_path / "spec.yaml")
+    assert back.to_dict() == spec.to_dict()
+    (tmp_path / "bad.yaml").write_text("spec_version: 99\n")
+    with pytest.raises(MetrawError, match="spec_version"):
+        Specification.load(tmp_path / "bad.yaml")
+    with pytest.raises(MetrawError, match="not found"):
+        Specification.load(tmp_path / "none.yaml")
+
+
+def _tol(name, opt, lo, hi):
+    return Tolerance(name, opt, 0.7, 0.65, lo, hi, "requirement", "sampled_range", False, False, lo, hi, True)
+
+
+def test_build_spec_maps_parameters_to_image_properties():
+    nominal = {"altitude_m": H, "pixel_pitch_m": PITCH, "focal_length_m": 1.644, "diameter_m": 0.2,
+               "exposure_s": 180e-6, "ground_speed_m_per_s": SPEED, "obscuration_ratio": 0.3, "cfa_pattern": "RGGB"}
+    tols = {"focal_length_m": _tol("focal_length_m", 1.644, 1.2, 2.0), "diameter_m": _tol("diameter_m", 0.35, 0.15, 0.5),
+            "exposure_s": _tol("exposure_s", 180e-6, 100e-6, 300e-6)}
+    spec = build_spec(tols, nominal, 0.6, {"median": 70.0, "p05": 40.0, "p95": 120.0})
+    g = spec.properties["gsd_m"]
+    assert (g.min, g.max, g.optimal) == pytest.approx((PITCH * H / 2.0, PITCH * H / 1.2, PITCH * H / 1.644))
+    d = spec.properties["diffraction_m"]
+    assert (d.min, d.max) == pytest.approx((WAVELENGTH_REF_M * H / 0.5, WAVELENGTH_REF_M * H / 0.15))
+    assert spec.properties["smear_m"].max == pytest.approx(SPEED * 300e-6)
+    s = spec.properties["signal_e"]
+    # photon budget D^2 t / f^2: the optimum has (0.35/0.2)^2 more light than nominal
+    assert s.optimal == pytest.approx(70.0 * (0.35 / 0.2) ** 2)
+    assert s.min == pytest.approx(40.0 * min((1.644 / 2.0) ** 2, (0.15 / 0.2) ** 2, 100 / 180))
+    assert s.max == pytest.approx(120.0 * max((1.644 / 1.2) ** 2, (0.5 / 0.2) ** 2, 300 / 180))
+    assert spec.parameters["focal_length_m"].to_dict()["unit"] == "m"
+
+
+def test_check_pass():
+    d = check(make_image(), make_spec())
+    assert d.verdict == "PASS", d.reasons
+    assert d.noise["measured"] and d.noise["consistent"]
+    assert d.properties["signal_e"]["value"] == pytest.approx(150.0, rel=0.05)
+
+
+def test_check_rejects_worse_and_unknown():
+    d = check(make_image(gsd=1.2), make_spec(), measure_noise=False)
+    assert d.verdict == "REJECT" and any("gsd_m" in r and "worse" in r for r in d.reasons)
+    d = check(make_image(level_e=20.0), make_spec(), measure_noise=False)
+    assert d.verdict == "REJECT" and any("signal_e" in r for r in d.reasons)
+    d = check(make_image(diameter=0.1), make_spec(), measure_noise=False)
+    assert d.verdict == "REJECT" and any("diffraction_m" in r for r in d.reasons)
+    img = make_image()
+    img = RawImage(img.data, img.profile.replace(altitude_m=None))
+    d = check(img, make_spec(), measure_noise=False)
+    assert d.verdict == "REJECT" and any("cannot be determined" in r for r in d.reasons)
+
+
+def test_check_flags_a_wrong_profile():
+    # the pixels were made with K = 1 DN/e-; the profile claims 2 DN/e-
+    d = check(make_image(claimed_gain=2.0), make_spec())
+    assert d.verdict == "REJECT"
+    assert d.noise["checks"]["gain_dn_per_e"]["contradicts"]
+    assert d.noise["checks"]["gain_dn_per_e"]["measured"] == pytest.approx(1.0, rel=0.15)
+    assert any("contradicts the pixels" in r and "gain_dn_per_e" in r for r in d.reasons)
+
+
+def test_normalise_finer_sharper_brighter_image_reaches_spec():
+    spec = make_spec()
+    # GSD 0.45 m (2x finer), 0.3 m mirror (sharper); after 2x2 binning 600 e- per pixel > 400 (brighter)
+    img = make_image(gsd=0.45, diameter=0.3, level_e=150.0, size=256)
+    d = check(img, spec, measure_noise=False)
+    assert d.verdict == "NORMALISE", d.reasons
+    fns = [s["function"] for s in d.chain]
+    assert fns[0] == "bin_same_colour" and d.chain[0]["params"]["factor"] == 2
+    assert "redistribute" in fns and fns[-1] == "thin"
+    out = apply_chain(img, d.chain, seed=3)
+    assert out.profile.gsd_m == pytest.approx(0.9)
+    assert [p["function"] for p in out.provenance] == fns
+    # signal now at the optimum: 150 e- x 4 (binning) thinned to 150 e-
+    again = check(out, spec, measure_noise=False)
+    assert again.verdict == "PASS", again.reasons
+    assert again.properties["signal_e"]["value"] == pytest.approx(150.0, rel=0.05)
+    # determinism
+    assert np.array_equal(apply_chain(img, d.chain, seed=3).data, out.data)
+
+
+def test_normalise_blur_kernel_adds_the_planned_variance():
+    # a point-like source spreads to the Gaussian the plan asks for (second moment, sampling error bounded)
+    from metraw.spec import _gaussian_kernel
+
+    k = _gaussian_kernel(2.0)
+    r = np.arange(k.shape[0]) - k.shape[0] // 2
+    assert k.sum() == pytest.approx(1.0)
+    assert float((k.sum(axis=1) * r**2).sum()) == pytest.approx(4.0, rel=1e-3)
+
+
+def test_check_cli_on_real_frames(tmp_path):
+    real = real_data_dir()
+    dng = real / "canon_dng" / "colorchart.dng"
+    if not dng.is_file():
+        pytest.skip("real data absent")
+    from metraw.cli import main
+
+    make_spec().save(tmp_path / "spec.yaml")
+    rc = main(["check", str(dng), "--spec", str(tmp_path / "spec.yaml"), "--json", str(tmp_path / "d.json")])
+    assert rc == 0
+    import json
+
+    d = json.loads((tmp_path / "d.json").read_text())
+    # a handheld camera frame has no altitude: its ground properties cannot be established
+    assert d["verdict"] == "REJECT" and d["reasons"]
