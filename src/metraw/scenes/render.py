@@ -154,8 +154,11 @@ def _shape_obj(shape) -> int:
     return shape[4] if isinstance(shape[0], str) else shape[1]
 
 
-def _apply_crown_shading(direct: np.ndarray, obj: np.ndarray, crowns, sun: np.ndarray) -> None:
-    """Replace n . s by that of a hemisphere on the visible samples of each crown disc (in place)."""
+def _crown_shading(obj: np.ndarray, crowns, sun: np.ndarray) -> np.ndarray | None:
+    """n . s of a hemisphere on the visible samples of each crown disc (0 elsewhere), or None."""
+    if not crowns:
+        return None
+    out = np.zeros(obj.shape, np.float32)
     for o, cx, cy, r, (rows, lo, hi) in crowns:
         a, b = int(lo.min()), int(hi.max())
         if b <= a:
@@ -168,8 +171,9 @@ def _apply_crown_shading(direct: np.ndarray, obj: np.ndarray, crowns, sun: np.nd
         xx = (np.arange(a, b, dtype=np.float64) - cx)[None, :] / r
         zz = np.sqrt(np.maximum(1.0 - xx * xx - yy * yy, 0.0))
         cosv = np.maximum(xx * sun[0] + yy * sun[1] + zz * sun[2], 0.0).astype(np.float32)
-        block = direct[r0:r1, a:b]
+        block = out[r0:r1, a:b]
         block[sel] = cosv[sel]
+    return out
 
 
 # ---------------------------------------------------------------------- texture
@@ -223,17 +227,8 @@ def render(scene: Scene, camera: CalibrationProfile, size_px: int, rng: np.rando
     sun_cos = np.asarray(scene.sun_cos, np.float32)
     tex_amp = np.asarray(scene.texture, np.float32)           # (n_obj, 2)
     is_veh = np.asarray(scene.is_vehicle, bool)
-    sky_view = np.where(np.asarray(scene.crown, bool), np.float32(CROWN_SKY_VIEW), np.float32(1.0))
-
-    # irradiance factors per sample: direct (n . s, zero in shadow) and sky view
-    lut = np.stack([heights + np.float32(0.05), sun_cos, sky_view], axis=1)
-    per = np.take(lut, obj.astype(np.intp), axis=0)            # one gather for three fields
-    lit = caster_h <= per[..., 0]
-    direct = np.ascontiguousarray(per[..., 1])
-    _apply_crown_shading(direct, obj, crowns, scene.sun_vector)
-    np.multiply(direct, lit, out=direct)
-    sky = np.where(lit, np.float32(1.0), np.float32(SHADOW_SKY_VIEW)) * per[..., 2]
-    del per
+    is_crown = np.asarray(scene.crown, bool)
+    sky_view = np.where(is_crown, np.float32(CROWN_SKY_VIEW), np.float32(1.0)).astype(np.float32)
 
     # texture at pixel resolution (constant over a pixel's samples)
     coarse = value_noise(rng, size_px, (256, 64, 16, 4), slope=1.0)
@@ -245,48 +240,55 @@ def render(scene: Scene, camera: CalibrationProfile, size_px: int, rng: np.rando
     profile = camera.replace(exposure_s=exposure_s)
     kd_ks = [tuple(np.float32(v * exposure_s) for v in k_per_s[c]) for c in camera.channels]
 
-    # pixel integral = mean over samples of refl[obj] * texture(obj) * (kd direct + ks sky).
-    # Pixels whose samples all see one object: refl and texture factor out exactly, only the
-    # irradiance factors are averaged. Mixed pixels (edges) are evaluated sample by sample.
-    def blocks(a):
-        return a.reshape(size_px, ss, size_px, ss)
-
-    def block_mean(a):
-        out = a[0::ss, 0::ss].copy()
-        for dy in range(ss):
-            for dx in range(ss):
-                if dy or dx:
-                    out += a[dy::ss, dx::ss]
-        return out * inv
-
+    # Per sample: direct = n . s if the sample is not under a taller caster's shadow, else 0;
+    # sky = sky view (x SHADOW_SKY_VIEW in shadow). Pixel integral = mean over samples of
+    # refl[obj] * texture(obj) * (kd direct + ks sky). In a pixel whose samples all see one flat
+    # object, refl, texture and n . s factor out exactly and only the lit fraction is averaged;
+    # mixed pixels (edges) and tree crowns (curved) are evaluated sample by sample.
+    h_eps = heights + np.float32(0.05)
     inv = np.float32(1.0 / (ss * ss))
-    d_mean = block_mean(direct)
-    s_mean = block_mean(sky)
-    ob = blocks(obj)
+    ob = obj.reshape(size_px, ss, size_px, ss)
     obj0 = ob[:, 0, :, 0]
+    h0 = np.take(h_eps, obj0)
     uniform = np.ones((size_px, size_px), bool)
+    lit_mean = np.zeros((size_px, size_px), np.float32)
     for dy in range(ss):
         for dx in range(ss):
-            uniform &= ob[:, dy, :, dx] == obj0
-    mixed = np.flatnonzero(~uniform)
+            if dy or dx:
+                uniform &= ob[:, dy, :, dx] == obj0
+            lit_mean += caster_h[dy::ss, dx::ss] <= h0
+    lit_mean *= inv
+    crown_cos = _crown_shading(obj, crowns, scene.sun_vector)
+    special = ~uniform
+    if crown_cos is not None:
+        special |= np.take(is_crown, obj0)
+    d_mean = np.take(sun_cos, obj0) * lit_mean
+    s_mean = np.take(sky_view, obj0) * (np.float32(SHADOW_SKY_VIEW) + np.float32(1 - SHADOW_SKY_VIEW) * lit_mean)
+    mixed = np.flatnonzero(special)
     my, mx = np.divmod(mixed, size_px)
-    m_obj = ob[my, :, mx, :].reshape(len(mixed), ss * ss)         # (n_mixed, ss*ss)
-    m_dir = blocks(direct)[my, :, mx, :].reshape(len(mixed), ss * ss)
-    m_sky = blocks(sky)[my, :, mx, :].reshape(len(mixed), ss * ss)
+    m_obj = ob[my, :, mx, :].reshape(len(mixed), ss * ss).astype(np.intp)
+    m_lit = caster_h.reshape(size_px, ss, size_px, ss)[my, :, mx, :].reshape(len(mixed), ss * ss) <= h_eps[m_obj]
+    m_dir = sun_cos[m_obj]
+    if crown_cos is not None:
+        m_crown = crown_cos.reshape(size_px, ss, size_px, ss)[my, :, mx, :].reshape(len(mixed), ss * ss)
+        m_dir = np.where(is_crown[m_obj], m_crown, m_dir)
+    m_dir = m_dir * m_lit
+    m_sky = sky_view[m_obj] * np.where(m_lit, np.float32(1.0), np.float32(SHADOW_SKY_VIEW))
     tc, tf = coarse.ravel()[mixed][:, None], fine.ravel()[mixed][:, None]
     m_tex = np.maximum(1 + tex_amp[m_obj, 0] * tc + tex_amp[m_obj, 1] * tf, np.float32(0.05))
-    tex0 = np.maximum(1 + tex_amp[obj0, 0] * coarse + tex_amp[obj0, 1] * fine, np.float32(0.05))
+    tex0 = np.maximum(1 + np.take(tex_amp[:, 0], obj0) * coarse + np.take(tex_amp[:, 1], obj0) * fine,
+                      np.float32(0.05))
 
     cidx = color_index(camera.cfa_pattern, (size_px, size_px))
     mean_e = np.zeros((size_px, size_px), np.float64)
     for ci, (kd, ks) in enumerate(kd_ks):
-        px = refl[obj0, ci] * tex0 * (kd * d_mean + ks * s_mean)
+        px = np.take(refl[:, ci], obj0) * tex0 * (kd * d_mean + ks * s_mean)
         px.ravel()[mixed] = (refl[m_obj, ci] * m_tex * (kd * m_dir + ks * m_sky)).sum(axis=1) * inv
         if settings.blur_px > 0:
             px = ndimage.gaussian_filter(px, settings.blur_px, mode="reflect", truncate=4.0)
         sel = cidx == ci
         mean_e[sel] = px[sel]
-    mask = is_veh[obj0].astype(np.float32)
+    mask = np.take(is_veh, obj0).astype(np.float32)
     mask.ravel()[mixed] = is_veh[m_obj].sum(axis=1).astype(np.float32) * inv
 
     counts = rng.poisson(mean_e)
