@@ -156,3 +156,25 @@ def test_check_cli_on_real_frames(tmp_path):
     d = json.loads((tmp_path / "d.json").read_text())
     # a handheld camera frame has no altitude: its ground properties cannot be established
     assert d["verdict"] == "REJECT" and d["reasons"]
+
+
+def test_check_flags_a_deliberately_wrong_profile_on_a_real_frame(tmp_path):
+    dng = real_data_dir() / "canon_dng" / "colorchart.dng"
+    if not dng.is_file():
+        pytest.skip("real data absent")
+    import json
+
+    from metraw.cli import main
+    from metraw.io import read_raw
+
+    make_spec().save(tmp_path / "spec.yaml")
+    wrong = read_raw(dng).profile.replace(gain_dn_per_e=0.5, read_noise_e=2.0,
+                                          uncertainty={"gain_dn_per_e": 0.01, "read_noise_e": 0.1})
+    (tmp_path / "wrong.json").write_text(wrong.to_json())
+    rc = main(["check", str(dng), "--spec", str(tmp_path / "spec.yaml"), "--profile", str(tmp_path / "wrong.json"),
+               "--json", str(tmp_path / "d.json")])
+    assert rc == 0
+    d = json.loads((tmp_path / "d.json").read_text())
+    assert d["verdict"] == "REJECT"
+    assert d["noise"]["checks"]["gain_dn_per_e"]["contradicts"]
+    assert any("contradicts the pixels" in r for r in d["reasons"])

@@ -133,7 +133,9 @@ def _plain(v):
     if isinstance(v, (list, tuple)):
         return [_plain(x) for x in v]
     if isinstance(v, np.generic):
-        return v.item()
+        v = v.item()
+    if isinstance(v, float) and not math.isfinite(v):
+        return None  # JSON/YAML-safe: an infinite uncertainty means "not stated"
     return v
 
 

@@ -10,6 +10,7 @@ functions that brings the image to spec (see `metraw.spec`).
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 from metraw.atomic import atomic_path
@@ -72,8 +73,10 @@ def format_decision(decision) -> str:
                      f"optimal {f['optimal']:.4g}: {f['status']}")
     if decision.noise and decision.noise.get("measured"):
         for name, c in decision.noise["checks"].items():
+            claimed = (f"{c['claimed']:.4g} +- {c['claimed_u']:.2g}" if math.isfinite(c["claimed_u"])
+                       else f"{c['claimed']:.4g} (marked unknown in the profile)")
             lines.append(f"  noise {name}: measured {c['measured']:.4g} +- {c['measured_u']:.2g}, claimed "
-                         f"{c['claimed']:.4g}{' CONTRADICTS' if c['contradicts'] else ''}")
+                         f"{claimed}{' CONTRADICTS' if c['contradicts'] else ''}")
     for i, step in enumerate(decision.chain, 1):
         lines.append(f"  step {i}: {step['function']}({', '.join(f'{k}={v:.4g}' if isinstance(v, float) else f'{k}={v}' for k, v in step['params'].items())})"
                      f"  # {step['effect']}")
