@@ -1,0 +1,60 @@
+# Train the same segmenter (same architecture, hyperparameters and split) on every point,
+# and on the source store itself as the drone-resolution reference.
+
+
+def training_params(wildcards):
+    return {k: v for k, v in config["training"].items()}
+
+
+rule train:
+    input:
+        "results/points/{point}/target.zarr",
+    output:
+        directory("results/points/{point}/model"),
+    params:
+        training=training_params,
+    threads: workflow.cores
+    log:
+        "logs/train/{point}.log",
+    shell:
+        "metraw train {input} --out {output} --params params.yaml 2> {log}"
+
+
+rule evaluate:
+    input:
+        store="results/points/{point}/target.zarr",
+        model="results/points/{point}/model",
+    output:
+        "results/points/{point}/metrics.json",
+    threads: workflow.cores
+    log:
+        "logs/evaluate/{point}.log",
+    shell:
+        "metraw evaluate {input.store} --model {input.model} --out {output} 2> {log}"
+
+
+rule train_source:
+    input:
+        SOURCE_STORE,
+    output:
+        directory("results/source/model"),
+    params:
+        training=training_params,
+    threads: workflow.cores
+    log:
+        "logs/train/source.log",
+    shell:
+        "metraw train {input} --out {output} --params params.yaml 2> {log}"
+
+
+rule evaluate_source:
+    input:
+        store=SOURCE_STORE,
+        model="results/source/model",
+    output:
+        "results/source/metrics.json",
+    threads: workflow.cores
+    log:
+        "logs/evaluate/source.log",
+    shell:
+        "metraw evaluate {input.store} --model {input.model} --out {output} 2> {log}"
