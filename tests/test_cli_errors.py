@@ -15,6 +15,13 @@ def _png(path, rgb):
     path.write_bytes(imagecodecs.png_encode(np.ascontiguousarray(rgb)))
 
 
+def _raw_meta(**fields):
+    """`--meta KEY=VALUE` arguments for a headerless raw (complete unless a field is overridden)."""
+    base = dict(width=4, height=4, dtype="uint16", cfa_pattern="RGGB", black_level_dn=0, adc_bits=12)
+    base.update(fields)
+    return [a for k, v in base.items() for a in ("--meta", f"{k}={v}")]
+
+
 def _ingest_fails(tmp_path, capsys, inputs, *extra):
     """Run `metraw ingest`, expect exit 2 with one error line and no output; return the message."""
     out = tmp_path / "out" / "store.zarr"
@@ -89,8 +96,7 @@ def test_wrong_dtype_tiff(tmp_path, capsys):
 def test_wrong_dtype_headerless(tmp_path, capsys):
     bad = tmp_path / "c.raw"
     bad.write_bytes(np.zeros(16, np.complex64).tobytes())
-    msg = _ingest_fails(tmp_path, capsys, [bad], "--meta", "width=4", "--meta", "height=4", "--meta", "dtype=complex64",
-                        "--meta", "cfa_pattern=RGGB", "--meta", "black_level_dn=0", "--meta", "adc_bits=12")
+    msg = _ingest_fails(tmp_path, capsys, [bad], *_raw_meta(dtype="complex64"))
     assert "is not a raw pixel type" in msg
 
 
@@ -104,8 +110,7 @@ def test_headerless_missing_metadata(tmp_path, capsys):
 def test_headerless_size_mismatch(tmp_path, capsys):
     bad = tmp_path / "a.raw"
     bad.write_bytes(np.zeros(60, np.uint16).tobytes())
-    msg = _ingest_fails(tmp_path, capsys, [bad], "--meta", "width=8", "--meta", "height=8", "--meta", "dtype=uint16",
-                        "--meta", "cfa_pattern=RGGB", "--meta", "black_level_dn=0", "--meta", "adc_bits=12")
+    msg = _ingest_fails(tmp_path, capsys, [bad], *_raw_meta(width=8, height=8))
     assert "file has 120 bytes but 8 x 8 uint16 pixels + 0 header bytes need 128 (truncated)" in msg
 
 

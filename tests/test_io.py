@@ -45,8 +45,10 @@ def test_srgb_inverse_matches_the_standard_curve():
 def test_unused_low_bits():
     rng = rng_from_seed(1)
     x = rng.integers(0, 4096, (64, 64)).astype(np.uint16)
-    assert unused_low_bits(x) == 0 or x.max() == 0  # random 12-bit data uses bit 0
-    assert unused_low_bits(x * np.uint16(16)) == unused_low_bits(x) + 4
+    x[0, 0] = 1
+    assert unused_low_bits(x) == 0
+    assert unused_low_bits(x * np.uint16(16)) == 4
+    assert unused_low_bits(np.uint16(8) * (2 * x + 1)) == 3
     assert unused_low_bits(np.zeros((4, 4), np.uint16)) == 0
 
 
