@@ -164,3 +164,14 @@ def test_cli_bad_input_writes_nothing(tmp_path, capsys):
     assert main(["scenes", "--n", "2", "--kinds", "desert", "--size", "32", "--out", str(out), "--workers", "1"]) == 2
     assert "error" in capsys.readouterr().err
     assert not out.exists() and not list(tmp_path.glob(".bad.zarr*"))
+
+
+def test_stats_measure_known_inputs():
+    from metraw.scenes.stats import mask_component_sizes_m, psd_slope
+
+    white = rng_from_seed(0).standard_normal((256, 256))
+    assert abs(psd_slope(white, 0.25)) < 0.2  # flat spectrum
+    m = np.zeros((200, 200), np.float32)
+    m[50:80, 40:116] = 1.0  # 76 x 30 px rectangle
+    (length, width), = mask_component_sizes_m(m, 0.06)
+    assert abs(length - 76 * 0.06) < 0.05 and abs(width - 30 * 0.06) < 0.05
