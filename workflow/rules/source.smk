@@ -13,7 +13,7 @@ if config["source"]["dataset"] == "synthetic":
             "logs/source_store.log",
         shell:
             "metraw scenes --n {params.synthetic[n_scenes]} --seed {params.synthetic[seed]}"
-            " --size {params.synthetic[size_px]} --params params.yaml --out {output} 2> {log}"
+            " --size {params.synthetic[size_px]} --camera params.yaml --out {output} 2> {log}"
 
 else:
 
@@ -21,12 +21,13 @@ else:
         output:
             directory(SOURCE_STORE),
         params:
-            path=config["source"]["kit_ais"]["path"],
+            kit=config["source"]["kit_ais"],
             camera=config["source"]["camera"],
         log:
             "logs/source_store.log",
         shell:
-            "metraw ingest {params.path} --labels yolo --params params.yaml --out {output} 2> {log}"
+            "metraw ingest {params.kit[path]} --labels yolo --camera params.yaml --gsd-m {params.kit[gsd_m]}"
+            " --white-fraction {params.kit[white_fraction]} --seed {params.kit[seed]} --out {output} 2> {log}"
 
 
 rule calibrate_source:

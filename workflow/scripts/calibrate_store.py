@@ -49,7 +49,8 @@ def calibrate_store(store_path: str) -> dict:
         "images_checked": len(rows),
         "images_fitted": len(fitted),
         "max_abs_gain_z": max((abs(r["gain_z"]) for r in fitted), default=None),
-        "profile_consistent": bool(fitted) and all(abs(r["gain_z"]) <= Z_LIMIT for r in fitted),
+        # None: no image could be fitted, so the pixels neither confirm nor contradict the profile
+        "profile_consistent": all(abs(r["gain_z"]) <= Z_LIMIT for r in fitted) if fitted else None,
         "z_limit": Z_LIMIT,
         "images": rows,
     }
