@@ -140,7 +140,7 @@ def real_kit_images(real_dir: str | os.PathLike, count: int, camera=None) -> lis
 
 
 def scenes_contact_sheet(store, out_png: str | os.PathLike, per_kind: int = 3, real_dir=None,
-                         tile_px: int = 256) -> None:
+                         tile_px: int = 200) -> None:
     """Contact sheet of a scenes store: ``per_kind`` scenes of each scene type, plus a row of
     real KIT aerial photos in the same style when ``real_dir`` holds them."""
     rows: dict[str, list[RawImage]] = {}
