@@ -119,6 +119,42 @@ def segmentation_loss(logits, target):
     return bce + (1.0 - dice)
 
 
+def train_loop(model, epoch_batches, steps_per_epoch: int, config: TrainConfig, device: str,
+               progress: bool | None = None) -> list[float]:
+    """AdamW + one-cycle schedule over ``config.epochs``; ``epoch_batches(epoch)`` yields (x, y) batches.
+
+    x: (B, S, h, w) packed VST planes, y: (B, h, w) car fraction (numpy arrays or tensors).
+    Returns the mean loss per epoch.
+    """
+    import torch
+
+    from metraw.progress import progress_bar
+
+    opt = torch.optim.AdamW(model.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=config.learning_rate,
+                                                total_steps=steps_per_epoch * config.epochs, pct_start=0.15)
+    losses = []
+    bar = progress_bar(range(config.epochs), desc="train", disable=None if progress is None else not progress)
+    for epoch in bar:
+        model.train()
+        run, n = 0.0, 0
+        for x, y in epoch_batches(epoch):
+            x = torch.as_tensor(x).to(device)
+            y = torch.as_tensor(y)[:, None].to(device)
+            loss = segmentation_loss(model(x), y)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            if n < steps_per_epoch:  # the schedule has exactly steps_per_epoch steps per epoch
+                sched.step()
+            run += float(loss.detach())
+            n += 1
+        losses.append(run / max(n, 1))
+        if hasattr(bar, "set_postfix"):
+            bar.set_postfix(loss=f"{losses[-1]:.4f}")
+    return losses
+
+
 def build_model(in_channels: int, config: TrainConfig, upsample: int):
     from metraw.segment.model import Segmenter
 
@@ -128,10 +164,6 @@ def build_model(in_channels: int, config: TrainConfig, upsample: int):
 def fit(images: list[PreparedImage], config: TrainConfig, device: str | None = None,
         progress: bool | None = None, upsample: int | None = None) -> tuple[Any, dict[str, Any]]:
     """Train a fresh model on prepared images; returns (model, training record)."""
-    import torch
-
-    from metraw.progress import progress_bar
-
     if not images:
         raise MetrawError("no training images")
     device = device or default_device()
@@ -141,35 +173,18 @@ def fit(images: list[PreparedImage], config: TrainConfig, device: str | None = N
     if any((img.pattern == "mono") != (in_ch == 1) for img in images):
         raise MetrawError("cannot train on a mix of mono and CFA images")
     model = build_model(in_ch, config, f).to(device)
-    opt = torch.optim.AdamW(model.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)
-    order_per_epoch = len(images) * config.crops_per_image
-    steps_per_epoch = math.ceil(order_per_epoch / config.batch_size)
-    total = steps_per_epoch * config.epochs
-    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=config.learning_rate, total_steps=total,
-                                                pct_start=0.15)
+    steps_per_epoch = math.ceil(len(images) * config.crops_per_image / config.batch_size)
     rng = rng_from_seed(config.seed)
-    losses = []
-    t0 = time.perf_counter()
-    bar = progress_bar(range(config.epochs), desc="train", disable=None if progress is None else not progress)
-    for _epoch in bar:
-        model.train()
+
+    def epoch_batches(_epoch):
         order = np.concatenate([rng.permutation(len(images)) for _ in range(config.crops_per_image)])
-        run = 0.0
         for s in range(steps_per_epoch):
             batch = [images[i] for i in order[s * config.batch_size:(s + 1) * config.batch_size]]
-            x, y = batch_crops(batch, config.crop_px, rng, augment=True)
-            x = torch.from_numpy(x).to(device)
-            y = torch.from_numpy(y)[:, None].to(device)
-            loss = segmentation_loss(model(x), y)
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-            sched.step()
-            run += float(loss.detach())
-        losses.append(run / steps_per_epoch)
-        if hasattr(bar, "set_postfix"):
-            bar.set_postfix(loss=f"{losses[-1]:.4f}")
-    record = {"epochs": config.epochs, "steps": total, "loss_per_epoch": losses,
+            yield batch_crops(batch, config.crop_px, rng, augment=True)
+
+    t0 = time.perf_counter()
+    losses = train_loop(model, epoch_batches, steps_per_epoch, config, device, progress)
+    record = {"epochs": config.epochs, "steps": steps_per_epoch * config.epochs, "loss_per_epoch": losses,
               "training_time_s": time.perf_counter() - t0, "device": device, "upsample": f,
               "in_channels": in_ch, "n_train": len(images)}
     return model, record
@@ -179,9 +194,6 @@ def train_store(store_path: str | os.PathLike, out_dir: str | os.PathLike, confi
                 device: str | None = None, progress: bool | None = None, overwrite: bool = False
                 ) -> dict[str, Any]:
     """Train on the training split of a store; write ``model.pt`` and ``train.json`` into ``out_dir``."""
-    import torch
-
-    from metraw.atomic import atomic_path
     from metraw.store import RawStore
 
     store = RawStore.open(store_path)
@@ -192,14 +204,24 @@ def train_store(store_path: str | os.PathLike, out_dir: str | os.PathLike, confi
     model, record = fit(images, config, device, progress)
     record.update({"store": str(store_path), "n_images": len(store), "train_indices": train_idx.tolist(),
                    "test_indices": test_idx.tolist(), "preprocess_time_s": prep_s, "config": asdict(config)})
+    save_model(out_dir, model, config, record, test_idx, overwrite)
+    return record
+
+
+def save_model(out_dir, model, config: TrainConfig, record: dict[str, Any], test_indices, overwrite: bool = False
+               ) -> None:
+    """Write ``model.pt`` (weights, config, upsampling, test split) and ``train.json`` atomically."""
+    import torch
+
+    from metraw.atomic import atomic_path
+
     with atomic_path(out_dir, overwrite=overwrite) as tmp:
         tmp.mkdir(parents=True)
         torch.save({"state_dict": {k: v.cpu() for k, v in model.state_dict().items()},
                     "config": asdict(config), "upsample": record["upsample"],
-                    "in_channels": record["in_channels"], "test_indices": test_idx.tolist()},
+                    "in_channels": record["in_channels"], "test_indices": [int(i) for i in test_indices]},
                    tmp / CHECKPOINT)
         (tmp / TRAIN_METRICS).write_text(json.dumps(record, indent=2))
-    return record
 
 
 def load_model(model_dir: str | os.PathLike, device: str | None = None):
