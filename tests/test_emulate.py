@@ -304,3 +304,34 @@ def test_parse_point_and_from_params():
     params = {"target": {"nominal": dict(NOMINAL, haze_e=5.0)}}
     t = TargetSystem.from_params(params, {"diameter_m": 0.5})
     assert t.diameter_m == 0.5 and t.haze_e == 5.0
+
+
+# --------------------------------------------------------------------------- command line
+def test_cli_emulate_writes_store_atomically(tmp_path, capsys):
+    import yaml
+
+    from metraw.cli import main
+    from metraw.store import RawStore
+
+    params = tmp_path / "params.yaml"
+    from pathlib import Path
+
+    full = yaml.safe_load((Path(__file__).resolve().parents[1] / "params.yaml").read_text())
+    full["target"]["nominal"] = dict(NOMINAL)
+    full["target"]["emulation"] = {"mode": "auto", "seed": 0}
+    params.write_text(yaml.safe_dump(full))
+    src_path = tmp_path / "src.zarr"
+    with RawStore.create(src_path) as store:
+        store.append(structured_source(seed=20))
+        store.append(structured_source(seed=21))
+    out = tmp_path / "out.zarr"
+    rc = main(["emulate", str(src_path), str(out), "--params", str(params), "--point",
+               "focal_length_m=1.2,exposure_s=300e-6"])
+    assert rc == 0 and "GSD ratio" in capsys.readouterr().out
+    res = RawStore.open(out)
+    assert len(res) == 2 and res[0].profile.exposure_s == 300e-6 and res[0].profile.focal_length_m == 1.2
+    assert res[0].provenance[-1]["params"]["seed"] == [0, 0]
+    bad = tmp_path / "bad.zarr"
+    rc = main(["emulate", str(src_path), str(bad), "--params", str(params), "--point", "diameter_m=30,exposure_s=1"])
+    assert rc == 2 and "times more light" in capsys.readouterr().err
+    assert not bad.exists() and not any(p.name.startswith(".bad.zarr") for p in tmp_path.iterdir())
