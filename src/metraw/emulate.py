@@ -65,8 +65,16 @@ __all__ = ["emulate", "expected_electrons", "photon_electrons", "plan_emulation"
 
 EDGE_POLICIES = ("reflect", "zero", "valid")
 _OVERSAMPLE = 2.0  # grid Nyquist / optical band limit
-_M_SPREAD = 6  # gridding half-width [grid points]
-_S_WIN = math.sqrt(_M_SPREAD / (math.pi * math.sqrt(2.0)))  # Gaussian window sigma [grid points]
+
+
+def _gridding(error: float) -> tuple[int, float]:
+    """Gaussian gridding half-width M [grid points] and window sigma for a relative error ~``error``.
+
+    At oversampling 2 the aliasing error is exp(-pi^2 s^2) and the window truncation exp(-M^2/(2 s^2));
+    balancing them gives s^2 = M / (pi sqrt 2) and an error ~exp(-pi M / sqrt 2) (M = 6: 1.6e-6).
+    """
+    m = max(2, math.ceil(-math.log(error) * math.sqrt(2.0) / math.pi))
+    return m, math.sqrt(m / (math.pi * math.sqrt(2.0)))
 _WORKERS = 2
 _PLAN_CACHE: dict[str, "EmulationPlan"] = {}
 
@@ -140,6 +148,7 @@ class EmulationPlan:
     grid_origin: tuple[int, int]  # grid index of ground (0, 0)
     n_inside: tuple[int, int]  # grid steps across the footprint (y, x)
     transfer: dict[str, np.ndarray]
+    gridding: tuple[int, float]
     prebin: int
     psf_table: dict[str, Any]
     margin_m: float
@@ -277,6 +286,7 @@ def _make_plan(source_profile, source_shape, target: TargetSystem, acc: Accuracy
                           f"does not fit in the source footprint {Hm:.4g} x {Wm:.4g} m with margin {margin:.3g} m")
 
     # ---- Fourier grid (ground axes = source axes)
+    plan_m, plan_s = _gridding(acc.psf_quadrature_error)
     h_max = 1.0 / (2 * _OVERSAMPLE * f_c)
     h_floor = cell / 2
     bounds: dict[str, float] = {}
@@ -286,14 +296,14 @@ def _make_plan(source_profile, source_shape, target: TargetSystem, acc: Accuracy
     if edge == "reflect":
         # even extension: the period is exactly twice the footprint, so the periodic FFT sees the scene
         # mirrored again and again (no wrap-around error at all)
-        ny_in = sfft.next_fast_len(max(_M_SPREAD + 1, math.ceil(Hm / h_max)), real=True)
-        nx_in = sfft.next_fast_len(max(_M_SPREAD + 1, math.ceil(Wm / h_max)), real=True)
+        ny_in = sfft.next_fast_len(max(plan_m + 1, math.ceil(Hm / h_max)), real=True)
+        nx_in = sfft.next_fast_len(max(plan_m + 1, math.ceil(Wm / h_max)), real=True)
         oy0 = ox0 = 0
         Ny, Nx = 2 * ny_in, 2 * nx_in
     else:
         ny_in, nx_in = max(1, math.ceil(Hm / h_max)), max(1, math.ceil(Wm / h_max))
-        oy0 = math.ceil(pad_m / (Hm / ny_in)) + _M_SPREAD + 2
-        ox0 = math.ceil(pad_m / (Wm / nx_in)) + _M_SPREAD + 2
+        oy0 = math.ceil(pad_m / (Hm / ny_in)) + plan_m + 2
+        ox0 = math.ceil(pad_m / (Wm / nx_in)) + plan_m + 2
         Ny = sfft.next_fast_len(ny_in + 2 * oy0 + 1, real=True)
         Nx = sfft.next_fast_len(nx_in + 2 * ox0 + 1, real=True)
     hy, hx = Hm / ny_in, Wm / nx_in
@@ -308,7 +318,7 @@ def _make_plan(source_profile, source_shape, target: TargetSystem, acc: Accuracy
         base = base * np.sinc(smear * (fx * math.cos(a) + fy * math.sin(a)))
     if jitter_on:
         base = base * np.exp(-2 * math.pi**2 * jitter**2 * fr**2)
-    win = (math.sqrt(2 * math.pi) * _S_WIN) ** 2 * np.exp(-2 * math.pi**2 * _S_WIN**2 * ((fx * hx) ** 2 + (fy * hy) ** 2))
+    win = (math.sqrt(2 * math.pi) * plan_s) ** 2 * np.exp(-2 * math.pi**2 * plan_s**2 * ((fx * hx) ** 2 + (fy * hy) ** 2))
     transfer, tables = {}, {}
     n_lams = {}
     for c in channels:
@@ -327,7 +337,7 @@ def _make_plan(source_profile, source_shape, target: TargetSystem, acc: Accuracy
     tables = _ee_table(eps, v_max)
     prebin = max(1, int(acc.max_prebin_fraction_of_psf * fwhm_min // cell))
     bounds.update({
-        "gridding_relative": 1e-5,
+        "gridding_relative": math.exp(-math.pi * plan_m / math.sqrt(2.0)),  # measured ~10x below
         "band_sampling_peak_relative": acc.band_sampling_error,
         "fft_wrap_flux": acc.folding_threshold,
         "edge_missing_flux": acc.kernel_flux_loss if edge == "valid" else (0.0 if edge == "reflect" else 0.5),
@@ -339,7 +349,8 @@ def _make_plan(source_profile, source_shape, target: TargetSystem, acc: Accuracy
         channels=channels, source_gsd_m=gs, cell_m=cell, cells_shape=(hc, wc), target_gsd_m=gt,
         frame_shape=(int(ht), int(wt)), rotation_rad=theta, centre_m=(cx, cy), alpha=alpha, p=p, bands=bands,
         edge=edge, grid_h_m=(hy, hx), grid_shape=(Ny, Nx), grid_origin=(oy0, ox0), n_inside=(ny_in, nx_in),
-        transfer=transfer, prebin=prebin, psf_table=tables, margin_m=margin, modelled=modelled, skipped=skipped,
+        transfer=transfer, gridding=(plan_m, plan_s), prebin=prebin, psf_table=tables, margin_m=margin,
+        modelled=modelled, skipped=skipped,
         bounds=bounds, smear_m=smear if smear_on else 0.0, smear_angle_rad=target.track_angle_rad,
         jitter_m=jitter if jitter_on else 0.0, diameter_m=d, altitude_m=h_alt)
 
@@ -377,12 +388,12 @@ def _saturated_cells(source: RawImage, plan: EmulationPlan) -> np.ndarray | None
 
 
 # ----------------------------------------------------------------------------- gridding
-def _window_matrix(pos: np.ndarray, n_grid: int, periodic: bool) -> sp.csr_matrix:
+def _window_matrix(pos: np.ndarray, n_grid: int, periodic: bool, plan_m: int, plan_s: float) -> sp.csr_matrix:
     """Sparse (n_grid x len(pos)) Gaussian gridding weights of points at grid coordinates ``pos``."""
     k0 = np.rint(pos).astype(np.int64)
-    offs = np.arange(-_M_SPREAD, _M_SPREAD + 1)
+    offs = np.arange(-plan_m, plan_m + 1)
     rows = k0[:, None] + offs[None, :]
-    w = np.exp(-0.5 * ((rows - pos[:, None]) / _S_WIN) ** 2)
+    w = np.exp(-0.5 * ((rows - pos[:, None]) / plan_s) ** 2)
     if periodic:
         rows = rows % n_grid
     elif rows.min() < 0 or rows.max() >= n_grid:
@@ -402,8 +413,9 @@ class _Fourier:
         hc, wc = plan.cells_shape
         cell = plan.cell_m
         self.periodic = per = plan.edge == "reflect"
-        self.Sy = _window_matrix((np.arange(hc) + 0.5) * cell / hy + oy0, Ny, per)
-        self.SxT = _window_matrix((np.arange(wc) + 0.5) * cell / hx + ox0, Nx, per).T.tocsr()
+        g = plan.gridding
+        self.Sy = _window_matrix((np.arange(hc) + 0.5) * cell / hy + oy0, Ny, per, *g)
+        self.SxT = _window_matrix((np.arange(wc) + 0.5) * cell / hx + ox0, Nx, per, *g).T.tocsr()
         ht, wt = plan.frame_shape
         gt = plan.target_gsd_m
         c, s = math.cos(plan.rotation_rad), math.sin(plan.rotation_rad)
@@ -411,8 +423,8 @@ class _Fourier:
         v = (np.arange(ht) + 0.5 - ht / 2) * gt
         if s == 0.0:
             self.separable = True
-            self.Ty = _window_matrix((c * v + plan.centre_m[1]) / hy + oy0, Ny, per).T.tocsr()
-            self.Tx = _window_matrix((c * u + plan.centre_m[0]) / hx + ox0, Nx, per)
+            self.Ty = _window_matrix((c * v + plan.centre_m[1]) / hy + oy0, Ny, per, *g).T.tocsr()
+            self.Tx = _window_matrix((c * u + plan.centre_m[0]) / hx + ox0, Nx, per, *g)
         else:
             self.separable = False
             X = plan.centre_m[0] + c * u[None, :] - s * v[:, None]
@@ -435,11 +447,12 @@ class _Fourier:
         g = sfft.irfft2(G, plan.grid_shape, workers=_WORKERS)
         if self.separable:
             return np.asarray((self.Ty @ g) @ self.Tx)
-        offs = np.arange(-_M_SPREAD, _M_SPREAD + 1)
+        plan_m, plan_s = plan.gridding
+        offs = np.arange(-plan_m, plan_m + 1)
         ky = np.rint(self.py).astype(np.int64)[:, None] + offs
         kx = np.rint(self.px).astype(np.int64)[:, None] + offs
-        wy = np.exp(-0.5 * ((ky - self.py[:, None]) / _S_WIN) ** 2)
-        wx = np.exp(-0.5 * ((kx - self.px[:, None]) / _S_WIN) ** 2)
+        wy = np.exp(-0.5 * ((ky - self.py[:, None]) / plan_s) ** 2)
+        wx = np.exp(-0.5 * ((kx - self.px[:, None]) / plan_s) ** 2)
         ky %= plan.grid_shape[0]
         kx %= plan.grid_shape[1]
         out = np.zeros(len(self.px))
