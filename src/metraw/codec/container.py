@@ -18,7 +18,7 @@ import crc32c as _crc32c
 from metraw.errors import MetrawError
 
 MAGIC = b"MRAW"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 
 
 def crc32c(data: bytes | memoryview) -> int:

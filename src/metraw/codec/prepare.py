@@ -24,14 +24,12 @@ below black that the transform is undefined (x + c <= 0).
 
 from __future__ import annotations
 
+import numba as nb
 import numpy as np
 
 from metraw.profile import CalibrationProfile
 from metraw.vst import effective_read_variance_e2
 
-_M1 = np.uint32(0x7FEB352D)
-_M2 = np.uint32(0x846CA68B)
-_GOLDEN = np.uint32(0x9E3779B9)
 
 
 def _splitmix64(value: int) -> int:
@@ -42,26 +40,31 @@ def _splitmix64(value: int) -> int:
     return z ^ (z >> 31)
 
 
+@nb.njit(cache=True, nogil=True)
+def _dither_kernel(k1, k2, start, count):
+    out = np.empty(count, np.float64)
+    m = np.uint64(0xFFFFFFFF)
+    for i in range(count):
+        x = (np.uint64(start + i) * np.uint64(0x9E3779B9) + np.uint64(k1)) & m
+        x ^= x >> np.uint64(16)
+        x = (x * np.uint64(0x7FEB352D)) & m
+        x ^= x >> np.uint64(15)
+        x = (x * np.uint64(0x846CA68B)) & m
+        x ^= np.uint64(k2)
+        x ^= x >> np.uint64(16)
+        out[i] = np.float64(x >> np.uint64(8)) * (1.0 / 16777216.0) - 0.5
+    return out
+
+
 def dither(seed: int, start: int, count: int) -> np.ndarray:
     """Uniform dither in [-1/2, 1/2) for flat pixel indices ``start .. start+count-1`` (float64).
 
-    Counter-based: each value is a hash (lowbias32, C. Wellons) of the pixel index keyed by
-    ``splitmix64(seed)``, so any tile regenerates its own dither without the rest of the frame.
-    The 24-bit output is exact in float32/float64.
+    Counter-based: each value is a hash (lowbias32, C. Wellons) of the 32-bit pixel index keyed
+    by ``splitmix64(seed)``, so any tile regenerates its own dither without the rest of the
+    frame. The 24-bit output is exact in float32/float64. Compiled (numba), releases the GIL.
     """
     key = _splitmix64(int(seed))
-    k1 = np.uint32(key & 0xFFFFFFFF)
-    k2 = np.uint32((key >> 32) & 0xFFFFFFFF)
-    with np.errstate(over="ignore"):
-        x = np.arange(start, start + count, dtype=np.uint32)
-        x = x * _GOLDEN + k1
-        x ^= x >> np.uint32(16)
-        x *= _M1
-        x ^= x >> np.uint32(15)
-        x *= _M2
-        x ^= k2
-        x ^= x >> np.uint32(16)
-    return (x >> np.uint32(8)).astype(np.float64) * (1.0 / 16777216.0) - 0.5
+    return _dither_kernel(key & 0xFFFFFFFF, (key >> 32) & 0xFFFFFFFF, int(start), int(count))
 
 
 def offset_e(profile: CalibrationProfile) -> float:
@@ -75,6 +78,21 @@ def escape_mask(data: np.ndarray, profile: CalibrationProfile) -> np.ndarray:
     return (data >= profile.white_level_dn) | (data <= low)
 
 
+@nb.njit(cache=True, nogil=True)
+def _forward_kernel(data, black, inv_k, c, xmax, inv_step, u):
+    h, w = data.shape
+    out = np.empty((h, w), np.int32)
+    for i in range(h):
+        for j in range(w):
+            x = (np.float64(data[i, j]) - black) * inv_k + c
+            x = min(max(x, 0.0), xmax)
+            z = 2.0 * np.sqrt(x)
+            z *= inv_step
+            z += u[i, j]
+            out[i, j] = np.int32(np.rint(z))
+    return out
+
+
 def forward(data: np.ndarray, profile: CalibrationProfile, step: float, u: np.ndarray) -> np.ndarray:
     """Symbols k = round(z / q + u) (int32) for DN ``data`` with dither ``u`` (same shape).
 
@@ -82,12 +100,12 @@ def forward(data: np.ndarray, profile: CalibrationProfile, step: float, u: np.nd
     """
     k = profile.gain_dn_per_e
     c = offset_e(profile)
-    x = (data.astype(np.float64) - profile.black_level_dn) * (1.0 / k) + c
-    x = np.minimum(np.maximum(x, 0.0), (profile.white_level_dn - profile.black_level_dn) / k + c)
-    z = 2.0 * np.sqrt(x)
-    z *= 1.0 / step
-    z += u
-    return np.rint(z).astype(np.int32)
+    xmax = (profile.white_level_dn - profile.black_level_dn) / k + c
+    data = np.asarray(data)
+    if data.ndim != 2:
+        return forward(data.reshape(1, -1), profile, step, np.asarray(u).reshape(1, -1)).reshape(data.shape)
+    return _forward_kernel(data, float(profile.black_level_dn), 1.0 / k, c, xmax, 1.0 / step,
+                           np.asarray(u, dtype=np.float64))
 
 
 def inverse(symbols: np.ndarray, profile: CalibrationProfile, step: float, u: np.ndarray) -> np.ndarray:
