@@ -45,13 +45,38 @@ def frames():
     return out
 
 
-def timed(fn, reps=3):
-    best = math.inf
+def timed(fn, reps=5):
+    """(result, median wall time [s]) over ``reps`` repetitions."""
+    ts = []
     for _ in range(reps):
         t = time.perf_counter()
         r = fn()
-        best = min(best, time.perf_counter() - t)
-    return r, best
+        ts.append(time.perf_counter() - t)
+    return r, float(np.median(ts))
+
+
+def seed_bias(img, step, seeds=24):
+    """Error averaged over ``seeds`` dither seeds: frame mean and per-decile means, each with its
+    standard error (from the spread of per-seed means, so pixel correlations are accounted for)."""
+    y = img.data
+    ok = ~prepare.escape_mask(y, img.profile)
+    sig = prepare.sigma_t_dn(y, img.profile)
+    yv = y[ok].astype(np.float64)
+    edges = np.unique(np.quantile(yv, np.linspace(0, 1, 11)))
+    idx = np.clip(np.searchsorted(edges, yv, side="right") - 1, 0, edges.size - 2)
+    cnt = np.maximum(np.bincount(idx, minlength=edges.size - 1), 1)
+    frame, dec = [], []
+    for s in range(seeds):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            d = codec.decode(codec.encode(img, step, 1000 + s)).data
+        e = ((d.astype(np.float64) - y) / sig)[ok]
+        frame.append(e.mean())
+        dec.append(np.bincount(idx, e, minlength=edges.size - 1) / cnt)
+    frame, dec = np.array(frame), np.array(dec)
+    se = lambda a: a.std(axis=0, ddof=1) / math.sqrt(seeds)  # noqa: E731
+    worst = int(np.argmax(np.abs(dec.mean(0))))
+    return frame.mean(), se(frame), dec.mean(0)[worst], se(dec)[worst], float(np.max(se(dec)))
 
 
 def err_stats(img, dec_data, step_for_sigma=None):
@@ -66,6 +91,7 @@ def err_stats(img, dec_data, step_for_sigma=None):
 def main() -> int:
     rows = []
     rd = {}
+    accept = []
     for name, img in frames():
         d = img.data
         mb = d.nbytes / 1e6
@@ -77,6 +103,7 @@ def main() -> int:
         jl, te = timed(lambda: imagecodecs.jpegls_encode(d))
         _, td = timed(lambda: imagecodecs.jpegls_decode(jl))
         row("jpegls lossless", len(jl), te, td, 0, 0, 0)
+        jls_te, jls_td = te, td
         z, te = timed(lambda: imagecodecs.zstd_encode(d.tobytes(), level=9))
         _, td = timed(lambda: imagecodecs.zstd_decode(z))
         row("zstd-9", len(z), te, td, 0, 0, 0)
@@ -103,6 +130,15 @@ def main() -> int:
             rows[-1] = rows[-1] + (math.log2(math.sqrt(2 * math.pi * math.e) / step), s["worst_decile_mean_sigma"],
                                    s["bound_violations"], s["mean_error_se_sigma"])
             rd.setdefault(name, {}).setdefault("metraw", []).append((s["rms_error_sigma"], 8 * len(blob) / n))
+            # JPEG-LS lossless again right after, for a side-by-side speed ratio under the same load
+            _, te_j = timed(lambda: imagecodecs.jpegls_encode(d))
+            _, td_j = timed(lambda: imagecodecs.jpegls_decode(jl))
+            jls_te, jls_td = 0.5 * (jls_te + te_j), 0.5 * (jls_td + td_j)
+            sb = seed_bias(img, step) if step == 1.0 or name != "synthetic" else (math.nan,) * 5
+            accept.append((name, step, 8 * len(blob) / n, math.log2(math.sqrt(2 * math.pi * math.e) / step),
+                           16 * n / 8 / len(blob), mb / te, mb / td, jls_te / te, jls_td / td, sb,
+                           s["rms_over_uniform"], s["rms_over_expected"], s["neighbour_corr"],
+                           s["bound_violations"], s["issue_bound_violations"]))
             # JPEG-LS near-lossless with the same max error as metraw's median-sigma bound
             near = max(1, int(step * sig_med / 2))
             jn, te = timed(lambda: imagecodecs.jpegls_encode(d, level=near))
@@ -123,6 +159,16 @@ def main() -> int:
     for r in rows:
         extra = f" {r[9]:6.3f} {r[10]:9.2e} {int(r[11]):4d} {r[12]:8.1e}" if len(r) > 9 else ""
         print(f"{r[0]:12s} {r[1]:20s} {r[2]:6.3f} {r[3]:6.2f} {r[4]:8.1f} {r[5]:8.1f} {r[6]:9.2e} {r[7]:7.4f} {r[8]:7.4f}{extra}")
+    print("\n# acceptance: bias averaged over 24 dither seeds (mean +- standard error), speed as median of 5 "
+          "repetitions and ratio vs lossless JPEG-LS timed in the same run (2 threads)")
+    print(f"{'frame':12s} {'q':>4s} {'bpp':>6s} {'bound':>6s} {'excess':>6s} {'x16bit':>6s} {'encMB/s':>8s} {'decMB/s':>8s} "
+          f"{'enc/jls':>7s} {'dec/jls':>7s} {'bias[s] +- se':>20s} {'worst decile +- se':>20s} {'rms/(q/v12)':>11s} "
+          f"{'rms/exp':>7s} {'nbcorr':>7s} {'viol':>4s} {'viol(q/2+.5)':>12s}")
+    for a in accept:
+        sb = a[9]
+        print(f"{a[0]:12s} {a[1]:4.1f} {a[2]:6.3f} {a[3]:6.3f} {a[2] - a[3]:6.3f} {a[4]:6.2f} {a[5]:8.1f} {a[6]:8.1f} "
+              f"{a[7]:7.2f} {a[8]:7.2f} {sb[0]:+9.1e} +- {sb[1]:7.1e} {sb[2]:+9.1e} +- {sb[3]:7.1e} {a[10]:11.4f} "
+              f"{a[11]:7.4f} {a[12]:+7.4f} {int(a[13]):4d} {int(a[14]):12d}")
     try:
         import matplotlib
         matplotlib.use("Agg")
