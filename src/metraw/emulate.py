@@ -577,14 +577,26 @@ def _mask_fraction(source: RawImage, plan: EmulationPlan) -> np.ndarray:
     """Car-area fraction per target pixel: source cells assigned to the pixel holding their centre."""
     step = 1 if source.profile.is_mono else 2
     hc, wc = plan.cells_shape
-    m = source.mask[: hc * step, : wc * step].astype(np.float64)
-    if step == 2:
-        m = m.reshape(hc, 2, wc, 2).mean(axis=(1, 3))
+    m = source.mask[: hc * step, : wc * step]
+    if step == 2:  # mean over the cell's four pixels (float32 sums of four fractions, then float64)
+        m = (m[0::2, 0::2] + m[0::2, 1::2] + m[1::2, 0::2] + m[1::2, 1::2]).astype(np.float64) / 4.0
+    else:
+        m = m.astype(np.float64)
     ht, wt = plan.frame_shape
     gt = plan.target_gsd_m
     c_r, s_r = math.cos(plan.rotation_rad), math.sin(plan.rotation_rad)
     x = (np.arange(wc) + 0.5) * plan.cell_m - plan.centre_m[0]
     y = (np.arange(hc) + 0.5) * plan.cell_m - plan.centre_m[1]
+    if s_r == 0.0:  # axis-aligned frame: separable 0/1 assignment matrices
+        col = np.floor(c_r * x / gt + wt / 2).astype(np.int64)
+        row = np.floor(c_r * y / gt + ht / 2).astype(np.int64)
+        okc, okr = (col >= 0) & (col < wt), (row >= 0) & (row < ht)
+        ax = sp.csr_matrix((np.ones(okc.sum()), (col[okc], np.flatnonzero(okc))), shape=(wt, wc))
+        ay = sp.csr_matrix((np.ones(okr.sum()), (row[okr], np.flatnonzero(okr))), shape=(ht, hc))
+        total = np.asarray(ay @ (ax @ m.T).T)
+        count = np.outer(np.asarray(ay.sum(axis=1)).ravel(), np.asarray(ax.sum(axis=1)).ravel())
+        frac = np.where(count > 0, total / np.maximum(count, 1), 0.0)
+        return np.clip(frac, 0.0, 1.0).astype(np.float32)
     col = np.floor((c_r * x[None, :] + s_r * y[:, None]) / gt + wt / 2).astype(np.int64)
     row = np.floor((-s_r * x[None, :] + c_r * y[:, None]) / gt + ht / 2).astype(np.int64)
     ok = (col >= 0) & (col < wt) & (row >= 0) & (row < ht)
@@ -644,11 +656,11 @@ def emulate(source: RawImage, target: TargetSystem, mode: str = "auto", seed: in
     mask = _mask_fraction(source, plan) if source.mask is not None else None
     bounds = dict(plan.bounds)
     read_s2 = source.profile.read_noise_e**2 + 0.25
-    mean_cell = max(1.0, float(np.mean([np.maximum(e, 0).mean() for e in cells.values()])))
+    clipped = {c: float(-np.minimum(e, 0).sum()) for c, e in cells.items()}
+    mean_cell = max(1.0, float(np.mean([(e.sum() + clipped[c]) / e.size for c, e in cells.items()])))
     if chain == "expected":
         bounds["poisson_shortcut_excess_variance_rel"] = pmax * (1.0 + read_s2 / mean_cell)
     bounds["source_noise_excess_variance_rel"] = pmax * read_s2 / mean_cell
-    clipped = {c: float(-np.minimum(e, 0).sum()) for c, e in cells.items()}
     mean_signal_e = float(counts.mean() - haze.mean())
     params = {
         "target": target.to_dict(), "mode": mode, "chain": chain, "seed": seed if isinstance(seed, int) else None,
