@@ -26,6 +26,8 @@ def register(subparsers) -> None:
     p.add_argument("--contact-sheet", dest="contact_sheet", default=None, help="also write a contact sheet PNG")
     p.add_argument("--real-dir", default=None, help="KIT AIS folder for the real row of the contact sheet "
                    "(default ../shared/data/real/kit_ais when present)")
+    p.add_argument("--camera", default=None, help="source camera profile (JSON, or a params.yaml with "
+                   "source.camera); default: the Hasselblad L1D-20c of DESIGN.md section 3")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output")
     p.set_defaults(func=run)
 
@@ -44,7 +46,12 @@ def run(args: argparse.Namespace) -> int:
     if args.workers < 1:
         raise MetrawError(f"--workers must be >= 1, got {args.workers}")
     kinds = tuple(k.strip() for k in args.kinds.split(",") if k.strip())
-    camera = default_camera()
+    if args.camera:
+        from metraw.io import load_camera
+
+        camera = load_camera(args.camera)
+    else:
+        camera = default_camera()
     t0 = time.perf_counter()
     with RawStore.create(args.out, overwrite=args.overwrite) as store:
         store.set_attrs(generator="metraw.scenes", seed=args.seed, n=args.n, size_px=args.size, kinds=list(kinds))
