@@ -13,8 +13,14 @@ validate(config, "workflow/schemas/params.schema.yaml")
 
 include: "workflow/rules/common.smk"
 include: "workflow/rules/source.smk"
+include: "workflow/rules/emulate.smk"
+include: "workflow/rules/segment.smk"
+include: "workflow/rules/aggregate.smk"
 
 
 rule all:
     input:
         "results/source/calibration.json",
+        "results/source/metrics.json",
+        "results/spec.yaml",
+        "results/aggregate.json",

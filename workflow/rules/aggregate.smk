@@ -12,21 +12,27 @@ rule compress:
     log:
         "logs/compress/{point}.log",
     shell:
-        "metraw compress {input} --out {output} --step {params.codec[step]} 2> {log}"
+        "metraw compress {input} --out {output} --step {params.codec[step]} --seed {params.codec[seed]}"
+        " --overwrite 2> {log}"
 
 
 rule aggregate:
     input:
         metrics=expand("results/points/{point}/metrics.json", point=POINTS),
         compression=expand("results/points/{point}/compression.json", point=POINTS),
+        stores=expand("results/points/{point}/target.zarr", point=POINTS),
     output:
         spec="results/spec.yaml",
         table="results/aggregate.json",
         figures=directory("results/figures"),
+        plots=directory("results/plots"),
     params:
         points=POINTS,
         spec=config["spec"],
     log:
         "logs/aggregate.log",
     shell:
-        "metraw aggregate --params params.yaml --results results --out results 2> {log}"
+        "metraw aggregate --params params.yaml --results results --out results"
+        " --metrics-pattern 'results/points/{{point}}/metrics.json'"
+        " --compression-pattern 'results/points/{{point}}/compression.json'"
+        " --stores-pattern 'results/points/{{point}}/target.zarr' 2> {log}"
