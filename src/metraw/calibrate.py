@@ -48,6 +48,7 @@ from scipy import stats
 from metraw.cfa import channel_names, plane_offsets, split_planes, validate_pattern
 from metraw.errors import MetrawError
 from metraw.image import RawImage
+from metraw.io._dn import unused_low_bits
 from metraw.profile import CalibrationProfile
 
 #: Default fraction of the saturation signal used for the photon-transfer fit (EMVA 1288).
@@ -119,13 +120,8 @@ def detect_unused_low_bits(arrays: Sequence[np.ndarray], min_distinct: int = 16)
     Only trusted when the data hold at least ``min_distinct`` distinct values after the
     shift (a nearly constant frame would otherwise fake unused bits).
     """
-    acc = 0
-    for a in arrays:
-        acc |= int(np.bitwise_or.reduce(np.asarray(a, dtype=np.uint16), axis=None))
-    if acc == 0:
-        return 0
-    s = (acc & -acc).bit_length() - 1
-    s = min(s, 8)
+    per_array = [np.bitwise_or.reduce(np.asarray(a, dtype=np.uint16), axis=None) for a in arrays]
+    s = unused_low_bits(np.array(per_array, dtype=np.uint16), max_shift=8)
     if s == 0:
         return 0
     distinct = np.unique(np.asarray(arrays[0]).ravel()[:1_000_000] >> s).size

@@ -30,8 +30,8 @@ STORE_VERSION = 1
 #: Target bytes of uncompressed raw data per shard file.
 SHARD_TARGET_BYTES = 64 * 2**20
 
-#: A function (first image's profile) -> list of zarr bytes-to-bytes / array-to-bytes codecs
-#: for the ``raw`` array; ``None`` means the default lossless zstd.
+#: A function (first image's profile) -> keyword arguments of ``zarr.Group.create_array`` that
+#: choose the ``raw`` array's codecs (``serializer``, ``compressors``); ``None`` means lossless zstd.
 RawCodecFactory = Callable[[CalibrationProfile], dict[str, Any]]
 
 

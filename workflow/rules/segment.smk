@@ -2,17 +2,13 @@
 # and on the source store itself as the drone-resolution reference.
 
 
-def training_params(wildcards):
-    return {k: v for k, v in config["training"].items()}
-
-
 rule train:
     input:
         "results/points/{point}/target.zarr",
     output:
         directory("results/points/{point}/model"),
     params:
-        training=training_params,
+        training=config["training"],
     threads: workflow.cores
     log:
         "logs/train/{point}.log",
@@ -39,7 +35,7 @@ rule train_source:
     output:
         directory("results/source/model"),
     params:
-        training=training_params,
+        training=config["training"],
     threads: workflow.cores
     log:
         "logs/train/source.log",
