@@ -47,12 +47,16 @@ def test_canonical_pack_restores_rggb_for_every_pattern_and_transform():
             assert np.all(frac == 1.0)
 
 
-def test_mask_fraction_is_mean_over_cell():
+def test_mask_is_packed_per_site_like_the_image():
     z = np.zeros((4, 4), np.float32)
-    mask = np.array([[1, 1, 0, 0], [1, 0, 0, 0], [0, 0, 1, 1], [0, 0, 1, 1]], np.float32)
+    mask = np.array([[1, 0.5, 0, 0], [1, 0, 0, 0], [0, 0, 1, 1], [0, 0, 1, 0.25]], np.float32)
     _, frac = canonical_pack(z, mask, "RGGB", 0)
-    np.testing.assert_array_equal(frac, [[0.75, 0.0], [0.0, 1.0]])
-    np.testing.assert_array_equal(pack_planes(z, "RGGB").shape, (4, 2, 2))
+    np.testing.assert_array_equal(frac, pack_planes(mask, "RGGB"))
+    np.testing.assert_array_equal(frac[:, 0, 0], [1, 0.5, 1, 0])   # R, G, G, B sites of cell (0, 0)
+    np.testing.assert_array_equal(frac[:, 1, 1], [1, 1, 1, 0.25])
+    # a GBRG mosaic is shifted by one row to read R G / G B: the mask follows the same pixels
+    _, frac_g = canonical_pack(np.zeros((5, 4), np.float32), np.vstack([np.zeros((1, 4)), mask]), "GBRG", 0)
+    np.testing.assert_array_equal(frac_g, frac)
 
 
 def test_split_is_fixed_and_disjoint():
@@ -84,6 +88,22 @@ def test_iou_on_hand_made_masks():
     out = summarise(recs)
     assert out["iou"] == pytest.approx(5 / 11)
     assert out["mean_image_iou"] == pytest.approx((1 / 7 + 1) / 2)
+
+
+def test_area_iou_against_fractional_targets():
+    # A car covering half of each of two pixels: predicting both costs half their area as FP.
+    f = np.array([[0.5, 0.5, 0.0], [0.0, 1.0, 0.25]])
+    pred = np.array([[True, True, False], [False, True, False]])
+    tp, fp, fn = confusion(pred, f)
+    assert (tp, fp, fn) == pytest.approx((2.0, 1.0, 0.25))
+    assert iou(pred, f) == pytest.approx(2.0 / 3.25)
+    # with 0/1 fractions the area scores equal the pixel counts
+    b = f >= 0.5
+    assert confusion(pred, b.astype(np.float32)) == pytest.approx(confusion(pred, b))
+    # leaving out the half-covered pixels trades their FP area for FN area
+    assert iou(f > 0.5, f) == pytest.approx(1.0 / 2.25)
+    with pytest.raises(ValueError):
+        confusion(pred, f * 3)
 
 
 # ----------------------------------------------------------------- training
@@ -134,7 +154,7 @@ def test_training_reduces_loss_and_upsampling_keeps_native_grid(tiny_store):
     planes, frac = images[0].full()
     with torch.no_grad():
         y = model(torch.from_numpy(planes)[None])
-    assert tuple(y.shape[-2:]) == frac.shape
+    assert tuple(y.shape[1:]) == frac.shape  # one logit per CFA site: the mosaic grid
 
 
 def test_cli_train_evaluate_and_errors(tiny_store, tmp_path, capsys):
@@ -194,7 +214,7 @@ def test_emulated_dataset_is_deterministic_and_trains_with_workers(small_source)
     x, y = ds[1]
     x2, y2 = ds[1]
     assert np.array_equal(x, x2) and np.array_equal(y, y2)
-    assert x.shape[0] == 4 and x.shape[1:] == y.shape and 0 <= y.min() and y.max() <= 1
+    assert x.shape[0] == 4 and x.shape == y.shape and 0 <= y.min() and y.max() <= 1
     _, point = ds.sample(1)
     assert 1.2 <= point["focal_length_m"] <= 2.0 and point["exposure_s"] in (1e-4, 5e-4)
     pts = [draw_point(box, rng_from_seed(i)) for i in range(200)]

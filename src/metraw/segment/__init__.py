@@ -1,17 +1,17 @@
 """Car segmentation on raw images: compact U-Net on packed, variance-stabilised CFA planes.
 
-- ``data``: preprocessing (VST, canonical CFA packing, car fraction per cell), split, crops;
-- ``model``: the U-Net (plain torch) and its optional upsampling wrapper;
+- ``data``: preprocessing (VST, canonical CFA packing, car fraction per pixel), split, crops;
+- ``model``: the U-Net (plain torch) and its resampling wrapper (upsample / pool);
 - ``train``: training one model per parameter point (``train_store``), checkpoints;
 - ``evaluate``: IoU / precision / recall per image and pooled (``evaluate_store``);
 - ``emulated``: ``EmulatedDataset``, on-the-fly emulation as augmentation.
 """
 
-from metraw.segment.data import TARGET_THRESHOLD, prepare, split_indices, vst_mosaic
+from metraw.segment.data import prepare, split_indices, vst_mosaic
 from metraw.segment.evaluate import confusion, evaluate_store, iou, scores
 from metraw.segment.train import TrainConfig, load_config, load_model, train_store
 
-__all__ = ["TARGET_THRESHOLD", "TrainConfig", "confusion", "evaluate_store", "iou", "load_config", "load_model",
+__all__ = ["TrainConfig", "confusion", "evaluate_store", "iou", "load_config", "load_model",
            "prepare", "scores", "split_indices", "train_store", "vst_mosaic"]
 
 

@@ -11,8 +11,10 @@ Input representation (one per image, computed once and cached in memory):
    then packed into 4 planes (canonical site order R, G, G, B; 1 plane for mono) at half
    resolution (``metraw.cfa.pack_planes``).
 
-Targets: the car area fraction per packed cell (mean of the mosaic mask over the 2 x 2 cell);
-a cell counts as car when its fraction is >= 0.5 (``TARGET_THRESHOLD``).
+Targets: the car area fraction of every mosaic pixel (the store's mask), packed exactly like the
+image, so the network predicts one value per CFA site: the segmentation lives on the mosaic
+grid, the finest grid the sensor samples. Training uses the fractions as soft targets; scoring
+(``metraw.segment.evaluate``) measures IoU in ground area against them.
 
 Augmentation acts on the mosaic *before* packing: one of the 8 dihedral transforms (flips,
 rot90), then the one-pixel shift that restores the canonical R G / G B cell, so every plane
@@ -31,9 +33,6 @@ from metraw.image import RawImage
 from metraw.progress import progress_bar
 from metraw.sensor import rng_from_seed
 from metraw.vst import anscombe
-
-#: A packed cell is "car" when its car-area fraction is >= this value.
-TARGET_THRESHOLD = 0.5
 
 
 def split_indices(n_images: int, test_fraction: float, split_seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -83,8 +82,9 @@ def canonical_pack(z: np.ndarray, mask: np.ndarray | None, pattern: str, k: int 
                    ) -> tuple[np.ndarray, np.ndarray | None]:
     """Transform (``dihedral`` k), shift to the canonical R G / G B cell and pack.
 
-    Returns planes (S, h, w) float32 and the per-cell car fraction (h, w) float32 (or None).
-    The result covers whole cells only (at most one mosaic row/column is dropped per side).
+    Returns planes (S, h, w) float32 and the car fraction of every site, packed the same way
+    (S, h, w) float32 (or None). The result covers whole cells only (at most one mosaic
+    row/column is dropped per side).
     """
     mono = pattern == "mono"
     step = cell_size(pattern)
@@ -95,22 +95,25 @@ def canonical_pack(z: np.ndarray, mask: np.ndarray | None, pattern: str, k: int 
     w = (z.shape[-1] - dx) // step * step
     if h < step or w < step:
         raise MetrawError(f"image of shape {z.shape} is too small to pack")
-    planes = pack_planes(np.ascontiguousarray(z[dy:dy + h, dx:dx + w]), "mono" if mono else "RGGB")
+    packed = "mono" if mono else "RGGB"
+    planes = pack_planes(np.ascontiguousarray(z[dy:dy + h, dx:dx + w]), packed)
     frac = None
     if mask is not None:
-        m = dihedral(mask, k)[dy:dy + h, dx:dx + w].astype(np.float32)
-        frac = m.reshape(h // step, step, w // step, step).mean(axis=(1, 3))
+        m = dihedral(mask, k)[dy:dy + h, dx:dx + w]
+        frac = pack_planes(np.ascontiguousarray(m, dtype=np.float32), packed)
     return planes.astype(np.float32, copy=False), frac
 
 
 @dataclass
 class PreparedImage:
-    """Cached preprocessed image: centred VST mosaic (float32), car mask (float16), CFA pattern."""
+    """Cached preprocessed image: centred VST mosaic (float32), car mask (float16), CFA pattern,
+    ground sample distance of a mosaic pixel [m] (None when the profile lacks the geometry)."""
 
     z: np.ndarray
     mask: np.ndarray
     pattern: str
     index: int
+    gsd_m: float | None = None
 
     @property
     def packed_shape(self) -> tuple[int, int]:
@@ -119,7 +122,7 @@ class PreparedImage:
         return (self.z.shape[0] - dy) // s, (self.z.shape[1] - dx) // s
 
     def full(self) -> tuple[np.ndarray, np.ndarray]:
-        """Whole image, untransformed: planes (S, h, w) and car fraction (h, w)."""
+        """Whole image, untransformed: planes (S, h, w) and site car fractions (S, h, w)."""
         return canonical_pack(self.z, self.mask.astype(np.float32), self.pattern, 0)
 
     def crop(self, crop_px: int, rng: np.random.Generator, augment: bool = True) -> tuple[np.ndarray, np.ndarray]:
@@ -137,7 +140,7 @@ class PreparedImage:
         pattern = _shifted_pattern(self.pattern, y0, x0)
         planes, frac = canonical_pack(z, m.astype(np.float32), pattern, k)
         c = min(crop_px, planes.shape[-2], planes.shape[-1])
-        return planes[:, :c, :c], frac[:c, :c]
+        return planes[:, :c, :c], frac[:, :c, :c]
 
 
 def _shifted_pattern(pattern: str, dy: int, dx: int) -> str:
@@ -152,7 +155,8 @@ def prepare(image: RawImage, index: int = -1) -> PreparedImage:
     """Preprocess one RawImage for the segmenter (needs a label mask)."""
     if image.mask is None:
         raise MetrawError(f"image {index} has no label mask; segmentation needs masks")
-    return PreparedImage(vst_mosaic(image), image.mask.astype(np.float16), image.cfa_pattern, index)
+    return PreparedImage(vst_mosaic(image), image.mask.astype(np.float16), image.cfa_pattern, index,
+                         image.profile.gsd_m)
 
 
 def prepare_store(store, indices, progress: bool | None = None) -> list[PreparedImage]:
@@ -166,4 +170,4 @@ def batch_crops(images: list[PreparedImage], crop_px: int, rng: np.random.Genera
     """Stack one random crop per image; all crops cut to the smallest common packed side."""
     xs, ys = zip(*(img.crop(crop_px, rng, augment) for img in images))
     c = min(min(x.shape[-2:]) for x in xs)
-    return (np.stack([x[:, :c, :c] for x in xs]), np.stack([y[:c, :c] for y in ys]))
+    return (np.stack([x[:, :c, :c] for x in xs]), np.stack([y[:, :c, :c] for y in ys]))

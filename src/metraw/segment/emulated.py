@@ -49,7 +49,7 @@ class EmulatedDataset:
     ``source``: path of the source RawStore (opened lazily in each worker process).
     ``params``: params dict or path (``target.nominal`` gives the parameters not in ``box``).
     ``crop_px``: crop side in packed pixels (whole image if smaller); ``augment``: dihedral
-    transforms. Items are (planes float32 (S, h, w), car fraction float32 (h, w)).
+    transforms. Items are (planes float32 (S, h, w), site car fractions float32 (S, h, w)).
     """
 
     def __init__(self, source, indices: Sequence[int], box: dict[str, Any], params: Any = "params.yaml",
@@ -113,7 +113,7 @@ def crop_collate(items):
     h = min(x.shape[-2] for x, _ in items)
     w = min(x.shape[-1] for x, _ in items)
     x = np.stack([a[:, :h, :w] for a, _ in items])
-    y = np.stack([b[:h, :w] for _, b in items])
+    y = np.stack([b[:, :h, :w] for _, b in items])
     return torch.from_numpy(x), torch.from_numpy(y)
 
 

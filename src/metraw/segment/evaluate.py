@@ -1,8 +1,12 @@
 """IoU, precision and recall of car segmentation, per image and pooled over a test set.
 
-Prediction and target live on the image's own packed (CFA cell) grid: the target is the car
-area fraction per cell thresholded at ``TARGET_THRESHOLD`` (>= 0.5), the prediction is
-probability > 0.5 (logit > 0).
+Prediction and target live on the image's own mosaic grid (one value per CFA site): the
+prediction is probability > 0.5 (logit > 0) per pixel; the target is the car *area fraction*
+f of each pixel (the label geometry carried through the emulation). Scores are in ground area,
+counting a predicted pixel as wholly car: TP = sum(b f), FP = sum(b (1 - f)), FN = sum((1 - b) f)
+in pixel areas. For 0/1 masks these are the usual pixel counts; for coarse satellite pixels
+that are partly car they charge the prediction for the area it really gets wrong, so IoU means
+the same (overlap of car areas on the ground) at every parameter point.
 
 Per image: IoU = TP / (TP + FP + FN), precision = TP / (TP + FP), recall = TP / (TP + FN);
 undefined ratios (empty denominators) are reported as None and left out of means.
@@ -17,24 +21,34 @@ from typing import Any
 
 import numpy as np
 
-from metraw.segment.data import TARGET_THRESHOLD, PreparedImage
+from metraw.segment.data import PreparedImage
 
 
-def confusion(pred: np.ndarray, target: np.ndarray) -> tuple[int, int, int]:
-    """(TP, FP, FN) of two boolean maps of the same shape."""
+def confusion(pred: np.ndarray, target: np.ndarray) -> tuple[float, float, float]:
+    """(TP, FP, FN) of a boolean prediction against a boolean or fractional (car area) target.
+
+    Boolean targets give integer pixel counts; fractional targets in [0, 1] give areas in pixel
+    units (TP = sum(pred * f), FP = sum(pred * (1 - f)), FN = sum((1 - pred) * f)).
+    """
     pred = np.asarray(pred, dtype=bool)
-    target = np.asarray(target, dtype=bool)
+    target = np.asarray(target)
     if pred.shape != target.shape:
         raise ValueError(f"prediction shape {pred.shape} differs from target shape {target.shape}")
-    tp = int(np.count_nonzero(pred & target))
-    return tp, int(np.count_nonzero(pred & ~target)), int(np.count_nonzero(~pred & target))
+    if target.dtype == bool:
+        tp = int(np.count_nonzero(pred & target))
+        return tp, int(np.count_nonzero(pred & ~target)), int(np.count_nonzero(~pred & target))
+    f = target.astype(np.float64)
+    if f.size and (f.min() < 0 or f.max() > 1):
+        raise ValueError("fractional targets must lie in [0, 1]")
+    tp = float(f[pred].sum())
+    return tp, float(np.count_nonzero(pred)) - tp, float(f.sum()) - tp
 
 
-def _ratio(num: int, den: int) -> float | None:
+def _ratio(num: float, den: float) -> float | None:
     return num / den if den > 0 else None
 
 
-def scores(tp: int, fp: int, fn: int) -> dict[str, float | None]:
+def scores(tp: float, fp: float, fn: float) -> dict[str, float | None]:
     """IoU, precision, recall from confusion counts (None where undefined)."""
     return {"iou": _ratio(tp, tp + fp + fn), "precision": _ratio(tp, tp + fp), "recall": _ratio(tp, tp + fn)}
 
@@ -57,13 +71,13 @@ def summarise(per_image: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def predict_logits(model, planes: np.ndarray, device: str = "cpu") -> np.ndarray:
-    """Logits (h, w) of one packed image (S, h, w) on its own grid."""
+    """Logits (S, h, w), one per CFA site, of one packed image (S, h, w) on its own grid."""
     import torch
 
     model.eval()
     with torch.no_grad():
         x = torch.from_numpy(np.ascontiguousarray(planes))[None].to(device)
-        return model(x)[0, 0].float().cpu().numpy()
+        return model(x)[0].float().cpu().numpy()
 
 
 def evaluate_images(model, images: list[PreparedImage], device: str = "cpu", progress: bool | None = None
@@ -75,7 +89,7 @@ def evaluate_images(model, images: list[PreparedImage], device: str = "cpu", pro
     for img in progress_bar(images, desc="evaluate", disable=None if progress is None else not progress):
         planes, frac = img.full()
         pred = predict_logits(model, planes, device) > 0.0
-        tp, fp, fn = confusion(pred, frac >= TARGET_THRESHOLD)
+        tp, fp, fn = confusion(pred, frac)
         records.append({"index": img.index, "shape": list(frac.shape), "tp": tp, "fp": fp, "fn": fn,
                         **scores(tp, fp, fn)})
     return {**summarise(records), "per_image": records}
@@ -109,6 +123,6 @@ def evaluate_store(store_path, model_dir, device: str | None = None, progress: b
     out = evaluate_images(model, images, device, progress)
     out.update({"evaluation_time_s": time.perf_counter() - t0, "store": str(store_path), "model": str(model_dir),
                 "training_time_s": record.get("training_time_s"), "epochs": record.get("epochs"),
-                "upsample": ckpt["upsample"], "device": device, "config": ckpt["config"],
+                "upsample": ckpt["upsample"], "pool": ckpt.get("pool", 1), "device": device, "config": ckpt["config"],
                 "packed_shape": list(images[0].packed_shape) if images else None})
     return out

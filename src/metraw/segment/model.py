@@ -2,12 +2,15 @@
 
 Input: (B, S, h, w) packed CFA planes in VST units (unit noise variance, see
 ``metraw.segment.data``), S = 4 for Bayer (canonical R, G, G, B site order), 1 for mono.
-Output: (B, 1, h, w) logits of "car" on the same (packed, native) grid.
+Output: (B, S, h, w) logits of "car", one per CFA site, i.e. a prediction for every mosaic pixel.
 
-``Segmenter`` optionally upsamples the input bilinearly by an integer ``upsample`` factor before
-the U-Net and average-pools the logits back, so the loss and the IoU always live on the image's
-own packed grid; this lets coarse (satellite) images use the same receptive field in pixels as
-a larger image (compare the choices in ``benchmarks/segment.py``).
+``Segmenter`` resamples the input to the network's working grid and the logits back, so the loss
+and the IoU always live on the image's own mosaic grid:
+- ``upsample`` > 1: bilinear upsampling of the input, logits average-pooled back (coarse
+  satellite images get the same receptive field in pixels as a larger image);
+- ``pool`` > 1: average pooling of the input (fine drone images: the same ground context for a
+  fraction of the cost), logits upsampled bilinearly back.
+Compare the choices in ``benchmarks/segment.py``.
 """
 
 from __future__ import annotations
@@ -33,7 +36,7 @@ class _Block(nn.Sequential):
 class UNet(nn.Module):
     """U-Net with ``depth`` poolings and ``base_channels`` * 2**level channels per level."""
 
-    def __init__(self, in_channels: int, base_channels: int = 16, depth: int = 3):
+    def __init__(self, in_channels: int, base_channels: int = 16, depth: int = 3, out_channels: int = 1):
         super().__init__()
         self.depth = depth
         chans = [base_channels * 2**i for i in range(depth + 1)]
@@ -48,7 +51,7 @@ class UNet(nn.Module):
         for i in range(depth - 1, -1, -1):
             self.up.append(nn.ConvTranspose2d(chans[i + 1], chans[i], 2, stride=2))
             self.dec.append(_Block(2 * chans[i], chans[i]))
-        self.head = nn.Conv2d(chans[0], 1, 1)
+        self.head = nn.Conv2d(chans[0], out_channels, 1)
 
     @property
     def multiple(self) -> int:
@@ -68,30 +71,41 @@ class UNet(nn.Module):
         return self.head(x)
 
 
-class Segmenter(nn.Module):
-    """U-Net wrapped with optional bilinear input upsampling and padding to a valid size.
+def _pad_to(x: torch.Tensor, multiple: int) -> torch.Tensor:
+    """Pad the last two axes up to a multiple (reflect where possible, else replicate)."""
+    ph, pw = (-x.shape[-2]) % multiple, (-x.shape[-1]) % multiple
+    if not (ph or pw):
+        return x
+    mode = "reflect" if min(x.shape[-2:]) > max(ph, pw) else "replicate"
+    return F.pad(x, (0, pw, 0, ph), mode=mode)
 
-    ``forward(x)`` accepts any (B, S, h, w) and returns logits (B, 1, h, w) on the input grid.
+
+class Segmenter(nn.Module):
+    """U-Net wrapped with resampling to its working grid and padding to a valid size.
+
+    ``forward(x)`` accepts any (B, S, h, w) and returns logits (B, S, h, w) on the input grid.
     """
 
-    def __init__(self, in_channels: int, base_channels: int = 16, depth: int = 3, upsample: int = 1):
+    def __init__(self, in_channels: int, base_channels: int = 16, depth: int = 3, upsample: int = 1,
+                 pool: int = 1):
         super().__init__()
-        if upsample < 1:
-            raise ValueError("upsample must be an integer >= 1")
+        if upsample < 1 or pool < 1 or (upsample > 1 and pool > 1):
+            raise ValueError("upsample and pool must be integers >= 1, at most one of them > 1")
         self.upsample = int(upsample)
-        self.unet = UNet(in_channels, base_channels, depth)
+        self.pool = int(pool)
+        self.unet = UNet(in_channels, base_channels, depth, out_channels=in_channels)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         h, w = x.shape[-2:]
-        f = self.upsample
+        f, p = self.upsample, self.pool
         if f > 1:
             x = F.interpolate(x, scale_factor=f, mode="bilinear", align_corners=False)
-        m = self.unet.multiple
-        ph, pw = (-x.shape[-2]) % m, (-x.shape[-1]) % m
-        if ph or pw:
-            mode = "reflect" if min(x.shape[-2:]) > max(ph, pw) else "replicate"
-            x = F.pad(x, (0, pw, 0, ph), mode=mode)
-        y = self.unet(x)[..., : h * f, : w * f]
+        if p > 1:
+            x = F.avg_pool2d(_pad_to(x, p), p)
+        hn, wn = x.shape[-2:]
+        y = self.unet(_pad_to(x, self.unet.multiple))[..., :hn, :wn]
         if f > 1:
             y = F.avg_pool2d(y, f)
+        if p > 1:
+            y = F.interpolate(y, scale_factor=p, mode="bilinear", align_corners=False)[..., :h, :w]
         return y

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from metraw.cfa import cell_size
 from metraw.errors import MetrawError
 from metraw.segment.data import PreparedImage, batch_crops, prepare_store, split_indices
 from metraw.sensor import rng_from_seed
@@ -32,9 +33,13 @@ TRAIN_METRICS = "train.json"
 class TrainConfig:
     """Hyperparameters of the segmenter (same for every parameter point).
 
-    ``crop_px``: side of training crops in packed (CFA-cell) pixels; images smaller than this
-    are used whole. ``min_grid_px``: if > 0, inputs are upsampled bilinearly by the integer
-    factor ceil(min_grid_px / smallest packed side) (0: native resolution).
+    ``crop_px``: side of training crops in pixels of the network's working grid (packed CFA
+    cells, pooled by ``grid_gsd_m``); images smaller than this are used whole.
+    ``min_grid_px``: if > 0, inputs are upsampled bilinearly by the integer factor
+    ceil(min_grid_px / smallest packed side) (0: native resolution).
+    ``grid_gsd_m``: if > 0, the finest ground sampling [m per packed pixel] the network works
+    at: finer inputs are average-pooled by floor(grid_gsd_m / packed GSD) and the logits
+    upsampled back, so drone images cost what their ground content needs (0: never pool).
     ``crops_per_image``: random crops drawn per training image per epoch.
     """
 
@@ -45,6 +50,7 @@ class TrainConfig:
     base_channels: int = 16
     depth: int = 3
     min_grid_px: int = 0
+    grid_gsd_m: float = 0.0
     crops_per_image: int = 1
     weight_decay: float = 1e-4
     seed: int = 0
@@ -109,8 +115,22 @@ def upsample_factor(images: list[PreparedImage], min_grid_px: int) -> int:
     return max(1, math.ceil(min_grid_px / side))
 
 
+def pool_factor(images: list[PreparedImage], grid_gsd_m: float) -> int:
+    """Integer average-pooling factor so a working-grid pixel is about ``grid_gsd_m`` on the ground.
+
+    floor(grid_gsd_m / packed GSD) of the finest image, at least 1; 1 when ``grid_gsd_m`` <= 0
+    or an image's profile lacks the geometry (GSD unknown).
+    """
+    if grid_gsd_m <= 0:
+        return 1
+    gsds = [img.gsd_m * cell_size(img.pattern) for img in images if img.gsd_m]
+    if len(gsds) < len(images):
+        return 1
+    return max(1, int(math.floor(grid_gsd_m / min(gsds) + 1e-9)))
+
+
 def segmentation_loss(logits, target):
-    """Binary cross-entropy against the (fractional) car cover plus soft Dice (1 - Dice)."""
+    """Binary cross-entropy against the car area fraction of each mosaic pixel plus soft Dice (1 - Dice)."""
     import torch.nn.functional as F
 
     bce = F.binary_cross_entropy_with_logits(logits, target)
@@ -124,7 +144,7 @@ def train_loop(model, epoch_batches, steps_per_epoch: int, config: TrainConfig, 
                progress: bool | None = None) -> list[float]:
     """AdamW + one-cycle schedule over ``config.epochs``; ``epoch_batches(epoch)`` yields (x, y) batches.
 
-    x: (B, S, h, w) packed VST planes, y: (B, h, w) car fraction (numpy arrays or tensors).
+    x: (B, S, h, w) packed VST planes, y: (B, S, h, w) site car fractions (numpy arrays or tensors).
     Returns the mean loss per epoch.
     """
     import torch
@@ -141,7 +161,7 @@ def train_loop(model, epoch_batches, steps_per_epoch: int, config: TrainConfig, 
         run, n = 0.0, 0
         for x, y in epoch_batches(epoch):
             x = torch.as_tensor(x).to(device)
-            y = torch.as_tensor(y)[:, None].to(device)
+            y = torch.as_tensor(y).to(device)
             loss = segmentation_loss(model(x), y)
             opt.zero_grad(set_to_none=True)
             loss.backward()
@@ -156,10 +176,10 @@ def train_loop(model, epoch_batches, steps_per_epoch: int, config: TrainConfig, 
     return losses
 
 
-def build_model(in_channels: int, config: TrainConfig, upsample: int):
+def build_model(in_channels: int, config: TrainConfig, upsample: int, pool: int = 1):
     from metraw.segment.model import Segmenter
 
-    return Segmenter(in_channels, config.base_channels, config.depth, upsample)
+    return Segmenter(in_channels, config.base_channels, config.depth, upsample, pool)
 
 
 def fit(images: list[PreparedImage], config: TrainConfig, device: str | None = None,
@@ -170,10 +190,11 @@ def fit(images: list[PreparedImage], config: TrainConfig, device: str | None = N
     device = device or default_device()
     set_determinism(config.seed, config.threads, device)
     f = upsample_factor(images, config.min_grid_px) if upsample is None else upsample
+    pool = pool_factor(images, config.grid_gsd_m) if f == 1 else 1
     in_ch = 1 if images[0].pattern == "mono" else 4
     if any((img.pattern == "mono") != (in_ch == 1) for img in images):
         raise MetrawError("cannot train on a mix of mono and CFA images")
-    model = build_model(in_ch, config, f).to(device)
+    model = build_model(in_ch, config, f, pool).to(device)
     steps_per_epoch = math.ceil(len(images) * config.crops_per_image / config.batch_size)
     rng = rng_from_seed(config.seed)
 
@@ -181,13 +202,13 @@ def fit(images: list[PreparedImage], config: TrainConfig, device: str | None = N
         order = np.concatenate([rng.permutation(len(images)) for _ in range(config.crops_per_image)])
         for s in range(steps_per_epoch):
             batch = [images[i] for i in order[s * config.batch_size:(s + 1) * config.batch_size]]
-            yield batch_crops(batch, config.crop_px, rng, augment=True)
+            yield batch_crops(batch, config.crop_px * pool, rng, augment=True)
 
     t0 = time.perf_counter()
     losses = train_loop(model, epoch_batches, steps_per_epoch, config, device, progress)
     record = {"epochs": config.epochs, "steps": steps_per_epoch * config.epochs, "loss_per_epoch": losses,
               "training_time_s": time.perf_counter() - t0, "device": device, "upsample": f,
-              "in_channels": in_ch, "n_train": len(images)}
+              "pool": pool, "in_channels": in_ch, "n_train": len(images)}
     return model, record
 
 
@@ -219,7 +240,7 @@ def save_model(out_dir, model, config: TrainConfig, record: dict[str, Any], test
     with atomic_path(out_dir, overwrite=overwrite) as tmp:
         tmp.mkdir(parents=True)
         torch.save({"state_dict": {k: v.cpu() for k, v in model.state_dict().items()},
-                    "config": asdict(config), "upsample": record["upsample"],
+                    "config": asdict(config), "upsample": record["upsample"], "pool": record.get("pool", 1),
                     "in_channels": record["in_channels"], "test_indices": [int(i) for i in test_indices]},
                    tmp / CHECKPOINT)
         (tmp / TRAIN_METRICS).write_text(json.dumps(record, indent=2))
@@ -235,7 +256,7 @@ def load_model(model_dir: str | os.PathLike, device: str | None = None):
         raise MetrawError(f"{model_dir} holds no {CHECKPOINT} (train a model with `metraw train` first)")
     ckpt = torch.load(ckpt_path, map_location="cpu", weights_only=True)
     config = TrainConfig.from_dict(ckpt["config"])
-    model = build_model(ckpt["in_channels"], config, ckpt["upsample"])
+    model = build_model(ckpt["in_channels"], config, ckpt["upsample"], ckpt.get("pool", 1))
     model.load_state_dict(ckpt["state_dict"])
     model.to(device or default_device())
     record_path = model_dir / TRAIN_METRICS
