@@ -91,10 +91,20 @@ def test_gp_rejects_bad_input():
         ResponseGP(["x_m"], np.array([[0.0], [1.0], [2.0]]), [0.1, np.nan, 0.3])
 
 
+def _records(rng, n, iou):
+    """Per-image (tp, fp, fn) as `metraw evaluate` writes them, pooled IoU about ``iou``."""
+    u = rng.uniform(50, 150, n)
+    tp = u * np.clip(iou + rng.normal(0, 0.1, n), 0, 1)
+    fp = (u - tp) * 0.5
+    return [{"tp": float(a), "fp": float(b), "fn": float(c - a - b)} for a, b, c in zip(tp, fp, u)]
+
+
 def _write_point(root, point, iou=0.7):
     d = root / point
     d.mkdir(parents=True)
-    (d / "metrics.json").write_text(json.dumps({"iou": iou, "per_image_iou": [iou - 0.05, iou + 0.05, None]}))
+    recs = _records(np.random.default_rng(len(point)), 3, iou)
+    pooled = sum(r["tp"] for r in recs) / sum(r["tp"] + r["fp"] + r["fn"] for r in recs)
+    (d / "metrics.json").write_text(json.dumps({"iou": pooled, "per_image": recs, "n_images": 3}))
 
 
 def test_aggregate_errors_clearly_when_a_point_is_missing(tmp_path):
@@ -110,5 +120,19 @@ def test_aggregate_errors_clearly_when_a_point_is_missing(tmp_path):
     _write_point(tmp_path, points[-1], 0.5)
     rows = load_point_results(params, str(tmp_path), "{results}/{point}/metrics.json", "")
     assert [r["point"] for r in rows] == points
-    # variance of the IoU estimate = var(per-image IoU) / n over defined values
-    assert rows[-1]["iou_sd"] == pytest.approx(math.sqrt(np.var([0.45, 0.55], ddof=1) / 2))
+    assert rows[-1]["n_test_images"] == 3 and rows[-1]["iou_sd"] > 0
+
+
+def test_pooled_iou_variance_matches_resampling():
+    """The delta-method variance of the pooled IoU agrees with the spread over resampled test sets."""
+    from metraw.cli.aggregate import iou_measurement
+
+    rng = np.random.default_rng(5)
+    recs = _records(rng, 400, 0.6)
+    tp = np.array([r["tp"] for r in recs])
+    u = np.array([r["tp"] + r["fp"] + r["fn"] for r in recs])
+    iou, var = iou_measurement({"iou": tp.sum() / u.sum(), "per_image": recs}, "test")
+    boot = [tp[i].sum() / u[i].sum() for i in rng.integers(0, len(recs), (2000, len(recs)))]
+    # the bootstrap variance from 2000 resamples has a relative SE of sqrt(2/2000) ~ 3 %
+    assert np.var(boot, ddof=1) == pytest.approx(var, rel=0.15)
+    assert iou_measurement({"iou": 0.5, "per_image": recs[:1]}, "test") == (0.5, 0.0)

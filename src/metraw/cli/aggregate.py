@@ -58,16 +58,23 @@ def _read_json(path: Path, what: str) -> dict[str, Any]:
 
 
 def iou_measurement(metrics: dict[str, Any], where: str) -> tuple[float, float]:
-    """Test-split IoU and the variance of that estimate from the per-image IoUs (var / n).
+    """Test-split IoU and the sampling variance of that estimate.
 
-    The pooled IoU is not the mean of per-image IoUs, but over a test set its sampling variance
-    is approximated by that of the per-image mean; one image gives no variance (0).
+    The pooled IoU R = sum(TP_i) / sum(U_i) (U_i = TP_i + FP_i + FN_i per test image) is a ratio
+    estimator; its variance over the draw of test images is, to first order (delta method),
+    var(TP_i - R U_i) / (n mean(U)^2). One image gives no variance (0).
     """
     if metrics.get("iou") is None:
         raise MetrawError(f"{where}: metrics have no test-split 'iou'")
-    vals = np.array([v for v in metrics.get("per_image_iou", []) if v is not None], dtype=np.float64)
-    var = float(vals.var(ddof=1) / vals.size) if vals.size > 1 else 0.0
-    return float(metrics["iou"]), var
+    recs = [r for r in metrics.get("per_image", []) if all(k in r for k in ("tp", "fp", "fn"))]
+    iou = float(metrics["iou"])
+    if len(recs) < 2:
+        return iou, 0.0
+    tp = np.array([r["tp"] for r in recs], dtype=np.float64)
+    u = tp + np.array([r["fp"] + r["fn"] for r in recs], dtype=np.float64)
+    if u.mean() <= 0:
+        return iou, 0.0
+    return iou, float(np.var(tp - iou * u, ddof=1) / (len(recs) * u.mean() ** 2))
 
 
 def load_point_results(params: dict[str, Any], results: str, metrics_pattern: str, compression_pattern: str
@@ -93,8 +100,8 @@ def load_point_results(params: dict[str, Any], results: str, metrics_pattern: st
         tp = target_params(params, point)
         row = {"point": point, **{n: float(tp[n]) for n in names}, "iou": iou, "iou_sd": math.sqrt(iou_var),
                "precision": metrics.get("precision"), "recall": metrics.get("recall"),
-               "n_test_images": len([v for v in metrics.get("per_image_iou", []) if v is not None]),
-               "train_time_s": metrics.get("train_time_s"), "epochs": metrics.get("epochs")}
+               "n_test_images": metrics.get("n_images"),
+               "train_time_s": metrics.get("training_time_s"), "epochs": metrics.get("epochs")}
         if cpath is not None:
             comp = _read_json(cpath, "compression file")
             ratios = np.array([im["ratio"] for im in comp["images"]], dtype=np.float64)
