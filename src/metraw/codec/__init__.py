@@ -75,8 +75,9 @@ def measured_noise_sigma(symbols: np.ndarray, pattern: str, step: float) -> floa
     step_c = cell_size(pattern)
     for _, dy, dx in plane_offsets(pattern):
         plane = symbols[dy::step_c, dx::step_c]
-        if plane.shape[0] > 512:  # a row subsample is plenty for a 20 % consistency check
-            plane = plane[:plane.shape[0] // 4 * 2].reshape(-1, 4, plane.shape[1])[:, :2].reshape(-1, plane.shape[1])
+        ph, pw = plane.shape  # a central 384 x 384 crop is plenty for a 20 % consistency check
+        y0, x0 = max(0, ph // 2 - 192), max(0, pw // 2 - 192)
+        plane = plane[y0:y0 + 384, x0:x0 + 384]
         h, w = plane.shape[0] // 2 * 2, plane.shape[1] // 2 * 2
         if h < 2 or w < 2:
             continue
@@ -94,8 +95,12 @@ def measured_noise_sigma(symbols: np.ndarray, pattern: str, step: float) -> floa
     return math.sqrt(max(var_pix, 0.0)) * step
 
 
-def encode(image: RawImage, step: float = 1.0, seed: int = 0, check_profile: bool = True) -> bytes:
+def encode(image: RawImage, step: float = 1.0, seed: int = 0, check_profile: bool = True,
+           embed_profile: bool = True) -> bytes:
     """Compress ``image``: quantisation step ``step`` in noise sigmas, dither seed ``seed``.
+
+    ``embed_profile=False`` leaves the profile, provenance and meta out of the blob (the zarr
+    codec keeps the profile in the array metadata); ``decode`` then needs ``profile=``.
 
     Warns (``ProfileMismatchWarning``) when the noise measured in the pixels differs from the
     profile's by more than ``MISMATCH_TOLERANCE`` (relative).
@@ -124,21 +129,24 @@ def encode(image: RawImage, step: float = 1.0, seed: int = 0, check_profile: boo
         sym = prepare.forward(data[r0:r1], prof, step, u)
         return sym, _encode_tile(sym, u, pattern)
 
-    with ThreadPoolExecutor(THREADS) as pool:
-        results = list(pool.map(work, tiles))
+    if len(tiles) == 1:
+        results = [work(tiles[0])]
+    else:
+        with ThreadPoolExecutor(THREADS) as pool:
+            results = list(pool.map(work, tiles))
     esc = prepare.escape_mask(data, prof)
     idx = np.flatnonzero(esc)
-    esc_idx = np.diff(idx, prepend=0).astype(np.int64)
-    esc_val = data.reshape(-1)[idx].astype(np.int32)
-    esc_blob = entropy.encode_streams([esc_idx.astype(np.int32), esc_val])
+    if idx.size:
+        esc_idx = np.diff(idx, prepend=0).astype(np.int32)
+        esc_blob = entropy.encode_streams([esc_idx, data.reshape(-1)[idx].astype(np.int32)])
+    else:
+        esc_blob = b""
     if check_profile:
         _check_profile(np.concatenate([r[0] for r in results]) if len(results) > 1 else results[0][0],
                        esc, pattern, step)
-    header = {
-        "codec": "metraw.raw", "shape": [h, w], "step": step, "seed": seed,
-        "tiles": [list(t) for t in tiles], "profile": prof.to_dict(),
-        "provenance": image.provenance, "meta": image.meta,
-    }
+    meta = ({"profile": prof.to_dict(), "provenance": image.provenance, "meta": image.meta}
+            if embed_profile else None)
+    header = container.Header((h, w), step, seed, tiles, meta)
     return container.pack(header, [r[1] for r in results] + [esc_blob])
 
 
@@ -153,24 +161,29 @@ def _check_profile(sym: np.ndarray, esc: np.ndarray, pattern: str, step: float) 
             ProfileMismatchWarning, stacklevel=3)
 
 
-def read_header(blob: bytes) -> dict:
-    """The header of a blob (shape, step, seed, profile, ...) after checking its CRC."""
+def read_header(blob: bytes) -> container.Header:
+    """The header of a blob (shape, step, seed, tiles, embedded metadata) after checking its CRC."""
     return container.unpack(blob)[0]
 
 
-def decode(blob: bytes | memoryview) -> RawImage:
-    """Decompress a blob from ``encode``: uint16 DN with the embedded profile."""
+def decode(blob: bytes | memoryview, profile: CalibrationProfile | None = None) -> RawImage:
+    """Decompress a blob from ``encode``: uint16 DN with the embedded profile (or ``profile`` for
+    blobs encoded with ``embed_profile=False``; an explicit ``profile`` must then be the encoder's)."""
     header, sections = container.unpack(blob)
+    h, w = header.shape
+    step, seed, tiles = header.step, header.seed, header.tiles
+    meta = header.meta or {}
     try:
-        h, w = (int(v) for v in header["shape"])
-        step = float(header["step"])
-        seed = int(header["seed"])
-        tiles = [tuple(int(v) for v in t) for t in header["tiles"]]
-        prof = CalibrationProfile.from_dict(header["profile"])
+        if "profile" in meta:
+            prof = CalibrationProfile.from_dict(meta["profile"])
+        elif profile is not None:
+            prof = profile
+        else:
+            raise MetrawError("metraw raw-codec blob has no embedded profile: pass the profile it was encoded with")
     except (KeyError, TypeError, ValueError) as exc:
         raise MetrawError(f"metraw raw-codec header is incomplete: {exc}") from None
-    if len(sections) != len(tiles) + 1:
-        raise MetrawError("metraw raw-codec blob has the wrong number of sections")
+    if not (math.isfinite(step) and step > 0) or len(sections) != len(tiles) + 1:
+        raise MetrawError("metraw raw-codec blob is malformed (step or section count)")
     out = np.empty((h, w), np.uint16)
     pattern = prof.cfa_pattern
 
@@ -178,17 +191,21 @@ def decode(blob: bytes | memoryview) -> RawImage:
         (r0, r1), sec = args
         u = prepare.dither(seed, r0 * w, (r1 - r0) * w).reshape(r1 - r0, w)
         sym = _decode_tile(sec, u, pattern)
-        out[r0:r1] = prepare.to_dn(prepare.inverse(sym, prof, step, u))
+        prepare.inverse_dn(sym, prof, step, u, out[r0:r1])
 
-    with ThreadPoolExecutor(THREADS) as pool:
-        list(pool.map(work, zip(tiles, sections[:-1])))
-    esc_idx, esc_val = entropy.decode_streams(sections[-1])
-    if esc_idx.size != esc_val.size:
-        raise MetrawError("metraw raw-codec escape list is corrupt")
-    idx = np.cumsum(esc_idx.astype(np.int64))
-    if idx.size and (idx[-1] >= h * w or np.any(esc_val < 0) or np.any(esc_val > 65535)):
-        raise MetrawError("metraw raw-codec escape list is corrupt")
-    out.reshape(-1)[idx] = esc_val.astype(np.uint16)
-    provenance = list(header.get("provenance", [])) + [
+    if len(tiles) == 1:
+        work((tiles[0], sections[0]))
+    else:
+        with ThreadPoolExecutor(THREADS) as pool:
+            list(pool.map(work, zip(tiles, sections[:-1])))
+    if len(sections[-1]):
+        esc_idx, esc_val = entropy.decode_streams(sections[-1])
+        if esc_idx.size != esc_val.size:
+            raise MetrawError("metraw raw-codec escape list is corrupt")
+        idx = np.cumsum(esc_idx.astype(np.int64))
+        if idx.size and (idx[-1] >= h * w or np.any(esc_val < 0) or np.any(esc_val > 65535)):
+            raise MetrawError("metraw raw-codec escape list is corrupt")
+        out.reshape(-1)[idx] = esc_val.astype(np.uint16)
+    provenance = list(meta.get("provenance", [])) + [
         {"function": "metraw.codec", "params": {"step": step, "seed": seed}}]
-    return RawImage(data=out, profile=prof, provenance=provenance, meta=dict(header.get("meta", {})))
+    return RawImage(data=out, profile=prof, provenance=provenance, meta=dict(meta.get("meta", {})))

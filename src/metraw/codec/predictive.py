@@ -1,21 +1,31 @@
-"""Dither-aware predictive coding of a symbol plane: causal linear prediction + context rANS.
+"""Dither-aware predictive coding of symbol planes: causal linear prediction + context rANS.
 
 Symbols are s = round(z / q + u) with the dither u known to both sides (``prepare``). The
 coder predicts in the *reconstructed* domain, where every decoded neighbour is
 x = s - u = z / q + e (e uniform, independent): the prediction p of z / q is mapped to the
 predicted symbol round(p + u) and only r = s - round(p + u) is coded, so the dither adds no
-variance to the residual (only the residual of z / q itself and the reconstruction noise of
-the neighbours).
+variance to the residual.
 
-All prediction arithmetic is integer (fixed point, ``FRAC`` bits): u is a 24-bit value, so
-x = s * 2^16 - u16 exactly, coefficients are integers with ``COEF_BITS`` fractional bits, and
-encoder and decoder share one compiled function: the bitstream is platform independent.
+Dither phase context: with m = p + u and t = m - round(m) in [-1/2, 1/2) (known to the decoder),
+r = round(t + d) where d = z / q - p is the prediction error. At coarse steps (d of ~0.5
+symbol) the distribution of r depends strongly on t: P(r = 1) is large for t near +1/2 and
+small for t near -1/2. Coding r conditioned on t saves ~0.14 bit/pixel at step 2 (H(r | t)
+vs H(r) for Gaussian d). The distribution is mirror symmetric (r, t) -> (-r, -t), so t < 0 is
+folded onto t > 0 by coding -r, and |t| is quantised into ``NPH`` bins.
 
-Per plane: the context is the quantised local activity |W-NW| + |N-NW| + |N-NE| + |W-WW| +
-|N-NN| of decoded neighbours (thresholds at quantiles, stored); each context has its own
-least-squares predictor x ~ W + sum_i c_i (n_i - W) + b over 12 causal neighbours (fitted by
-the encoder, stored) and its own static rANS table. Decoding is a sequential compiled loop
-(numba, ``nogil``) so tiles decode in parallel threads.
+All prediction arithmetic is integer (fixed point, ``FRAC`` bits): u is floored to 16 bits,
+so x = s * 2^16 - u16 exactly, coefficients are integers with ``COEF_BITS`` fractional bits,
+and encoder and decoder share one compiled function: the bitstream is platform independent.
+
+Per group of planes (each CFA plane its own group, or all planes together for small tiles):
+the activity context is the quantised local activity |W-NW| + |N-NW| + |N-NE| + |W-WW| +
+|N-NN| of decoded neighbours (``nact`` contexts, thresholds at quantiles, stored); each
+activity context has its own least-squares predictor x ~ W + sum_i c_i (n_i - W) + b over 12
+causal neighbours (fitted by the encoder, stored) and each (activity, phase) context its own
+static rANS table. The number of activity contexts shrinks with the plane size so that side
+information stays a small fraction of the rate (small images: one context, tables shared by
+the planes). Decoding is a sequential compiled loop (numba, ``nogil``), so tiles decode in
+parallel threads.
 """
 
 from __future__ import annotations
@@ -28,33 +38,28 @@ import numpy as np
 from metraw.errors import MetrawError
 
 FRAC = 16                      # fixed-point bits of reconstructed values
-COEF_BITS = 14                 # fractional bits of the predictor coefficients
+COEF_BITS = 12                 # fractional bits of the predictor coefficients (int16 storage)
 PROB_BITS = 12                 # rANS probability resolution
 PROB_SCALE = 1 << PROB_BITS
 RANS_L = 1 << 16
-NCTX = 8                       # activity contexts per plane
+NPH = 4                        # folded dither-phase bins per activity context
+MAX_NACT = 8                   # activity contexts per group, at most
 MIN_FIT = 64                   # fewer samples in a context: use the default predictor
-#: causal neighbours (dy, dx); index 0 is W, the reference of the differences
-OFFSETS = np.array([(0, -1), (-1, 0), (-1, -1), (-1, 1), (0, -2), (-2, 0), (-1, -2), (-2, -1), (-2, 1), (-1, 2),
-                    (-2, -2), (-2, 2)], dtype=np.int64)
-NTAP = len(OFFSETS)
+NTAP = 12                      # W + 11 differences (n_i - W); the 12th LS unknown is the bias
 MAX_RESID = 1023
+SHARED_BELOW = 1 << 16         # tiles with fewer pixels share one model across their planes
+_HEAD = struct.Struct("<BBBHIIQ")  # nplanes, nact, shared, amax, words, escapes, final state
 
 
-def fixed_dither(u: np.ndarray) -> np.ndarray:
-    """u in [-1/2, 1/2) with 24-bit resolution -> u * 2^16 floored to int64 (exact, deterministic)."""
-    return np.floor(u * (1 << FRAC)).astype(np.int64)
-
-
-def padded(xfp: np.ndarray, c0: int) -> np.ndarray:
-    """Causally padded buffer (h + 2, w + 4) of fixed-point reconstructions (see ``_decode_plane``)."""
-    h, w = xfp.shape
-    p = np.full((h + 2, w + 4), c0, np.int64)
-    p[2:, 2:w + 2] = xfp
-    if h > 1:
-        p[3:, 0:2] = xfp[:-1, 0:1]
-    p[2:, w + 2:] = xfp[:, w - 1:w]
-    return p
+def n_activity_contexts(pixels_per_group: int) -> int:
+    """Activity contexts for a group of ``pixels_per_group`` pixels (side info vs gain)."""
+    if pixels_per_group < 4096:
+        return 1
+    if pixels_per_group < 16384:
+        return 2
+    if pixels_per_group < 65536:
+        return 4
+    return MAX_NACT
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -68,33 +73,58 @@ def _activity(p, y, x):
 @nb.njit(cache=True, nogil=True, inline="always")
 def _ctx_of(act, thr):
     c = 0
-    while c < thr.size and act > thr[c]:
-        c += 1
+    for i in range(thr.size):  # thresholds ascending: a branch-free count
+        c += act > thr[i]
     return c
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _predict(p, y, x, coef, bias, c):
+def _predict(p, y, x, k, o, b):
+    """W + sum_i k[o + i] (n_i - W) / 2^COEF_BITS + b (fixed point)."""
     ref = p[y, x - 1]
-    k = coef[c]
-    acc = (k[1] * (p[y - 1, x] - ref) + k[2] * (p[y - 1, x - 1] - ref) + k[3] * (p[y - 1, x + 1] - ref)
-           + k[4] * (p[y, x - 2] - ref) + k[5] * (p[y - 2, x] - ref) + k[6] * (p[y - 1, x - 2] - ref)
-           + k[7] * (p[y - 2, x - 1] - ref) + k[8] * (p[y - 2, x + 1] - ref) + k[9] * (p[y - 1, x + 2] - ref)
-           + k[10] * (p[y - 2, x - 2] - ref) + k[11] * (p[y - 2, x + 2] - ref))
-    return ref + (acc >> 14) + bias[c]
+    acc = (k[o] * (p[y - 1, x] - ref) + k[o + 1] * (p[y - 1, x - 1] - ref) + k[o + 2] * (p[y - 1, x + 1] - ref)
+           + k[o + 3] * (p[y, x - 2] - ref) + k[o + 4] * (p[y - 2, x] - ref) + k[o + 5] * (p[y - 1, x - 2] - ref)
+           + k[o + 6] * (p[y - 2, x - 1] - ref) + k[o + 7] * (p[y - 2, x + 1] - ref)
+           + k[o + 8] * (p[y - 1, x + 2] - ref) + k[o + 9] * (p[y - 2, x - 2] - ref)
+           + k[o + 10] * (p[y - 2, x + 2] - ref))
+    return ref + (acc >> 12) + b
 
 
 @nb.njit(cache=True, nogil=True)
-def _normal_equations(p, ctx, nctx, stride):
-    """Per-context X^T X and X^T t of the regression t = x - W on (n_i - W, 1), every ``stride``-th pixel."""
-    h, w = ctx.shape
-    ata = np.zeros((nctx, 12, 12))
-    atb = np.zeros((nctx, 12))
+def _front(s, u, c0):
+    """Fixed-point dither u16, causally padded buffer of reconstructions (h+2, w+4) and activities.
+
+    Padding: rows above the plane hold ``c0``; the two columns left of row y repeat the first
+    pixel of row y-1, the two right of it the last pixel of row y (the decoder builds the same)."""
+    h, w = s.shape
+    u16 = np.empty((h, w), np.int64)
+    p = np.full((h + 2, w + 4), c0, np.int64)
+    for y in range(h):
+        for x in range(w):
+            v = np.int64(np.floor(u[y, x] * 65536.0))
+            u16[y, x] = v
+            p[y + 2, x + 2] = (np.int64(s[y, x]) << 16) - v
+        if y > 0:
+            p[y + 2, 0] = p[y + 1, 2]
+            p[y + 2, 1] = p[y + 1, 2]
+        p[y + 2, w + 2] = p[y + 2, w + 1]
+        p[y + 2, w + 3] = p[y + 2, w + 1]
+    act = np.empty((h, w), np.int64)
+    for y in range(h):
+        for x in range(w):
+            act[y, x] = _activity(p, y + 2, x + 2)
+    return u16, p, act
+
+
+@nb.njit(cache=True, nogil=True)
+def _normal_equations(p, act, thr, nact, stride, ata, atb):
+    """Accumulate per-context X^T X and X^T t of t = x - W on (n_i - W, 1), every ``stride``-th pixel."""
+    h, w = act.shape
     d = np.empty(12)
     sc = 1.0 / 65536.0
     for y in range(0, h, stride):
         yy = y + 2
-        for x0 in range(0, w, stride):
+        for x0 in range((y // stride) % stride, w, stride):  # sheared lattice: no column aliasing
             xx = x0 + 2
             ref = p[yy, xx - 1]
             d[0] = (p[yy - 1, xx] - ref) * sc
@@ -110,104 +140,130 @@ def _normal_equations(p, ctx, nctx, stride):
             d[10] = (p[yy - 2, xx + 2] - ref) * sc
             d[11] = 1.0
             tv = (p[yy, xx] - ref) * sc
-            c = ctx[y, x0]
+            c = _ctx_of(act[y, x0], thr)
             for i in range(12):
                 di = d[i]
                 atb[c, i] += di * tv
                 for j in range(i + 1):
                     ata[c, i, j] += di * d[j]
-    for c in range(nctx):
-        for i in range(12):
-            for j in range(i + 1, 12):
-                ata[c, i, j] = ata[c, j, i]
-    return ata, atb
 
 
 @nb.njit(cache=True, nogil=True)
-def _prepare_plane(s, u, c0_from_mean):
-    """Fixed-point dither u16, padded buffer of reconstructions and activities of one plane."""
-    h, w = s.shape
-    u16 = np.empty((h, w), np.int64)
-    tot = 0.0
-    for y in range(h):
-        for x in range(w):
-            v = np.int64(np.floor(u[y, x] * 65536.0))
-            u16[y, x] = v
-            tot += (np.int64(s[y, x]) << 16) - v
-    c0 = np.int64(np.rint(tot / max(h * w, 1))) if c0_from_mean else np.int64(0)
-    p = np.full((h + 2, w + 4), c0, np.int64)
-    for y in range(h):
-        for x in range(w):
-            p[y + 2, x + 2] = (np.int64(s[y, x]) << 16) - u16[y, x]
-        if y > 0:
-            p[y + 2, 0] = p[y + 1, 2]
-            p[y + 2, 1] = p[y + 1, 2]
-        p[y + 2, w + 2] = p[y + 2, w + 1]
-        p[y + 2, w + 3] = p[y + 2, w + 1]
-    act = _activities(p)
-    return u16, p, act, c0
+def _residuals(s, p, act, u16, thr, coef, bias, tab0, r_out, t_out, off):
+    """Residuals r (phase folded) and table indices of one plane into flat outputs at ``off``.
 
-
-@nb.njit(cache=True, nogil=True)
-def _context_map(act, thr):
+    Returns max |r|."""
     h, w = act.shape
-    ctx = np.empty((h, w), np.int64)
-    for y in range(h):
-        for x in range(w):
-            ctx[y, x] = _ctx_of(act[y, x], thr)
-    return ctx
-
-
-@nb.njit(cache=True, nogil=True)
-def _activities(p):
-    h = p.shape[0] - 2
-    w = p.shape[1] - 4
-    act = np.empty((h, w), np.int64)
-    for y in range(h):
-        for x in range(w):
-            act[y, x] = _activity(p, y + 2, x + 2)
-    return act
-
-
-@nb.njit(cache=True, nogil=True)
-def _predicted_symbols(p, ctx, u16, coef, bias):
-    h, w = ctx.shape
-    out = np.empty((h, w), np.int64)
     half = np.int64(1 << 15)
+    rmax = np.int64(0)
+    k = off
     for y in range(h):
         for x in range(w):
-            pr = _predict(p, y + 2, x + 2, coef, bias, ctx[y, x])
-            out[y, x] = (pr + u16[y, x] + half) >> 16
-    return out
+            c = _ctx_of(act[y, x], thr)
+            mh = _predict(p, y + 2, x + 2, coef, c * 11, bias[c]) + u16[y, x] + half
+            r = np.int64(s[y, x]) - (mh >> 16)
+            fr = mh & 0xFFFF
+            f = 1 - (fr >> 15)              # 1 when t < 0: fold (r, t) -> (-r, -t)
+            fr ^= -f & 0xFFFF
+            r = (r ^ -f) + f
+            r_out[k] = r
+            t_out[k] = tab0 + c * 4 + ((fr >> 13) & 3)
+            rmax = max(rmax, abs(r))
+            k += 1
+    return rmax
+
+
+@nb.njit(cache=True, nogil=True)
+def _index(r, t, amax, ntab):
+    """Alphabet indices (escape = 2 amax + 1), per-table counts and escaped residuals."""
+    alpha = 2 * amax + 2
+    esc_i = alpha - 1
+    idx = np.empty(r.size, np.int64)
+    counts = np.zeros((ntab, alpha), np.int64)
+    esc = np.empty(r.size, np.int32)
+    ne = 0
+    for i in range(r.size):
+        v = r[i]
+        if v < -amax or v > amax:
+            esc[ne] = np.int32(v)
+            ne += 1
+            j = esc_i
+        else:
+            j = v + amax
+        idx[i] = j
+        counts[t[i], j] += 1
+    return idx, counts, esc[:ne]
+
+
+@nb.njit(cache=True, nogil=True)
+def _normalise(counts):
+    """Per row: integer frequencies summing to PROB_SCALE, >= 1 wherever counts > 0 (all-zero rows
+    stay zero: unused tables)."""
+    ntab, alpha = counts.shape
+    freq = np.zeros((ntab, alpha), np.int64)
+    for t in range(ntab):
+        tot = 0
+        for j in range(alpha):
+            tot += counts[t, j]
+        if tot == 0:
+            continue
+        s = 0
+        best = 0
+        for j in range(alpha):
+            c = counts[t, j]
+            if c > 0:
+                f = (c * PROB_SCALE) // tot
+                if f < 1:
+                    f = 1
+                freq[t, j] = f
+                s += f
+                if f > freq[t, best]:
+                    best = j
+        diff = PROB_SCALE - s
+        if diff >= 0:
+            freq[t, best] += diff
+        else:
+            while diff < 0:  # take from the largest entries, keeping >= 1
+                best = 0
+                for j in range(alpha):
+                    if freq[t, j] > freq[t, best]:
+                        best = j
+                take = min(-diff, freq[t, best] - 1)
+                freq[t, best] -= take
+                diff += take
+    return freq
 
 
 @nb.njit(cache=True, nogil=True)
 def _rans_encode(idx, tab, freq, cum, out):
-    """Encode alphabet indices ``idx`` with table row ``tab`` (reverse order); words into ``out``.
+    """Encode alphabet indices ``idx`` with table rows ``tab`` (reverse order); 16-bit words into ``out``.
 
-    Returns (final state, number of 16-bit words)."""
+    x // f via a float64 reciprocal: exact for x < 2^32 and f <= 2^12 (rounding error < 2^-19,
+    fraction of x / f is 0 or >= 2^-12). Returns (final state, number of words)."""
     x = np.uint64(RANS_L)
     nw = 0
     for k in range(idx.size - 1, -1, -1):
         t = tab[k]
         s = idx[k]
-        f = np.uint64(freq[t, s])
-        if x >= (f << np.uint64(32 - PROB_BITS)):
-            out[nw] = np.uint16(x & np.uint64(0xFFFF))
-            nw += 1
-            x >>= np.uint64(16)
-        x = ((x // f) << np.uint64(PROB_BITS)) + (x % f) + np.uint64(cum[t, s])
+        fi = freq[t, s]
+        f = np.uint64(fi)
+        emit = np.uint64(x >= (f << np.uint64(32 - PROB_BITS)))
+        out[nw] = np.uint16(x & np.uint64(0xFFFF))
+        nw += np.int64(emit)
+        x >>= emit << np.uint64(4)
+        q = np.uint64(np.float64(x) * (1.0 / fi) + 1.52587890625e-05)
+        x = (q << np.uint64(PROB_BITS)) + (x - q * f) + np.uint64(cum[t, s])
     return x, nw
 
 
 @nb.njit(cache=True, nogil=True)
-def _decode_plane(p, u16, thr, coef, bias, tab0, lut, freq, cum, amax, words, state, pos, esc, epos):
+def _decode_plane(p, u16, thr, coef, bias, tab0, lut, fcum, amax, words, state, pos, esc, epos):
     """Sequentially decode one plane into the padded buffer ``p``; returns (symbols, state, pos, epos).
 
     Error codes: pos = -1 when the word stream runs out, epos = -1 when the escape list does."""
     h = p.shape[0] - 2
     w = p.shape[1] - 4
-    sym = np.empty((h, w), np.int64)
+    sym = np.empty((h, w), np.int32)
     x = np.uint64(state)
     half = np.int64(1 << 15)
     mask = np.uint64(PROB_SCALE - 1)
@@ -220,25 +276,29 @@ def _decode_plane(p, u16, thr, coef, bias, tab0, lut, freq, cum, amax, words, st
         for xx0 in range(w):
             xx = xx0 + 2
             c = _ctx_of(_activity(p, yy, xx), thr)
-            pr = _predict(p, yy, xx, coef, bias, c)
-            sh = (pr + u16[y, xx0] + half) >> 16
-            t = tab0 + c
+            mh = _predict(p, yy, xx, coef, c * 11, bias[c]) + u16[y, xx0] + half
+            sh = mh >> 16
+            fr = mh & 0xFFFF
+            f = 1 - (fr >> 15)
+            t = tab0 + c * 4 + (((fr ^ (-f & 0xFFFF)) >> 13) & 3)
             slot = x & mask
-            s = lut[t, slot]
-            x = np.uint64(freq[t, s]) * (x >> np.uint64(PROB_BITS)) + slot - np.uint64(cum[t, s])
-            if x < np.uint64(RANS_L):
-                if pos <= 0:
-                    return sym, x, -1, epos
-                pos -= 1
-                x = (x << np.uint64(16)) | np.uint64(words[pos])
+            s = np.int64(lut[t, slot])
+            fc = fcum[t, s]
+            x = np.uint64(fc >> 16) * (x >> np.uint64(PROB_BITS)) + slot - np.uint64(fc & 0xFFFF)
+            # renormalise without a data-dependent branch: words[pos] with pos = words left (words[0] is a pad)
+            need = np.uint64(x < np.uint64(RANS_L))
+            x = (x << (need << np.uint64(4))) | (np.uint64(words[pos]) * need)
+            pos -= np.int64(need)
+            if pos < 0:
+                return sym, x, -1, epos
             if s == esc_idx:
                 if epos >= esc.size:
                     return sym, x, pos, -1
                 r = np.int64(esc[epos])
                 epos += 1
             else:
-                r = np.int64(s) - amax
-            v = sh + r
+                r = s - amax
+            v = sh + ((r ^ -f) + f)
             sym[y, xx0] = v
             p[yy, xx] = (v << 16) - u16[y, xx0]
         p[yy, w + 2] = p[yy, w + 1]
@@ -246,98 +306,96 @@ def _decode_plane(p, u16, thr, coef, bias, tab0, lut, freq, cum, amax, words, st
     return sym, x, pos, epos
 
 
-def _normalise(counts: np.ndarray) -> np.ndarray:
-    """Integer frequencies summing to PROB_SCALE, >= 1 wherever counts > 0 (all-zero: escape only)."""
-    total = counts.sum()
-    if total == 0:
-        freq = np.zeros(counts.size, np.int64)
-        freq[-1] = PROB_SCALE
-        return freq
-    freq = np.floor(counts * (PROB_SCALE / total)).astype(np.int64)
-    freq[(counts > 0) & (freq == 0)] = 1
-    diff = PROB_SCALE - int(freq.sum())
-    order = np.argsort(-freq, kind="stable")
-    i = 0
-    while diff != 0:
-        j = order[i % order.size]
-        if diff > 0:
-            freq[j] += diff
-            diff = 0
-        elif freq[j] > 1:
-            take = min(-diff, int(freq[j]) - 1)
-            freq[j] -= take
-            diff += take
-        i += 1
-    return freq
+def _thresholds(acts: list[np.ndarray], nact: int) -> np.ndarray:
+    """nact - 1 activity thresholds (multiples of 256, at quantiles of a subsample), padded with +inf."""
+    if nact == 1:
+        return np.empty(0, np.int64)
+    sample = np.concatenate([a.reshape(-1)[::max(1, a.size // 32768)] for a in acts])
+    q = np.quantile(sample, np.linspace(0, 1, nact + 1)[1:-1], method="lower").astype(np.int64)
+    q = np.minimum(q >> 8, 0xFFFFFFFE)
+    thr = np.unique(q) << 8
+    return np.concatenate([thr, np.full(nact - 1 - thr.size, 0xFFFFFFFF << 8, np.int64)])
 
 
-def _fit(p: np.ndarray, ctx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per-context least-squares coefficients (integer, COEF_BITS) and bias (fixed point)."""
-    stride = 4 if ctx.size > 1 << 20 else 3 if ctx.size > 1 << 18 else 2 if ctx.size > 1 << 16 else 1
-    ata, atb = _normal_equations(p, ctx, NCTX, stride)
-    coef = np.zeros((NCTX, NTAP), np.int64)
-    bias = np.zeros(NCTX, np.int64)
-    for c in range(NCTX):
-        sol = np.zeros(NTAP)
-        sol[1] = 0.5  # (W + N) / 2 when a context has too few samples
+def _fit(ata: np.ndarray, atb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-context least-squares coefficients (int16, COEF_BITS) and bias (int32, FRAC bits)."""
+    nact = ata.shape[0]
+    coef = np.zeros((nact, NTAP - 1), np.int64)
+    bias = np.zeros(nact, np.int64)
+    for c in range(nact):
+        sol = np.zeros(NTAP - 1)
+        sol[0] = 0.5  # (W + N) / 2 when a context has too few samples
         b = 0.0
         if ata[c, -1, -1] >= MIN_FIT:
             try:
                 full = np.linalg.solve(ata[c] + 1e-6 * np.eye(NTAP), atb[c])
-                if np.all(np.isfinite(full)) and np.all(np.abs(full[:-1]) < 4):
-                    sol[1:] = full[:-1]
-                    b = float(np.clip(full[-1], -1000, 1000))
+                if np.all(np.isfinite(full)) and np.all(np.abs(full[:-1]) < 7.9):
+                    sol = full[:-1]
+                    b = float(np.clip(full[-1], -16000, 16000))
             except np.linalg.LinAlgError:
                 pass
         coef[c] = np.rint(sol * (1 << COEF_BITS)).astype(np.int64)
-        coef[c, 0] = 0
         bias[c] = int(round(b * (1 << FRAC)))
     return coef, bias
 
 
 def encode_planes(planes: list[tuple[np.ndarray, np.ndarray]]) -> bytes:
     """Code planes given as (symbols int32, dither float in [-1/2, 1/2)) pairs into one section."""
-    heads, idxs, tabs, escs, tables = [], [], [], [], []
-    resid = []
-    for k, (s, u) in enumerate(planes):
-        h, w = s.shape
-        u16, p, act, c0 = _prepare_plane(s, u, True)
-        c0 = int(c0)
-        sample = act.reshape(-1)[::4] if act.size > 1 << 16 else act.reshape(-1)
-        thr = np.unique(np.quantile(sample, np.linspace(0, 1, NCTX + 1)[1:-1], method="lower").astype(np.int64))
-        thr = np.concatenate([thr, np.full(NCTX - 1 - thr.size, np.iinfo(np.int64).max, np.int64)])
-        ctx = _context_map(act, thr)
-        coef, bias = _fit(p, ctx)
-        sh = _predicted_symbols(p, ctx, u16, coef, bias)
-        r = s.astype(np.int64) - sh
-        resid.append((r.reshape(-1), ctx.reshape(-1) + k * NCTX))
-        heads.append(struct.pack("<IIq", h, w, c0) + thr.astype("<i8").tobytes() + coef[:, 1:].astype("<i4").tobytes()
-                     + bias.astype("<i8").tobytes())
-    r_all = np.concatenate([r for r, _ in resid]) if resid else np.empty(0, np.int64)
-    t_all = np.concatenate([t for _, t in resid]) if resid else np.empty(0, np.int64)
-    if r_all.size:
-        amax = int(min(MAX_RESID, max(1, np.abs(r_all).max())))
-    else:
-        amax = 1
-    esc_i = 2 * amax + 1
-    idx = r_all + amax
-    esc = (idx < 0) | (idx >= esc_i)
-    esc_vals = r_all[esc].astype("<i4")
-    idx[esc] = esc_i
-    ntab = max(1, NCTX * len(planes))
-    counts = np.bincount(t_all * (esc_i + 1) + idx, minlength=ntab * (esc_i + 1)).reshape(ntab, esc_i + 1)
-    freq = np.stack([_normalise(c.astype(np.float64)) for c in counts])
-    cum = np.concatenate([np.zeros((ntab, 1), np.int64), np.cumsum(freq, 1)[:, :-1]], 1)
+    npl = len(planes)
+    total = sum(s.size for s, _ in planes)
+    shared = total < SHARED_BELOW
+    groups = [list(range(npl))] if shared else [[k] for k in range(npl)]
+    nact = n_activity_contexts(min((sum(planes[k][0].size for k in g) for g in groups), default=0))
+    fronts, c0s = [], []
+    for s, u in planes:
+        c0 = int(np.rint(s.mean())) if s.size else 0
+        c0s.append(c0)
+        fronts.append(_front(s, np.asarray(u, np.float64), np.int64(c0) << 16))
+    ngroup = len(groups)
+    ntab = ngroup * nact * NPH
+    r_all = np.empty(total, np.int64)
+    t_all = np.empty(total, np.int64)
+    group_heads = []
+    off = 0
+    rmax = 0
+    for gi, g in enumerate(groups):
+        thr = _thresholds([fronts[k][2] for k in g], nact)
+        ata = np.zeros((nact, NTAP, NTAP))
+        atb = np.zeros((nact, NTAP))
+        npix = sum(planes[k][0].size for k in g)
+        stride = max(1, int(np.sqrt(npix / 65536)))  # ~65536 samples for 12 x nact unknowns
+        for k in g:
+            u16, p, act = fronts[k]
+            _normal_equations(p, act, thr, nact, stride, ata, atb)
+        for c in range(nact):  # symmetric fill
+            ata[c] = np.tril(ata[c]) + np.tril(ata[c], -1).T
+        coef, bias = _fit(ata, atb)
+        for k in g:
+            u16, p, act = fronts[k]
+            rmax = max(rmax, int(_residuals(planes[k][0], p, act, u16, thr, coef.reshape(-1), bias, gi * nact * NPH,
+                                            r_all, t_all, off)))
+            off += planes[k][0].size
+        group_heads.append((thr >> 8).astype("<u4").tobytes() + coef.astype("<i2").tobytes()
+                           + np.clip(bias, -2**31, 2**31 - 1).astype("<i4").tobytes())
+    amax = int(min(MAX_RESID, max(1, rmax)))
+    idx, counts, esc_vals = _index(r_all, t_all, amax, max(ntab, 1))
+    freq = _normalise(counts)
+    cum = np.concatenate([np.zeros((freq.shape[0], 1), np.int64), np.cumsum(freq, 1)[:, :-1]], 1)
     out = np.empty(idx.size + 2, np.uint16)
     state, nw = _rans_encode(idx, t_all, freq, cum, out)
+    tables = []
     for f in freq:
         nz = np.flatnonzero(f)
+        if nz.size == 0:
+            tables.append(struct.pack("<HH", 0, 0))
+            continue
         first, last = int(nz[0]), int(nz[-1])
         tables.append(struct.pack("<HH", first, last - first + 1) + f[first:last + 1].astype("<u2").tobytes())
-    parts = [struct.pack("<IIIQII", len(planes), NCTX, amax, int(state), nw, esc_vals.size)]
-    parts += heads + tables
+    parts = [_HEAD.pack(npl, nact, int(shared), amax, nw, esc_vals.size, int(state)),
+             np.array(c0s, "<i4").tobytes()]
+    parts += group_heads + tables
     parts.append(out[:nw].astype("<u2").tobytes())
-    parts.append(esc_vals.tobytes())
+    parts.append(esc_vals.astype("<i4").tobytes())
     return b"".join(parts)
 
 
@@ -350,30 +408,31 @@ def decode_planes(blob, dithers: list[np.ndarray]) -> list[np.ndarray]:
 
 
 def _decode(mv: memoryview, dithers: list[np.ndarray]) -> list[np.ndarray]:
-    nplanes, nctx, amax, state, nw, nesc = struct.unpack_from("<IIIQII", mv, 0)
-    off = struct.calcsize("<IIIQII")
-    if nplanes != len(dithers) or nctx != NCTX or amax > MAX_RESID:
+    npl, nact, shared, amax, nw, nesc, state = _HEAD.unpack_from(mv, 0)
+    off = _HEAD.size
+    if npl != len(dithers) or not 1 <= nact <= MAX_NACT or shared > 1 or amax > MAX_RESID:
         raise ValueError("plane header does not match the frame")
+    c0s = np.frombuffer(mv, "<i4", npl, off).astype(np.int64)
+    off += 4 * npl
+    ngroup = 1 if shared else npl
     heads = []
-    for u in dithers:
-        h, w, c0 = struct.unpack_from("<IIq", mv, off)
-        off += 16
-        if (h, w) != u.shape:
-            raise ValueError("plane shape does not match the frame")
-        thr = np.frombuffer(mv, "<i8", NCTX - 1, off).astype(np.int64)
-        off += 8 * (NCTX - 1)
-        coef = np.zeros((NCTX, NTAP), np.int64)
-        coef[:, 1:] = np.frombuffer(mv, "<i4", NCTX * (NTAP - 1), off).reshape(NCTX, NTAP - 1)
-        off += 4 * NCTX * (NTAP - 1)
-        bias = np.frombuffer(mv, "<i8", NCTX, off).astype(np.int64)
-        off += 8 * NCTX
-        heads.append((c0, thr, coef, bias))
+    for _ in range(ngroup):
+        thr = np.frombuffer(mv, "<u4", nact - 1, off).astype(np.int64) << 8
+        off += 4 * (nact - 1)
+        coef = np.frombuffer(mv, "<i2", nact * (NTAP - 1), off).astype(np.int64).reshape(nact, NTAP - 1)
+        off += 2 * nact * (NTAP - 1)
+        bias = np.frombuffer(mv, "<i4", nact, off).astype(np.int64)
+        off += 4 * nact
+        heads.append((thr, coef, bias))
     alpha = 2 * amax + 2
-    ntab = max(1, NCTX * nplanes)
+    ntab = ngroup * nact * NPH
     freq = np.zeros((ntab, alpha), np.int64)
     for t in range(ntab):
         first, span = struct.unpack_from("<HH", mv, off)
         off += 4
+        if span == 0:
+            freq[t, -1] = PROB_SCALE  # unused table: escape only
+            continue
         if first + span > alpha:
             raise ValueError("frequency table overruns the alphabet")
         freq[t, first:first + span] = np.frombuffer(mv, "<u2", span, off)
@@ -381,22 +440,26 @@ def _decode(mv: memoryview, dithers: list[np.ndarray]) -> list[np.ndarray]:
         if freq[t].sum() != PROB_SCALE:
             raise ValueError("frequency table does not sum to the probability scale")
     cum = np.concatenate([np.zeros((ntab, 1), np.int64), np.cumsum(freq, 1)[:, :-1]], 1)
-    lut = np.stack([np.repeat(np.arange(alpha, dtype=np.int32), f) for f in freq])
-    words = np.frombuffer(mv, "<u2", nw, off).astype(np.uint16)
+    lut = np.stack([np.repeat(np.arange(alpha, dtype=np.int16), f) for f in freq])
+    fcum = (freq << 16) | cum
+    words = np.zeros(nw + 1, np.uint16)  # words[0]: pad read by the branch-free renormalisation
+    words[1:] = np.frombuffer(mv, "<u2", nw, off)
     off += 2 * nw
     esc = np.frombuffer(mv, "<i4", nesc, off).astype(np.int32)
     pos, epos = nw, 0
     x = np.uint64(state)
     out = []
-    for k, (u, (c0, thr, coef, bias)) in enumerate(zip(dithers, heads)):
-        u16 = fixed_dither(u)
+    for k, u in enumerate(dithers):
+        g = 0 if shared else k
+        thr, coef, bias = heads[g]
+        u16 = np.floor(np.asarray(u, np.float64) * (1 << FRAC)).astype(np.int64)
         h, w = u.shape
-        p = np.full((h + 2, w + 4), np.int64(c0), np.int64)
-        sym, x, pos, epos = _decode_plane(p, u16, thr, coef, bias, k * NCTX, lut, freq, cum, amax, words, x, pos,
-                                          esc, epos)
+        p = np.full((h + 2, w + 4), np.int64(c0s[k]) << 16, np.int64)
+        sym, x, pos, epos = _decode_plane(p, u16, thr, coef.reshape(-1), bias, g * nact * NPH, lut, fcum, amax,
+                                          words, x, pos, esc, epos)
         if pos < 0 or epos < 0:
             raise ValueError("coded data ran out")
-        out.append(sym.astype(np.int32))
+        out.append(sym)
     if pos != 0 or int(x) != RANS_L or epos != esc.size:
         raise ValueError("rANS did not end in its initial state")
     return out

@@ -115,6 +115,27 @@ def inverse(symbols: np.ndarray, profile: CalibrationProfile, step: float, u: np
     return k * (zh * zh) + (profile.black_level_dn - k * offset_e(profile) - k * step * step / 48.0)
 
 
+@nb.njit(cache=True, nogil=True)
+def _inverse_dn_kernel(sym, u, half_step, k, offset, out):
+    h, w = sym.shape
+    for i in range(h):
+        for j in range(w):
+            zh = (np.float64(sym[i, j]) - u[i, j]) * half_step
+            v = np.rint(k * (zh * zh) + offset)
+            out[i, j] = np.uint16(min(max(v, 0.0), 65535.0))
+
+
+def inverse_dn(symbols: np.ndarray, profile: CalibrationProfile, step: float, u: np.ndarray,
+               out: np.ndarray | None = None) -> np.ndarray:
+    """``to_dn(inverse(...))`` in one compiled pass (same float64 arithmetic), uint16 into ``out``."""
+    k = profile.gain_dn_per_e
+    if out is None:
+        out = np.empty(symbols.shape, np.uint16)
+    _inverse_dn_kernel(symbols, np.asarray(u, np.float64), 0.5 * step, k,
+                       profile.black_level_dn - k * offset_e(profile) - k * step * step / 48.0, out)
+    return out
+
+
 def to_dn(values: np.ndarray) -> np.ndarray:
     """Final rounding to integer DN, clipped to the uint16 range."""
     return np.clip(np.rint(values), 0, 65535).astype(np.uint16)

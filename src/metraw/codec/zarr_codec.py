@@ -5,7 +5,8 @@ Registered through the ``zarr.codecs`` entry point (pyproject.toml), so
 the step, the seed and the calibration profile: one profile per array (the store's ``raw``
 array uses the first image's profile; images with another noise model still decode exactly to
 what was encoded, but their error budget is relative to that profile). Chunks of any rank
->= 2 are coded image by image over the last two axes; each image blob has its own CRC-32C,
+>= 2 are coded image by image over the last two axes; each image blob (compact header without the profile, which is in
+the codec configuration) has its own CRC-32C,
 so a damaged chunk raises ``MetrawError`` instead of returning wrong pixels.
 """
 
@@ -76,7 +77,7 @@ class MetrawRawCodec(ArrayBytesCodec):
         prof = self._profile()
         lead = arr.reshape((-1,) + arr.shape[-2:])
         blobs = [codec.encode(RawImage(np.ascontiguousarray(img, dtype=np.uint16), prof), self.step,
-                              self.seed, check_profile=False) for img in lead]
+                              self.seed, check_profile=False, embed_profile=False) for img in lead]
         parts = [struct.pack("<I", len(blobs))]
         for b in blobs:
             parts += [struct.pack("<Q", len(b)), b]
@@ -86,6 +87,7 @@ class MetrawRawCodec(ArrayBytesCodec):
         from metraw import codec
 
         mv = memoryview(data)
+        prof = self._profile()
         try:
             (count,) = struct.unpack_from("<I", mv, 0)
             off = 4
@@ -93,7 +95,7 @@ class MetrawRawCodec(ArrayBytesCodec):
             for _ in range(count):
                 (n,) = struct.unpack_from("<Q", mv, off)
                 off += 8
-                imgs.append(codec.decode(mv[off:off + n]).data)
+                imgs.append(codec.decode(mv[off:off + n], profile=prof).data)
                 off += n
         except struct.error as exc:
             raise MetrawError(f"{CODEC_NAME} chunk is corrupt: {exc}") from None
