@@ -48,7 +48,9 @@ MIN_FIT = 64                   # fewer samples in a context: use the default pre
 NTAP = 12                      # W + 11 differences (n_i - W); the 12th LS unknown is the bias
 MAX_RESID = 1023
 SHARED_BELOW = 1 << 16         # tiles with fewer pixels share one model across their planes
-_HEAD = struct.Struct("<BBBHIIQ")  # nplanes, nact, shared, amax, words, escapes, final state
+_HEAD = struct.Struct("<BBBBH")  # nplanes, nact, shared, lanes, amax; then (state, words, escapes) per lane
+_LANE = struct.Struct("<III")
+LANES = 4                      # interleaved rANS lanes (row classes) for tiles of >= SHARED_BELOW pixels
 
 
 def n_activity_contexts(pixels_per_group: int) -> int:
@@ -92,39 +94,48 @@ def _predict(p, y, x, k, o, b):
 
 @nb.njit(cache=True, nogil=True)
 def _front(s, u, c0):
-    """Fixed-point dither u16, causally padded buffer of reconstructions (h+2, w+4) and activities.
+    """Causally padded buffer (h+2, w+4) of fixed-point reconstructions s 2^16 - floor(u 2^16).
 
     Padding: rows above the plane hold ``c0``; the two columns left of row y repeat the first
     pixel of row y-1, the two right of it the last pixel of row y (the decoder builds the same)."""
     h, w = s.shape
-    u16 = np.empty((h, w), np.int64)
     p = np.full((h + 2, w + 4), c0, np.int64)
     for y in range(h):
         for x in range(w):
-            v = np.int64(np.floor(u[y, x] * 65536.0))
-            u16[y, x] = v
-            p[y + 2, x + 2] = (np.int64(s[y, x]) << 16) - v
+            p[y + 2, x + 2] = (np.int64(s[y, x]) << 16) - np.int64(np.floor(u[y, x] * 65536.0))
         if y > 0:
             p[y + 2, 0] = p[y + 1, 2]
             p[y + 2, 1] = p[y + 1, 2]
         p[y + 2, w + 2] = p[y + 2, w + 1]
         p[y + 2, w + 3] = p[y + 2, w + 1]
-    act = np.empty((h, w), np.int64)
-    for y in range(h):
-        for x in range(w):
-            act[y, x] = _activity(p, y + 2, x + 2)
-    return u16, p, act
+    return p
 
 
 @nb.njit(cache=True, nogil=True)
-def _normal_equations(p, act, thr, nact, stride, ata, atb):
-    """Accumulate per-context X^T X and X^T t of t = x - W on (n_i - W, 1), every ``stride``-th pixel."""
-    h, w = act.shape
+def _activity_samples(p, stride):
+    """Activities on the sampling lattice (rows every ``stride``, sheared columns)."""
+    h = p.shape[0] - 2
+    w = p.shape[1] - 4
+    out = np.empty(((h + stride - 1) // stride) * ((w + stride - 1) // stride + 1), np.int64)
+    n = 0
+    for y in range(0, h, stride):
+        for x0 in range((y // stride) % stride, w, stride):  # sheared lattice: no column aliasing
+            out[n] = _activity(p, y + 2, x0 + 2)
+            n += 1
+    return out[:n]
+
+
+@nb.njit(cache=True, nogil=True)
+def _normal_equations(p, thr, stride, ata, atb):
+    """Accumulate per-context X^T X (lower triangle) and X^T t of t = x - W on (n_i - W, 1) over
+    the sampling lattice (rows every ``stride``, sheared columns: no column aliasing)."""
+    h = p.shape[0] - 2
+    w = p.shape[1] - 4
     d = np.empty(12)
     sc = 1.0 / 65536.0
     for y in range(0, h, stride):
         yy = y + 2
-        for x0 in range((y // stride) % stride, w, stride):  # sheared lattice: no column aliasing
+        for x0 in range((y // stride) % stride, w, stride):
             xx = x0 + 2
             ref = p[yy, xx - 1]
             d[0] = (p[yy - 1, xx] - ref) * sc
@@ -140,7 +151,7 @@ def _normal_equations(p, act, thr, nact, stride, ata, atb):
             d[10] = (p[yy - 2, xx + 2] - ref) * sc
             d[11] = 1.0
             tv = (p[yy, xx] - ref) * sc
-            c = _ctx_of(act[y, x0], thr)
+            c = _ctx_of(_activity(p, yy, xx), thr)
             for i in range(12):
                 di = d[i]
                 atb[c, i] += di * tv
@@ -149,18 +160,21 @@ def _normal_equations(p, act, thr, nact, stride, ata, atb):
 
 
 @nb.njit(cache=True, nogil=True)
-def _residuals(s, p, act, u16, thr, coef, bias, tab0, r_out, t_out, off):
+def _residuals(s, p, u, thr, coef, bias, tab0, r_out, t_out, off):
     """Residuals r (phase folded) and table indices of one plane into flat outputs at ``off``.
 
     Returns max |r|."""
-    h, w = act.shape
+    h, w = s.shape
     half = np.int64(1 << 15)
     rmax = np.int64(0)
     k = off
     for y in range(h):
+        yy = y + 2
         for x in range(w):
-            c = _ctx_of(act[y, x], thr)
-            mh = _predict(p, y + 2, x + 2, coef, c * 11, bias[c]) + u16[y, x] + half
+            xx = x + 2
+            c = _ctx_of(_activity(p, yy, xx), thr)
+            uv = np.int64(np.floor(u[y, x] * 65536.0))
+            mh = _predict(p, yy, xx, coef, c * 11, bias[c]) + uv + half
             r = np.int64(s[y, x]) - (mh >> 16)
             fr = mh & 0xFFFF
             f = 1 - (fr >> 15)              # 1 when t < 0: fold (r, t) -> (-r, -t)
@@ -174,25 +188,57 @@ def _residuals(s, p, act, u16, thr, coef, bias, tab0, r_out, t_out, off):
 
 
 @nb.njit(cache=True, nogil=True)
+def _lane_order(hs, ws, nl):
+    """Flat indices (planes concatenated, row-major) grouped by lane: lane j = rows j, j + nl, ... of
+    every plane in turn. Returns (order, starts)."""
+    n = 0
+    for k in range(hs.size):
+        n += hs[k] * ws[k]
+    order = np.empty(n, np.int64)
+    starts = np.zeros(nl + 1, np.int64)
+    m = 0
+    for j in range(nl):
+        off = 0
+        for k in range(hs.size):
+            for y in range(j, hs[k], nl):
+                for x in range(ws[k]):
+                    order[m] = off + y * ws[k] + x
+                    m += 1
+            off += hs[k] * ws[k]
+        starts[j + 1] = m
+    return order, starts
+
+
+@nb.njit(cache=True, nogil=True)
+def _lane_escapes(r, idx, order, starts, esc_i):
+    """Escaped residuals in decoding order, lane by lane; returns (values, count per lane)."""
+    nl = starts.size - 1
+    out = np.empty(order.size, np.int32)
+    cnt = np.zeros(nl, np.int64)
+    m = 0
+    for j in range(nl):
+        for k in range(starts[j], starts[j + 1]):
+            i = order[k]
+            if idx[i] == esc_i:
+                out[m] = np.int32(r[i])
+                m += 1
+                cnt[j] += 1
+    return out[:m], cnt
+
+
+@nb.njit(cache=True, nogil=True)
 def _index(r, t, amax, ntab):
-    """Alphabet indices (escape = 2 amax + 1), per-table counts and escaped residuals."""
+    """Alphabet indices (escape = 2 amax + 1) and per-table counts."""
     alpha = 2 * amax + 2
     esc_i = alpha - 1
-    idx = np.empty(r.size, np.int64)
+    idx = np.empty(r.size, np.int32)
     counts = np.zeros((ntab, alpha), np.int64)
-    esc = np.empty(r.size, np.int32)
-    ne = 0
     for i in range(r.size):
         v = r[i]
-        if v < -amax or v > amax:
-            esc[ne] = np.int32(v)
-            ne += 1
-            j = esc_i
-        else:
-            j = v + amax
+        j = esc_i if (v < -amax or v > amax) else v + amax
         idx[i] = j
         counts[t[i], j] += 1
-    return idx, counts, esc[:ne]
+    return idx, counts
 
 
 @nb.njit(cache=True, nogil=True)
@@ -235,82 +281,109 @@ def _normalise(counts):
 
 
 @nb.njit(cache=True, nogil=True)
-def _rans_encode(idx, tab, freq, cum, out):
-    """Encode alphabet indices ``idx`` with table rows ``tab`` (reverse order); 16-bit words into ``out``.
+def _rans_encode(idx, tab, freq, cum, order, starts, out, wstart):
+    """Encode lane j = symbols ``idx[order[starts[j]:starts[j + 1]]]`` (tables ``tab``) into its own rANS
+    stream, in reverse; lanes advance in lock step (independent dependency chains). Lane j's words go
+    to ``out[wstart[j]:]`` (room for one word per symbol). Returns (final states, word counts).
 
     x // f via a float64 reciprocal: exact for x < 2^32 and f <= 2^12 (rounding error < 2^-19,
-    fraction of x / f is 0 or >= 2^-12). Returns (final state, number of words)."""
-    x = np.uint64(RANS_L)
-    nw = 0
-    for k in range(idx.size - 1, -1, -1):
-        t = tab[k]
-        s = idx[k]
-        fi = freq[t, s]
-        f = np.uint64(fi)
-        emit = np.uint64(x >= (f << np.uint64(32 - PROB_BITS)))
-        out[nw] = np.uint16(x & np.uint64(0xFFFF))
-        nw += np.int64(emit)
-        x >>= emit << np.uint64(4)
-        q = np.uint64(np.float64(x) * (1.0 / fi) + 1.52587890625e-05)
-        x = (q << np.uint64(PROB_BITS)) + (x - q * f) + np.uint64(cum[t, s])
-    return x, nw
+    the fraction of x / f is 0 or >= 2^-12)."""
+    nl = starts.size - 1
+    xs = np.full(nl, RANS_L, np.uint64)
+    nws = np.zeros(nl, np.int64)
+    longest = 0
+    for j in range(nl):
+        longest = max(longest, starts[j + 1] - starts[j])
+    for k in range(longest - 1, -1, -1):
+        for j in range(nl):
+            if k >= starts[j + 1] - starts[j]:
+                continue
+            i = order[starts[j] + k]
+            t = tab[i]
+            sy = idx[i]
+            fi = freq[t, sy]
+            f = np.uint64(fi)
+            x = xs[j]
+            emit = np.uint64(x >= (f << np.uint64(32 - PROB_BITS)))
+            out[wstart[j] + nws[j]] = np.uint16(x & np.uint64(0xFFFF))
+            nws[j] += np.int64(emit)
+            x >>= emit << np.uint64(4)
+            q = np.uint64(np.float64(x) * (1.0 / fi) + 1.52587890625e-05)
+            xs[j] = (q << np.uint64(PROB_BITS)) + (x - q * f) + np.uint64(cum[t, sy])
+    return xs, nws
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _decode_pixel(p, yy, xx, uv, thr, coef, bias, tab0, lut, fcum, amax, words, x, pos, pmin, esc, epos, eend):
+    """Decode pixel (yy, xx) of the padded buffer ``p`` from one lane; returns (symbol, x, pos, epos, ok)."""
+    half = np.int64(1 << 15)
+    c = _ctx_of(_activity(p, yy, xx), thr)
+    mh = _predict(p, yy, xx, coef, c * 11, bias[c]) + uv + half
+    sh = mh >> 16
+    fr = mh & 0xFFFF
+    f = 1 - (fr >> 15)
+    t = tab0 + c * 4 + (((fr ^ (-f & 0xFFFF)) >> 13) & 3)
+    slot = x & np.uint64(PROB_SCALE - 1)
+    s = np.int64(lut[t, slot])
+    fc = fcum[t, s]
+    x = np.uint64(fc >> 16) * (x >> np.uint64(PROB_BITS)) + slot - np.uint64(fc & 0xFFFF)
+    # renormalise without a data-dependent branch: words[pos] is the next word (words[pmin] a pad)
+    need = np.uint64(x < np.uint64(RANS_L))
+    x = (x << (need << np.uint64(4))) | (np.uint64(words[pos]) * need)
+    pos -= np.int64(need)
+    ok = pos >= pmin
+    if s == 2 * amax + 1:
+        if epos >= eend:
+            return sh, x, pos, epos, False
+        r = np.int64(esc[epos])
+        epos += 1
+    else:
+        r = s - amax
+    v = sh + ((r ^ -f) + f)
+    p[yy, xx] = (v << 16) - uv
+    return v, x, pos, epos, ok
 
 
 @nb.njit(cache=True, nogil=True)
-def _decode_plane(p, u16, thr, coef, bias, tab0, lut, fcum, amax, words, state, pos, esc, epos):
-    """Sequentially decode one plane into the padded buffer ``p``; returns (symbols, state, pos, epos).
-
-    Error codes: pos = -1 when the word stream runs out, epos = -1 when the escape list does."""
+def _decode_plane(p, u16, thr, coef, bias, tab0, lut, fcum, amax, words, xs, pos, pmin, esc, epos, eend):
+    """Decode one plane into the padded buffer ``p``; lane j holds rows j, j + L, ... (L = xs.size)
+    and runs 3 pixels behind lane j - 1, so its causal neighbours are ready and the L dependency
+    chains overlap. Updates the per-lane state ``xs``, word positions ``pos`` (lower limits ``pmin``)
+    and escape positions ``epos`` (limits ``eend``) in place; returns (symbols, ok)."""
     h = p.shape[0] - 2
     w = p.shape[1] - 4
+    nl = xs.size
     sym = np.empty((h, w), np.int32)
-    x = np.uint64(state)
-    half = np.int64(1 << 15)
-    mask = np.uint64(PROB_SCALE - 1)
-    esc_idx = 2 * amax + 1
-    for y in range(h):
-        yy = y + 2
-        if y > 0:
-            p[yy, 0] = p[yy - 1, 2]
-            p[yy, 1] = p[yy - 1, 2]
-        for xx0 in range(w):
-            xx = xx0 + 2
-            c = _ctx_of(_activity(p, yy, xx), thr)
-            mh = _predict(p, yy, xx, coef, c * 11, bias[c]) + u16[y, xx0] + half
-            sh = mh >> 16
-            fr = mh & 0xFFFF
-            f = 1 - (fr >> 15)
-            t = tab0 + c * 4 + (((fr ^ (-f & 0xFFFF)) >> 13) & 3)
-            slot = x & mask
-            s = np.int64(lut[t, slot])
-            fc = fcum[t, s]
-            x = np.uint64(fc >> 16) * (x >> np.uint64(PROB_BITS)) + slot - np.uint64(fc & 0xFFFF)
-            # renormalise without a data-dependent branch: words[pos] with pos = words left (words[0] is a pad)
-            need = np.uint64(x < np.uint64(RANS_L))
-            x = (x << (need << np.uint64(4))) | (np.uint64(words[pos]) * need)
-            pos -= np.int64(need)
-            if pos < 0:
-                return sym, x, -1, epos
-            if s == esc_idx:
-                if epos >= esc.size:
-                    return sym, x, pos, -1
-                r = np.int64(esc[epos])
-                epos += 1
-            else:
-                r = s - amax
-            v = sh + ((r ^ -f) + f)
-            sym[y, xx0] = v
-            p[yy, xx] = (v << 16) - u16[y, xx0]
-        p[yy, w + 2] = p[yy, w + 1]
-        p[yy, w + 3] = p[yy, w + 1]
-    return sym, x, pos, epos
+    for y0 in range(0, h, nl):
+        nr = min(nl, h - y0)
+        for xsw in range(w + 3 * (nr - 1)):
+            for j in range(nr):
+                x0 = xsw - 3 * j
+                if x0 < 0 or x0 >= w:
+                    continue
+                y = y0 + j
+                yy = y + 2
+                if x0 == 0 and y > 0:
+                    p[yy, 0] = p[yy - 1, 2]
+                    p[yy, 1] = p[yy - 1, 2]
+                v, x, ps, ep, ok = _decode_pixel(p, yy, x0 + 2, u16[y, x0], thr, coef, bias, tab0, lut, fcum, amax,
+                                                 words, xs[j], pos[j], pmin[j], esc, epos[j], eend[j])
+                if not ok:
+                    return sym, False
+                xs[j] = x
+                pos[j] = ps
+                epos[j] = ep
+                sym[y, x0] = v
+                if x0 == w - 1:
+                    p[yy, w + 2] = p[yy, w + 1]
+                    p[yy, w + 3] = p[yy, w + 1]
+    return sym, True
 
 
-def _thresholds(acts: list[np.ndarray], nact: int) -> np.ndarray:
-    """nact - 1 activity thresholds (multiples of 256, at quantiles of a subsample), padded with +inf."""
+def _thresholds(sample: np.ndarray, nact: int) -> np.ndarray:
+    """nact - 1 activity thresholds (multiples of 256, at quantiles of ``sample``), padded with +inf."""
     if nact == 1:
         return np.empty(0, np.int64)
-    sample = np.concatenate([a.reshape(-1)[::max(1, a.size // 32768)] for a in acts])
     q = np.quantile(sample, np.linspace(0, 1, nact + 1)[1:-1], method="lower").astype(np.int64)
     q = np.minimum(q >> 8, 0xFFFFFFFE)
     thr = np.unique(q) << 8
@@ -350,39 +423,41 @@ def encode_planes(planes: list[tuple[np.ndarray, np.ndarray]]) -> bytes:
     for s, u in planes:
         c0 = int(np.rint(s.mean())) if s.size else 0
         c0s.append(c0)
-        fronts.append(_front(s, np.asarray(u, np.float64), np.int64(c0) << 16))
+        fronts.append(_front(s, u, np.int64(c0) << 16))
     ngroup = len(groups)
     ntab = ngroup * nact * NPH
-    r_all = np.empty(total, np.int64)
-    t_all = np.empty(total, np.int64)
+    r_all = np.empty(total, np.int32)
+    t_all = np.empty(total, np.int32)
     group_heads = []
     off = 0
     rmax = 0
     for gi, g in enumerate(groups):
-        thr = _thresholds([fronts[k][2] for k in g], nact)
+        npix = sum(planes[k][0].size for k in g)
+        stride = max(1, int(np.sqrt(npix / 65536) + 0.5))  # ~65536 samples for 12 x nact unknowns
+        acts = np.concatenate([_activity_samples(fronts[k], 2 * stride) for k in g])
+        thr = _thresholds(acts, nact)
         ata = np.zeros((nact, NTAP, NTAP))
         atb = np.zeros((nact, NTAP))
-        npix = sum(planes[k][0].size for k in g)
-        stride = max(1, int(np.sqrt(npix / 65536)))  # ~65536 samples for 12 x nact unknowns
         for k in g:
-            u16, p, act = fronts[k]
-            _normal_equations(p, act, thr, nact, stride, ata, atb)
-        for c in range(nact):  # symmetric fill
-            ata[c] = np.tril(ata[c]) + np.tril(ata[c], -1).T
+            _normal_equations(fronts[k], thr, stride, ata, atb)
+        ata = np.tril(ata) + np.transpose(np.tril(ata, -1), (0, 2, 1))
         coef, bias = _fit(ata, atb)
         for k in g:
-            u16, p, act = fronts[k]
-            rmax = max(rmax, int(_residuals(planes[k][0], p, act, u16, thr, coef.reshape(-1), bias, gi * nact * NPH,
-                                            r_all, t_all, off)))
+            rmax = max(rmax, int(_residuals(planes[k][0], fronts[k], planes[k][1], thr, coef.reshape(-1), bias,
+                                            gi * nact * NPH, r_all, t_all, off)))
             off += planes[k][0].size
         group_heads.append((thr >> 8).astype("<u4").tobytes() + coef.astype("<i2").tobytes()
                            + np.clip(bias, -2**31, 2**31 - 1).astype("<i4").tobytes())
     amax = int(min(MAX_RESID, max(1, rmax)))
-    idx, counts, esc_vals = _index(r_all, t_all, amax, max(ntab, 1))
+    idx, counts = _index(r_all, t_all, amax, max(ntab, 1))
     freq = _normalise(counts)
     cum = np.concatenate([np.zeros((freq.shape[0], 1), np.int64), np.cumsum(freq, 1)[:, :-1]], 1)
-    out = np.empty(idx.size + 2, np.uint16)
-    state, nw = _rans_encode(idx, t_all, freq, cum, out)
+    nl = 1 if shared else LANES
+    order, starts = _lane_order(np.array([s.shape[0] for s, _ in planes], np.int64),
+                                np.array([s.shape[1] for s, _ in planes], np.int64), nl)
+    out = np.empty(max(order.size, 1), np.uint16)
+    states, nws = _rans_encode(idx, t_all, freq, cum, order, starts, out, starts[:-1].copy())
+    esc_vals, esc_cnt = _lane_escapes(r_all, idx, order, starts, 2 * amax + 1)
     tables = []
     for f in freq:
         nz = np.flatnonzero(f)
@@ -391,10 +466,11 @@ def encode_planes(planes: list[tuple[np.ndarray, np.ndarray]]) -> bytes:
             continue
         first, last = int(nz[0]), int(nz[-1])
         tables.append(struct.pack("<HH", first, last - first + 1) + f[first:last + 1].astype("<u2").tobytes())
-    parts = [_HEAD.pack(npl, nact, int(shared), amax, nw, esc_vals.size, int(state)),
-             np.array(c0s, "<i4").tobytes()]
+    parts = [_HEAD.pack(npl, nact, int(shared), nl, amax)]
+    parts += [_LANE.pack(int(states[j]), int(nws[j]), int(esc_cnt[j])) for j in range(nl)]
+    parts.append(np.array(c0s, "<i4").tobytes())
     parts += group_heads + tables
-    parts.append(out[:nw].astype("<u2").tobytes())
+    parts += [out[starts[j]:starts[j] + nws[j]].astype("<u2").tobytes() for j in range(nl)]
     parts.append(esc_vals.astype("<i4").tobytes())
     return b"".join(parts)
 
@@ -408,10 +484,12 @@ def decode_planes(blob, dithers: list[np.ndarray]) -> list[np.ndarray]:
 
 
 def _decode(mv: memoryview, dithers: list[np.ndarray]) -> list[np.ndarray]:
-    npl, nact, shared, amax, nw, nesc, state = _HEAD.unpack_from(mv, 0)
+    npl, nact, shared, nl, amax = _HEAD.unpack_from(mv, 0)
     off = _HEAD.size
-    if npl != len(dithers) or not 1 <= nact <= MAX_NACT or shared > 1 or amax > MAX_RESID:
+    if npl != len(dithers) or not 1 <= nact <= MAX_NACT or shared > 1 or amax > MAX_RESID or not 1 <= nl <= 16:
         raise ValueError("plane header does not match the frame")
+    lanes = [_LANE.unpack_from(mv, off + _LANE.size * j) for j in range(nl)]
+    off += _LANE.size * nl
     c0s = np.frombuffer(mv, "<i4", npl, off).astype(np.int64)
     off += 4 * npl
     ngroup = 1 if shared else npl
@@ -419,7 +497,7 @@ def _decode(mv: memoryview, dithers: list[np.ndarray]) -> list[np.ndarray]:
     for _ in range(ngroup):
         thr = np.frombuffer(mv, "<u4", nact - 1, off).astype(np.int64) << 8
         off += 4 * (nact - 1)
-        coef = np.frombuffer(mv, "<i2", nact * (NTAP - 1), off).astype(np.int64).reshape(nact, NTAP - 1)
+        coef = np.frombuffer(mv, "<i2", nact * (NTAP - 1), off).astype(np.int64)
         off += 2 * nact * (NTAP - 1)
         bias = np.frombuffer(mv, "<i4", nact, off).astype(np.int64)
         off += 4 * nact
@@ -442,12 +520,19 @@ def _decode(mv: memoryview, dithers: list[np.ndarray]) -> list[np.ndarray]:
     cum = np.concatenate([np.zeros((ntab, 1), np.int64), np.cumsum(freq, 1)[:, :-1]], 1)
     lut = np.stack([np.repeat(np.arange(alpha, dtype=np.int16), f) for f in freq])
     fcum = (freq << 16) | cum
-    words = np.zeros(nw + 1, np.uint16)  # words[0]: pad read by the branch-free renormalisation
-    words[1:] = np.frombuffer(mv, "<u2", nw, off)
-    off += 2 * nw
-    esc = np.frombuffer(mv, "<i4", nesc, off).astype(np.int32)
-    pos, epos = nw, 0
-    x = np.uint64(state)
+    # words of lane j at [pmin_j + 1, pmin_j + n_j], with a pad word at pmin_j (branch-free renormalisation)
+    nwords = [ln[1] for ln in lanes]
+    pmin = np.concatenate([[0], np.cumsum(np.array(nwords, np.int64) + 1)[:-1]]).astype(np.int64)
+    words = np.zeros(int(sum(nwords)) + nl, np.uint16)
+    for j, n in enumerate(nwords):
+        words[pmin[j] + 1:pmin[j] + 1 + n] = np.frombuffer(mv, "<u2", n, off)
+        off += 2 * n
+    nesc = [ln[2] for ln in lanes]
+    esc = np.frombuffer(mv, "<i4", int(sum(nesc)), off).astype(np.int32)
+    epos = np.concatenate([[0], np.cumsum(nesc)[:-1]]).astype(np.int64)
+    eend = epos + np.array(nesc, np.int64)
+    xs = np.array([ln[0] for ln in lanes], np.uint64)
+    pos = pmin + np.array(nwords, np.int64)
     out = []
     for k, u in enumerate(dithers):
         g = 0 if shared else k
@@ -455,11 +540,11 @@ def _decode(mv: memoryview, dithers: list[np.ndarray]) -> list[np.ndarray]:
         u16 = np.floor(np.asarray(u, np.float64) * (1 << FRAC)).astype(np.int64)
         h, w = u.shape
         p = np.full((h + 2, w + 4), np.int64(c0s[k]) << 16, np.int64)
-        sym, x, pos, epos = _decode_plane(p, u16, thr, coef.reshape(-1), bias, g * nact * NPH, lut, fcum, amax,
-                                          words, x, pos, esc, epos)
-        if pos < 0 or epos < 0:
+        sym, ok = _decode_plane(p, u16, thr, coef, bias, g * nact * NPH, lut, fcum, amax, words, xs, pos, pmin,
+                                esc, epos, eend)
+        if not ok:
             raise ValueError("coded data ran out")
         out.append(sym)
-    if pos != 0 or int(x) != RANS_L or epos != esc.size:
+    if np.any(pos != pmin) or np.any(xs != RANS_L) or np.any(epos != eend):
         raise ValueError("rANS did not end in its initial state")
     return out
