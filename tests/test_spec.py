@@ -178,3 +178,127 @@ def test_check_flags_a_deliberately_wrong_profile_on_a_real_frame(tmp_path):
     assert d["verdict"] == "REJECT"
     assert d["noise"]["checks"]["gain_dn_per_e"]["contradicts"]
     assert any("contradicts the pixels" in r for r in d["reasons"])
+
+
+def test_subcell_blur_kernels_carry_the_planned_variance():
+    # photons move by whole cells: below one cell a sampled kernel of the nominal width would add
+    # too little variance (a box shorter than a cell none); the plan's variance must be exact
+    from metraw.spec import _box_kernel, _gaussian_kernel
+
+    for sigma in (0.2, 0.363, 0.8, 3.0):
+        k = _gaussian_kernel(sigma)
+        r = np.arange(k.shape[0]) - k.shape[0] // 2
+        assert k.sum() == pytest.approx(1.0) and k.min() >= 0
+        assert float((k.sum(axis=1) * r**2).sum()) == pytest.approx(sigma**2, rel=1e-6)
+    for length in (0.3, 0.668, 1.0, 4.5):
+        k = _box_kernel(length)[0]
+        r = np.arange(k.size) - k.size // 2
+        assert k.sum() == pytest.approx(1.0) and k.min() >= 0
+        assert float((k * r**2).sum()) == pytest.approx(length**2 / 12, rel=1e-6)
+
+
+def test_redistribute_adds_the_planned_blur_to_a_point_source():
+    # a bright single-cell source through the planned sub-cell smear: the measured along-track
+    # variance of the landing photons equals L^2/12 within k = 4 standard errors
+    from metraw.spec import apply_chain
+
+    prof = make_image().profile.replace(read_noise_e=0.0)
+    n_e = 4000
+    data = np.full((64, 64), 64, np.uint16)
+    data[32, 32] = 64 + n_e  # R site (RGGB, even row and column); K = 1 DN/e-
+    img = RawImage(data, prof)
+    length = 0.668
+    out = apply_chain(img, [{"function": "redistribute", "params": {"kernel": "box_along_track", "length_cells": length}}],
+                      seed=5)
+    plane = out.data[0::2, 0::2].astype(np.float64) - 64
+    cols = plane.sum(axis=0)
+    x = np.arange(cols.size) - 16
+    n = cols.sum()
+    var = float((cols * x**2).sum() / n)
+    want = length**2 / 12
+    # per photon the offset is -1/0/+1 with variance want: var of the sample mean of x^2 ~ want (1 - want) / n
+    se = math.sqrt(want * (1 - want) / n)
+    assert n == pytest.approx(n_e, abs=1)
+    assert abs(var - want) < 4 * se
+    assert plane.sum(axis=1)[16] == pytest.approx(n, abs=1)  # along-track only: rows untouched
+
+
+def test_thinning_uses_the_light_ratio_of_the_geometry():
+    # with the optimum system in the spec context, p = collected light ratio (per pixel, after
+    # binning), not the scene-dependent ratio of medians: a 0.4 m mirror collects 4x the light
+    from metraw.spec import light_ratio
+
+    spec = make_spec()
+    spec.context["optimum"] = {"diameter_m": 0.2, "exposure_s": 180e-6, "pixel_pitch_m": PITCH,
+                               "focal_length_m": PITCH * H / 0.9, "obscuration_ratio": 0.0,
+                               "optical_transmission": 1.0}
+    img = make_image(diameter=0.4, level_e=600.0, size=128)
+    assert light_ratio(img.profile, spec.context["optimum"]) == pytest.approx(0.25)
+    d = check(img, spec, measure_noise=False)
+    thin = [s for s in d.chain if s["function"] == "thin"]
+    assert d.verdict == "NORMALISE" and thin[0]["params"]["p"] == pytest.approx(0.25)
+    # finer GSD: 2x2 binning sums 4 pixels, the pixel collects 1/4: p = 1 after binning -> no thinning
+    img = make_image(gsd=0.45, level_e=100.0, size=128)
+    assert light_ratio(img.profile, spec.context["optimum"], 2) == pytest.approx(1.0)
+
+
+def _store_with(tmp_path, images):
+    from metraw.store import RawStore
+
+    with RawStore.create(tmp_path / "s.zarr") as s:
+        for im in images:
+            s.append(im)
+    return tmp_path / "s.zarr"
+
+
+def test_check_and_normalise_cli_on_a_store_image(tmp_path, capsys):
+    from metraw.cli import main
+    from metraw.io import read_raw
+
+    spec = make_spec()
+    spec.save(tmp_path / "spec.yaml")
+    fine = make_image(gsd=0.45, level_e=60.0, size=128)  # 240 e- after 2x2 binning: in spec, no thinning
+    mask = np.zeros(fine.shape, np.float32)
+    mask[40:60, 20:80] = 1.0
+    fine = RawImage(fine.data, fine.profile, mask, None, [], {"long": "x" * 500})
+    store = _store_with(tmp_path, [make_image(size=64), fine])
+    sp = str(tmp_path / "spec.yaml")
+    assert main(["check", f"{store}#1", "--spec", sp, "--no-noise"]) == 0
+    assert capsys.readouterr().out.startswith("NORMALISE")
+    assert main(["check", str(store), "--index", "0", "--spec", sp, "--no-noise"]) == 0
+    assert capsys.readouterr().out.startswith("PASS")
+    out = tmp_path / "n.tif"
+    assert main(["normalise", f"{store}#1", str(out), "--spec", sp, "--no-noise", "--seed", "2"]) == 0
+    back = read_raw(out)
+    assert back.profile.gsd_m == pytest.approx(0.9) and back.shape == (64, 64)
+    assert back.provenance[-1]["function"] == "bin_same_colour"
+    # the label mask follows the geometry: car area is conserved by same-colour binning
+    assert back.mask is not None and back.mask.sum() * 4 == pytest.approx(mask.sum(), rel=1e-6)
+    assert main(["normalise", str(store), str(tmp_path / "n.zarr"), "--index", "1", "--spec", sp, "--no-noise"]) == 0
+    # bad inputs: one clear line, exit 2, nothing written
+    for argv, msg in ((["check", f"{store}#7", "--spec", sp], "out of range"),
+                      (["check", str(store), "--spec", sp], "choose an image"),
+                      (["check", f"{tmp_path}/none.zarr#1", "--spec", sp], "not a metraw store"),
+                      (["check", f"{store}#x", "--spec", sp], "image index"),
+                      (["normalise", f"{store}#1", str(tmp_path / "n.tif"), "--spec", sp, "--no-noise"], "exist")):
+        capsys.readouterr()
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and msg in err[0], err
+
+
+def test_partial_profile_overrides_the_images_own(tmp_path):
+    import json
+
+    from metraw.cli import main
+
+    make_spec().save(tmp_path / "spec.yaml")
+    store = _store_with(tmp_path, [make_image(size=256)])
+    (tmp_path / "p.json").write_text(json.dumps({"gain_dn_per_e": 2.0, "uncertainty": {"gain_dn_per_e": 0.01}}))
+    rc = main(["check", f"{store}#0", "--spec", str(tmp_path / "spec.yaml"), "--profile", str(tmp_path / "p.json"),
+               "--json", str(tmp_path / "d.json")])
+    assert rc == 0
+    d = json.loads((tmp_path / "d.json").read_text())
+    assert d["verdict"] == "REJECT" and d["noise"]["checks"]["gain_dn_per_e"]["contradicts"]
+    (tmp_path / "bad.json").write_text(json.dumps({"gain": 2.0}))
+    assert main(["check", f"{store}#0", "--spec", str(tmp_path / "spec.yaml"), "--profile", str(tmp_path / "bad.json")]) == 2

@@ -353,7 +353,11 @@ def plan_normalisation(image: RawImage, spec: Specification, values: Mapping[str
     Order: bin to a coarser GSD (integer same-colour factor closest to the optimal GSD within the
     spec; binning multiplies the signal per pixel by factor^2), then extra blur (diffraction and
     smear, photon redistribution through a Gaussian / along-track box kernel whose variance adds
-    to the image's own), then binomial thinning of light to the optimal signal.
+    to the image's own; the discrete kernels on the same-colour cell grid carry exactly the planned
+    variance, also below one cell), then binomial thinning of light when the signal is above the
+    spec: p = the optimum system's collected light per pixel / this system's (`light_ratio`, from
+    the profile geometry, so each scene keeps its own brightness), or, without geometry, the spec's
+    optimal signal / the measured median.
     Returns (chain, problems): problems are reasons no physical move reaches the spec.
     """
     from metraw.cfa import cell_size
@@ -364,6 +368,7 @@ def plan_normalisation(image: RawImage, spec: Specification, values: Mapping[str
     gsd = values.get("gsd_m")
     signal = values.get("signal_e")
     step = cell_size(image.profile.cfa_pattern)
+    bin_m = 1
     if "gsd_m" in props and gsd is not None and gsd < props["gsd_m"].min:
         lim = props["gsd_m"]
         m = binning_factor(gsd, lim)
@@ -374,6 +379,7 @@ def plan_normalisation(image: RawImage, spec: Specification, values: Mapping[str
             chain.append({"function": "bin_same_colour", "params": {"factor": m},
                           "effect": f"gsd_m {gsd:.4g} -> {gsd * m:.4g} m"})
             gsd = gsd * m
+            bin_m = m
         # values["signal_e"] was already judged at the binned GSD by `check`.
     blur_var_m2 = 0.0
     blur_notes = []
@@ -396,13 +402,41 @@ def plan_normalisation(image: RawImage, spec: Specification, values: Mapping[str
                       "effect": f"smear_m {have:.4g} -> {want:.4g} m (box variances add; along-track = image columns)",
                       "profile_changes": {"exposure_s": want / speed} if speed else {}})
     if "signal_e" in props and signal is not None and signal > props["signal_e"].max:
-        p = props["signal_e"].optimal / signal
+        ratio = light_ratio(image.profile, spec.context.get("optimum") or {}, bin_m)
+        if ratio is not None:
+            # this scene as the optimum system would record it: thin by the ratio of collected light
+            p, basis = ratio, (f"collected light per pixel: the optimum system's / this system's"
+                               f"{' after binning' if bin_m > 1 else ''} (profile geometry)")
+        else:
+            p, basis = props["signal_e"].optimal / signal, "spec's optimal signal / measured median (no geometry)"
         if p >= 1:
-            problems.append("signal_e: thinning cannot raise the light level")
+            problems.append(f"signal_e = {signal:.4g} e- above the spec but the light ratio is {p:.3g} >= 1: "
+                            "thinning cannot bring it to spec")
         else:
             chain.append({"function": "thin", "params": {"p": p},
-                          "effect": f"signal_e {signal:.4g} -> {props['signal_e'].optimal:.4g} e- per pixel"})
+                          "effect": f"signal_e {signal:.4g} -> {signal * p:.4g} e- per pixel (p = {basis})"})
     return chain, problems
+
+
+def light_ratio(profile, optimum: Mapping[str, Any], bin_factor: int = 1) -> float | None:
+    """Photoelectrons per pixel the optimum system collects from a scene, relative to this image's
+    system after ``bin_factor`` x ``bin_factor`` binning: T D^2 (1 - eps^2) t (pitch / f)^2 per
+    pixel (altitude cancels: pixel footprint ~ (pitch h / f)^2, aperture solid angle ~ D^2 / h^2).
+    None when either side lacks D, exposure, pitch or focal length. QE and haze are taken equal.
+    """
+    def light(d, eps, t, pitch, f, trans):
+        return trans * d * d * (1.0 - eps * eps) * t * (pitch / f) ** 2
+
+    need = ("diameter_m", "exposure_s", "pixel_pitch_m", "focal_length_m")
+    if any(optimum.get(k) is None for k in need) or None in (
+            profile.aperture_diameter_m, profile.exposure_s, profile.pixel_pitch_m, profile.focal_length_m):
+        return None
+    opt = light(float(optimum["diameter_m"]), float(optimum.get("obscuration_ratio", 0.0)),
+                float(optimum["exposure_s"]), float(optimum["pixel_pitch_m"]), float(optimum["focal_length_m"]),
+                float(optimum.get("optical_transmission", 1.0)))
+    have = light(profile.aperture_diameter_m, profile.obscuration_ratio, profile.exposure_s,
+                 profile.pixel_pitch_m, profile.focal_length_m, profile.optical_transmission) * bin_factor**2
+    return opt / have if have > 0 else None
 
 
 def binning_factor(gsd_m: float, lim: Limit, largest: int = 64) -> int | None:
@@ -416,20 +450,59 @@ def binning_factor(gsd_m: float, lim: Limit, largest: int = 64) -> int | None:
     return min(factors, key=lambda k: abs(math.log(gsd_m * k / lim.optimal)))
 
 
-def _gaussian_kernel(sigma: float) -> np.ndarray:
-    r = max(1, int(math.ceil(4.0 * sigma)))
+def _variance_1d(w: np.ndarray) -> float:
+    """Second central moment [cells^2] of a centred odd-length 1-D kernel (normalised)."""
+    x = np.arange(w.size, dtype=np.float64) - w.size // 2
+    return float((w * x**2).sum() / w.sum())
+
+
+def _match_variance(make, variance: float, hi: float) -> np.ndarray:
+    """The 1-D kernel ``make(s)`` whose discrete variance equals ``variance`` (bisection on s).
+
+    ``make`` must give a variance that grows continuously with s from 0; the photons of a
+    redistribution move by whole cells, so what the kernel must get right is the second moment
+    (the low-frequency MTF): a sampled kernel of the nominal width does not have it below ~1 cell
+    (a sampled Gaussian of sigma 0.36 cell has a third of the variance; a box shorter than a cell
+    none at all).
+    """
+    lo = 0.0
+    while _variance_1d(make(hi)) < variance:
+        lo, hi = hi, 2.0 * hi
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if _variance_1d(make(mid)) < variance:
+            lo = mid
+        else:
+            hi = mid
+    return make(hi)
+
+
+def _sampled_gaussian(s: float) -> np.ndarray:
+    r = max(1, int(math.ceil(4.0 * s)))
     x = np.arange(-r, r + 1, dtype=np.float64)
-    g = np.exp(-0.5 * (x / sigma) ** 2)
-    return np.outer(g, g) / g.sum() ** 2
+    g = np.exp(-0.5 * (x / max(s, 1e-12)) ** 2)
+    return g / g.sum()
 
 
-def _box_kernel(length: float) -> np.ndarray:
-    """1-D box of ``length`` cells along columns (fractional end weights), as an odd (1, n) kernel."""
-    half = length / 2.0
+def _fractional_box(length: float) -> np.ndarray:
+    """Box of ``length`` cells centred on a cell, with fractional end weights (sum 1)."""
+    half = max(length, 1.0) / 2.0
     r = max(1, int(math.ceil(half - 0.5)))
     x = np.arange(-r, r + 1, dtype=np.float64)
     w = np.clip(np.minimum(x + 0.5, half) - np.maximum(x - 0.5, -half), 0.0, None)
-    return (w / w.sum())[None, :]
+    return w / w.sum()
+
+
+def _gaussian_kernel(sigma: float) -> np.ndarray:
+    """2-D separable Gaussian on the cell grid whose variance per axis is exactly sigma^2 [cells^2]."""
+    g = _match_variance(_sampled_gaussian, sigma * sigma, max(sigma, 0.5))
+    return np.outer(g, g)
+
+
+def _box_kernel(length: float) -> np.ndarray:
+    """Along-track (columns) box of ``length`` cells as an odd (1, n) kernel whose variance is
+    exactly length^2 / 12 [cells^2] (the continuous box's)."""
+    return _match_variance(_fractional_box, length * length / 12.0, length + 2.0)[None, :]
 
 
 def apply_chain(image: RawImage, chain: list[dict[str, Any]], seed: int = 0) -> RawImage:

@@ -1,6 +1,7 @@
 """``metraw check``: PASS / NORMALISE / REJECT an image against a specification (results/spec.yaml).
 
-Reads the image (a raw file via `metraw.io.read_raw`, or image ``--index`` of a metraw store),
+Reads the image (a raw file via `metraw.io.read_raw`, or one image of a metraw store:
+``STORE.zarr#INDEX`` or ``STORE.zarr --index INDEX``; ``--profile P.json`` replaces its profile),
 compares its profile geometry (GSD, diffraction and smear on the ground) and the signal level
 measured from its pixels with the spec, checks the profile's noise model against the pixels
 (single-frame fit), and prints the verdict with its reasons and, for NORMALISE, the chain of raw
@@ -9,6 +10,7 @@ functions that brings the image to spec (see `metraw.spec`).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -19,27 +21,51 @@ from metraw.image import RawImage
 
 
 def add_input_arguments(p) -> None:
-    p.add_argument("image", help="raw image file, or a metraw store (.zarr) with --index")
+    p.add_argument("image", help="raw image file, or an image of a metraw store: STORE.zarr#INDEX or STORE.zarr --index I")
     p.add_argument("--index", type=int, default=None, help="image index in a store")
     p.add_argument("--spec", default="results/spec.yaml", help="specification (default results/spec.yaml)")
-    p.add_argument("--profile", default=None, help="calibration profile JSON replacing the image's own")
+    p.add_argument("--profile", default=None,
+                   help="calibration profile JSON replacing the image's own (a full profile with schema_version, "
+                        "or an object of fields to change, e.g. {\"gain_dn_per_e\": 0.5})")
+
+
+def _is_store(path: Path) -> bool:
+    return (path / "zarr.json").is_file()
+
+
+def split_image_argument(text: str, index: int | None) -> tuple[Path, int | None]:
+    """(path, index) from ``STORE.zarr#I`` or a path plus ``--index``; a file name containing '#'
+    is taken as it is when it exists."""
+    path = Path(text)
+    if "#" in text and not path.exists():
+        head, _, tail = text.rpartition("#")
+        try:
+            i = int(tail)
+        except ValueError:
+            raise MetrawError(f"{text}: the part after '#' must be an image index (STORE.zarr#3)") from None
+        if index is not None and index != i:
+            raise MetrawError(f"{text} and --index {index} name different images")
+        if not _is_store(Path(head)):
+            raise MetrawError(f"{head} is not a metraw store (no zarr.json): '#INDEX' applies to stores only")
+        return Path(head), i
+    return path, index
 
 
 def load_image(args) -> RawImage:
     """The image named on the command line (store + index, or a file), with ``--profile`` applied."""
-    path = Path(args.image)
-    if (path / "zarr.json").is_file():
+    path, index = split_image_argument(args.image, args.index)
+    if _is_store(path):
         from metraw.store import RawStore
 
-        if args.index is None:
-            raise MetrawError(f"{path} is a store: choose an image with --index")
+        if index is None:
+            raise MetrawError(f"{path} is a store: choose an image with STORE.zarr#INDEX or --index")
         store = RawStore.open(path)
-        if not -len(store) <= args.index < len(store):
-            raise MetrawError(f"--index {args.index} out of range for {path} ({len(store)} images)")
-        image = store[args.index]
+        if not -len(store) <= index < len(store):
+            raise MetrawError(f"image index {index} out of range for {path} ({len(store)} images)")
+        image = store[index]
     else:
-        if args.index is not None:
-            raise MetrawError("--index applies to a store only")
+        if index is not None:
+            raise MetrawError(f"{path} is not a metraw store: an image index applies to stores only")
         from metraw.io import read_raw
 
         image = read_raw(path)
@@ -49,9 +75,24 @@ def load_image(args) -> RawImage:
         try:
             text = Path(args.profile).read_text()
         except OSError as exc:
-            raise MetrawError(f"cannot read profile {args.profile}: {exc}") from None
-        image = RawImage(image.data, CalibrationProfile.from_json(text), image.mask, image.flags,
-                         image.provenance, image.meta)
+            raise MetrawError(f"cannot read profile {args.profile}: {exc.strerror or exc}") from None
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise MetrawError(f"profile {args.profile} is not valid JSON: {exc}") from None
+        if isinstance(data, dict) and "schema_version" not in data:
+            # a partial profile: these fields replace the image's own (e.g. {"gain_dn_per_e": 0.5})
+            known = {f.name for f in dataclasses.fields(CalibrationProfile)}
+            unknown = sorted(set(data) - known)
+            if unknown:
+                raise MetrawError(f"profile {args.profile} has unknown fields: {', '.join(unknown)}")
+            try:
+                profile = image.profile.replace(**data)
+            except (TypeError, ValueError) as exc:
+                raise MetrawError(f"profile {args.profile}: {exc}") from None
+        else:
+            profile = CalibrationProfile.from_json(text)
+        image = RawImage(image.data, profile, image.mask, image.flags, image.provenance, image.meta)
     return image
 
 

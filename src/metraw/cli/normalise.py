@@ -2,11 +2,14 @@
 
 Runs `metraw.spec.check`; a NORMALISE verdict's chain (binning to a coarser GSD, photon
 redistribution through a blur kernel, binomial thinning of light) is applied with
-`metraw.rawfunc` and the result written atomically as a one-image metraw store (OUT.zarr).
+`metraw.rawfunc` and the result written atomically with its new profile and provenance: a metraw
+raw TIFF when OUT ends in .tif/.tiff (`metraw.io.tiff.write_tiff`), else a one-image metraw store.
 PASS writes the image unchanged; REJECT writes nothing and exits with an error (status 2).
 """
 
 from __future__ import annotations
+
+from pathlib import Path
 
 from metraw.errors import MetrawError
 
@@ -17,7 +20,7 @@ def register(sub) -> None:
     p = sub.add_parser("normalise", help="degrade a better-than-spec image to spec (raw functions only)",
                        description=__doc__.split("\n\n")[0])
     add_input_arguments(p)
-    p.add_argument("out", help="output store (.zarr) holding the normalised image")
+    p.add_argument("out", help="output: a metraw raw TIFF (.tif/.tiff) or a one-image store (e.g. OUT.zarr)")
     p.add_argument("--seed", type=int, default=0, help="seed of the raw functions' random draws")
     p.add_argument("--no-noise", action="store_true", help="skip the single-frame noise check")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output")
@@ -36,8 +39,13 @@ def run(args) -> int:
     if decision.verdict == "REJECT":
         raise MetrawError("image rejected, nothing written: " + "; ".join(decision.reasons))
     out = apply_chain(image, decision.chain, seed=args.seed)
-    with RawStore.create(args.out, overwrite=args.overwrite) as store:
-        store.append(out)
+    if Path(args.out).suffix.lower() in (".tif", ".tiff"):
+        from metraw.io.tiff import write_tiff
+
+        write_tiff(args.out, out, overwrite=args.overwrite)
+    else:
+        with RawStore.create(args.out, overwrite=args.overwrite) as store:
+            store.append(out)
     print(f"wrote {args.out}: {out.shape[0]} x {out.shape[1]} px, GSD "
           f"{out.profile.gsd_m if out.profile.gsd_m is None else round(out.profile.gsd_m, 4)} m, "
           f"steps: {', '.join(s['function'] for s in decision.chain) or 'none'}")

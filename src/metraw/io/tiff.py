@@ -126,7 +126,7 @@ def _check_extent(tif, path: Path) -> None:
 
 def _metraw_header(page) -> dict[str, Any] | None:
     desc = page.description or ""
-    if METRAW_TIFF_KEY not in desc[:200]:
+    if f"\"{METRAW_TIFF_KEY}\":" not in desc:  # keys are sorted: a long "meta" can come first
         return None
     try:
         header = json.loads(desc)
