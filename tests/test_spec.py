@@ -302,3 +302,17 @@ def test_partial_profile_overrides_the_images_own(tmp_path):
     assert d["verdict"] == "REJECT" and d["noise"]["checks"]["gain_dn_per_e"]["contradicts"]
     (tmp_path / "bad.json").write_text(json.dumps({"gain": 2.0}))
     assert main(["check", f"{store}#0", "--spec", str(tmp_path / "spec.yaml"), "--profile", str(tmp_path / "bad.json")]) == 2
+
+
+def test_signal_uses_the_measured_gain_when_the_profile_marks_it_unknown():
+    # pixels made with K = 2 DN/e-; the profile states the convention K = 1 marked unknown (inf)
+    img = make_image(level_e=150.0, size=256)
+    prof = img.profile.replace(gain_dn_per_e=2.0)
+    data = expose(150.0 * (0.3 + 1.4 * np.mgrid[0:256, 0:256][1] / 256), prof, rng_from_seed(4))
+    unknown = RawImage(data, prof.replace(gain_dn_per_e=1.0, uncertainty={"gain_dn_per_e": math.inf}))
+    d = check(unknown, make_spec())
+    assert "measured from the noise" in d.properties["signal_e"]["source"]
+    assert d.properties["signal_e"]["value"] == pytest.approx(150.0, rel=0.1)
+    d = check(unknown, make_spec(), measure_noise=False)
+    assert d.verdict == "REJECT" and any("signal_e cannot be determined" in r and "gain is unknown" in r
+                                         for r in d.reasons)

@@ -262,6 +262,37 @@ def noise_consistency(image: RawImage) -> dict[str, Any]:
     return {"measured": True, "consistent": consistent, "checks": checks, "notes": list(res.notes)}
 
 
+#: Profile fields each ground property needs.
+GEOMETRY_NEEDS = {"gsd_m": ("pixel_pitch_m", "altitude_m", "focal_length_m"),
+                  "diffraction_m": ("altitude_m", "aperture_diameter_m"), "smear_m": ("exposure_s",)}
+
+
+def _missing_geometry(profile, prop: str) -> str:
+    missing = [k for k in GEOMETRY_NEEDS.get(prop, ()) if not getattr(profile, k)]
+    return "the profile lacks " + (", ".join(missing) if missing else "the geometry")
+
+
+def _signal_with_known_gain(image: RawImage, noise: Mapping[str, Any] | None) -> tuple[float | None, str]:
+    """(median photoelectrons per pixel, where the number comes from) or (None, why not).
+
+    With a gain marked unknown in the profile (uncertainty inf: a convention value) the signal in
+    e- is taken with the gain measured from the pixels' noise when that fit succeeded; with an
+    unknown black level it cannot be established.
+    """
+    from metraw.io._unknown import unknown_fields
+
+    unknown = set(unknown_fields(image.profile))
+    if "black_level_dn" in unknown:
+        return None, "the profile's black level is unknown: no photoelectron count without it"
+    if "gain_dn_per_e" not in unknown:
+        return median_signal_e(image), "pixels"
+    g = (noise or {}).get("checks", {}).get("gain_dn_per_e") if (noise or {}).get("measured") else None
+    if not g or not g["measured"] > 0 or not math.isfinite(g["measured_u"]):
+        return None, "the profile's gain is unknown and was not measured from the noise"
+    k = image.profile.gain_dn_per_e
+    return median_signal_e(image) * k / g["measured"], f"pixels, gain {g['measured']:.4g} DN/e- measured from the noise"
+
+
 # ---------------------------------------------------------------------- decision
 @dataclass
 class Decision:
@@ -291,9 +322,11 @@ def check(image: RawImage, spec: Specification, measure_noise: bool = True) -> D
     bin_factor = None
     if "gsd_m" in spec.properties and values["gsd_m"] is not None:
         bin_factor = binning_factor(values["gsd_m"], spec.properties["gsd_m"])
+    noise = noise_consistency(image) if measure_noise else None
+    signal_source = "pixels"
     if "signal_e" in spec.properties:
-        values["signal_e"] = median_signal_e(image)
-        if bin_factor:
+        values["signal_e"], signal_source = _signal_with_known_gain(image, noise)
+        if bin_factor and values["signal_e"] is not None:
             # Binning to the spec's GSD sums m^2 pixels: judge the light at the GSD the image will have.
             values["signal_e"] *= bin_factor**2
             reasons.append(f"signal_e judged after the planned {bin_factor} x {bin_factor} binning "
@@ -307,8 +340,7 @@ def check(image: RawImage, spec: Specification, measure_noise: bool = True) -> D
         status = "pass"
         if v is None:
             status = "unknown"
-            reject.append(f"{prop} cannot be determined (profile lacks the geometry: altitude, focal length, "
-                          f"pitch, aperture or exposure)")
+            reject.append(f"{prop} cannot be determined ({signal_source if prop == 'signal_e' else _missing_geometry(image.profile, prop)})")
         else:
             lower_is_better = lim.details.get("better", BETTER.get(prop)) == "lower"
             below, above = v < lim.min, v > lim.max
@@ -323,8 +355,7 @@ def check(image: RawImage, spec: Specification, measure_noise: bool = True) -> D
                                f"[{_fmt(lim.min, lim.unit)}, {_fmt(lim.max, lim.unit)}]: normalise to "
                                f"{_fmt(lim.optimal, lim.unit)}")
         found[prop] = {"value": v, "min": lim.min, "max": lim.max, "optimal": lim.optimal, "unit": lim.unit,
-                       "status": status, "source": "pixels" if prop == "signal_e" else "profile"}
-    noise = noise_consistency(image) if measure_noise else None
+                       "status": status, "source": signal_source if prop == "signal_e" else "profile"}
     if noise and noise.get("consistent") is False:
         for name, c in noise["checks"].items():
             if c["contradicts"]:
