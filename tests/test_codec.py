@@ -208,3 +208,36 @@ def test_cli_encode_decode_verify(tmp_path):
     (tmp_path / "bad.mraw").write_bytes(b"MRAW garbage")
     assert main(["decode", str(tmp_path / "bad.mraw"), str(tmp_path / "x.tif")]) == 2
     assert not (tmp_path / "x.tif").exists()
+
+
+def _faint(n: int, seed: int) -> RawImage:
+    """RGGB image of 20-60 e- per pixel (an emulated satellite target's level)."""
+    prof = _profile()
+    yy, xx = np.mgrid[0:n, 0:n]
+    return RawImage(expose(40 + 20 * np.sin(xx / 7.0) * np.cos(yy / 5.0), prof, rng_from_seed(seed)), prof)
+
+
+@pytest.mark.parametrize("step", [1.0, 2.0])
+def test_small_image_rate_close_to_large(step):
+    """A 64x64 blob as stored in a zarr chunk (profile in the array metadata) costs at most 0.5
+    bit/pixel more than a 512x512 image of the same statistics, plus a 64-byte header allowance."""
+    big = _faint(512, 1)
+    small = _faint(64, 2)
+    rate_big = 8 * len(codec.encode(big, step, 0, embed_profile=False)) / big.data.size
+    blob = codec.encode(small, step, 0, embed_profile=False)
+    rate_small = 8 * len(blob) / small.data.size
+    assert rate_small <= rate_big + 0.5 + 8 * 64 / small.data.size, (rate_small, rate_big)
+    with pytest.raises(MetrawError, match="no embedded profile"):
+        codec.decode(blob)
+    _within_bound(small, codec.decode(blob, profile=small.profile), step)
+
+
+def test_old_format_version_refused():
+    from metraw.codec import container
+
+    blob = bytearray(codec.encode(_scene((16, 16)), 1.0))
+    blob[4] = 2
+    body = bytes(blob[:-4])
+    old = body + container.struct.pack("<I", container.crc32c(body))
+    with pytest.raises(MetrawError, match="format version 2 is not supported"):
+        codec.decode(old)

@@ -1,7 +1,8 @@
 """``metraw compress``: codec bits/pixel and compression ratio per CFA channel on a store.
 
 Every image of the store is encoded with `metraw.codec.encode` (step in noise sigmas, seeded
-dither) as a whole (the codec as used: ``bits_per_pixel`` and ``ratio`` vs 16-bit storage), and
+dither) as a whole, as the zarr codec stores it (compact header, the profile lives in the array
+metadata: ``bits_per_pixel`` and ``ratio`` vs 16-bit storage), and
 each CFA colour plane on its own, as a mono raw with the same noise model, for the per-channel
 numbers. The median photoelectrons per pixel of each image are reported too (the compressed
 size follows the signal level; `metraw aggregate` takes the nominal point's scene spread from it).
@@ -58,12 +59,12 @@ def channel_images(image: RawImage) -> dict[str, RawImage]:
 
 def measure_image(image: RawImage, step: float, seed: int, encode: Callable[..., bytes]) -> dict[str, Any]:
     """bits/pixel and ratio of the whole image and of each channel, and the median signal [e-]."""
-    whole = len(encode(image, step=step, seed=seed))
+    whole = len(encode(image, step=step, seed=seed, embed_profile=False))
     n = image.data.size
     rec: dict[str, Any] = {"bytes": whole, "pixels": n, "bits_per_pixel": 8 * whole / n,
                            "ratio": BITS_RAW * n / (8 * whole), "channels": {}}
     for colour, sub in channel_images(image).items():
-        b = len(encode(sub, step=step, seed=seed))
+        b = len(encode(sub, step=step, seed=seed, embed_profile=False))
         rec["channels"][colour] = {"bytes": b, "pixels": sub.data.size, "bits_per_pixel": 8 * b / sub.data.size,
                                    "ratio": BITS_RAW * sub.data.size / (8 * b)}
     e = image.electrons()[~image.saturated()]

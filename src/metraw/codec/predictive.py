@@ -48,7 +48,8 @@ MIN_FIT = 64                   # fewer samples in a context: use the default pre
 NTAP = 12                      # W + 11 differences (n_i - W); the 12th LS unknown is the bias
 MAX_RESID = 1023
 SHARED_BELOW = 1 << 16         # tiles with fewer pixels share one model across their planes
-_HEAD = struct.Struct("<BBBBH")  # nplanes, nact, shared, lanes, amax; then (state, words, escapes) per lane
+_HEAD = struct.Struct("<BBBBBBH")  # nplanes, nact, phase shift, shared, lanes, table bits, amax
+# then (state, words, escapes) per lane
 _LANE = struct.Struct("<III")
 LANES = 4                      # interleaved rANS lanes (row classes) for tiles of >= SHARED_BELOW pixels
 
@@ -160,7 +161,7 @@ def _normal_equations(p, thr, stride, ata, atb):
 
 
 @nb.njit(cache=True, nogil=True)
-def _residuals(s, p, u, thr, coef, bias, tab0, r_out, t_out, off):
+def _residuals(s, p, u, thr, coef, bias, tab0, pshift, r_out, t_out, off):
     """Residuals r (phase folded) and table indices of one plane into flat outputs at ``off``.
 
     Returns max |r|."""
@@ -181,7 +182,7 @@ def _residuals(s, p, u, thr, coef, bias, tab0, r_out, t_out, off):
             fr ^= -f & 0xFFFF
             r = (r ^ -f) + f
             r_out[k] = r
-            t_out[k] = tab0 + c * 4 + ((fr >> 13) & 3)
+            t_out[k] = tab0 + c * (4 >> pshift) + (((fr >> 13) & 3) >> pshift)
             rmax = max(rmax, abs(r))
             k += 1
     return rmax
@@ -314,7 +315,7 @@ def _rans_encode(idx, tab, freq, cum, order, starts, out, wstart):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _decode_pixel(p, yy, xx, uv, thr, coef, bias, tab0, lut, fcum, amax, words, x, pos, pmin, esc, epos, eend):
+def _decode_pixel(p, yy, xx, uv, thr, coef, bias, tab0, pshift, lut, fcum, amax, words, x, pos, pmin, esc, epos, eend):
     """Decode pixel (yy, xx) of the padded buffer ``p`` from one lane; returns (symbol, x, pos, epos, ok)."""
     half = np.int64(1 << 15)
     c = _ctx_of(_activity(p, yy, xx), thr)
@@ -322,7 +323,7 @@ def _decode_pixel(p, yy, xx, uv, thr, coef, bias, tab0, lut, fcum, amax, words, 
     sh = mh >> 16
     fr = mh & 0xFFFF
     f = 1 - (fr >> 15)
-    t = tab0 + c * 4 + (((fr ^ (-f & 0xFFFF)) >> 13) & 3)
+    t = tab0 + c * (4 >> pshift) + ((((fr ^ (-f & 0xFFFF)) >> 13) & 3) >> pshift)
     slot = x & np.uint64(PROB_SCALE - 1)
     s = np.int64(lut[t, slot])
     fc = fcum[t, s]
@@ -345,7 +346,7 @@ def _decode_pixel(p, yy, xx, uv, thr, coef, bias, tab0, lut, fcum, amax, words, 
 
 
 @nb.njit(cache=True, nogil=True)
-def _decode_plane(p, u16, thr, coef, bias, tab0, lut, fcum, amax, words, xs, pos, pmin, esc, epos, eend):
+def _decode_plane(p, u16, thr, coef, bias, tab0, pshift, lut, fcum, amax, words, xs, pos, pmin, esc, epos, eend):
     """Decode one plane into the padded buffer ``p``; lane j holds rows j, j + L, ... (L = xs.size)
     and runs 3 pixels behind lane j - 1, so its causal neighbours are ready and the L dependency
     chains overlap. Updates the per-lane state ``xs``, word positions ``pos`` (lower limits ``pmin``)
@@ -366,7 +367,7 @@ def _decode_plane(p, u16, thr, coef, bias, tab0, lut, fcum, amax, words, xs, pos
                 if x0 == 0 and y > 0:
                     p[yy, 0] = p[yy - 1, 2]
                     p[yy, 1] = p[yy - 1, 2]
-                v, x, ps, ep, ok = _decode_pixel(p, yy, x0 + 2, u16[y, x0], thr, coef, bias, tab0, lut, fcum, amax,
+                v, x, ps, ep, ok = _decode_pixel(p, yy, x0 + 2, u16[y, x0], thr, coef, bias, tab0, pshift, lut, fcum, amax,
                                                  words, xs[j], pos[j], pmin[j], esc, epos[j], eend[j])
                 if not ok:
                     return sym, False
@@ -412,20 +413,45 @@ def _fit(ata: np.ndarray, atb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return coef, bias
 
 
+def _quantise_tables(freq: np.ndarray) -> np.ndarray:
+    """8-bit table storage for small tiles: frequencies / 16 (>= 1 where used), renormalised by
+    the same integer function the decoder applies."""
+    q8 = np.where(freq > 0, np.clip((freq + 8) >> 4, 1, 255), 0)
+    return q8
+
+
 def encode_planes(planes: list[tuple[np.ndarray, np.ndarray]]) -> bytes:
-    """Code planes given as (symbols int32, dither float in [-1/2, 1/2)) pairs into one section."""
+    """Code planes given as (symbols int32, dither float in [-1/2, 1/2)) pairs into one section.
+
+    Tiles of >= ``SHARED_BELOW`` pixels: per-plane models, ``n_activity_contexts`` contexts x
+    ``NPH`` phase bins, 12-bit tables, 4 rANS lanes. Smaller tiles: one model for all planes,
+    8-bit tables, and the smallest of (1, 1), (1, NPH), (2, NPH) (activity contexts, phase bins)."""
+    total = sum(s.size for s, _ in planes)
+    if total >= SHARED_BELOW:
+        nact = n_activity_contexts(min(s.size for s, _ in planes))
+        return _encode_planes(planes, False, nact, 0)
+    best = None
+    for nact, pshift in ((1, 2), (1, 0), (2, 0)):
+        if nact > 1 and total < 2048:
+            continue
+        blob = _encode_planes(planes, True, nact, pshift)
+        if best is None or len(blob) < len(best):
+            best = blob
+    return best
+
+
+def _encode_planes(planes, shared: bool, nact: int, pshift: int) -> bytes:
     npl = len(planes)
     total = sum(s.size for s, _ in planes)
-    shared = total < SHARED_BELOW
     groups = [list(range(npl))] if shared else [[k] for k in range(npl)]
-    nact = n_activity_contexts(min((sum(planes[k][0].size for k in g) for g in groups), default=0))
+    nph = NPH >> pshift
     fronts, c0s = [], []
     for s, u in planes:
         c0 = int(np.rint(s.mean())) if s.size else 0
         c0s.append(c0)
         fronts.append(_front(s, u, np.int64(c0) << 16))
     ngroup = len(groups)
-    ntab = ngroup * nact * NPH
+    ntab = ngroup * nact * nph
     r_all = np.empty(total, np.int32)
     t_all = np.empty(total, np.int32)
     group_heads = []
@@ -444,13 +470,17 @@ def encode_planes(planes: list[tuple[np.ndarray, np.ndarray]]) -> bytes:
         coef, bias = _fit(ata, atb)
         for k in g:
             rmax = max(rmax, int(_residuals(planes[k][0], fronts[k], planes[k][1], thr, coef.reshape(-1), bias,
-                                            gi * nact * NPH, r_all, t_all, off)))
+                                            gi * nact * nph, pshift, r_all, t_all, off)))
             off += planes[k][0].size
         group_heads.append((thr >> 8).astype("<u4").tobytes() + coef.astype("<i2").tobytes()
                            + np.clip(bias, -2**31, 2**31 - 1).astype("<i4").tobytes())
     amax = int(min(MAX_RESID, max(1, rmax)))
     idx, counts = _index(r_all, t_all, amax, max(ntab, 1))
     freq = _normalise(counts)
+    tabbits = 8 if shared else 16
+    if shared:
+        q8 = _quantise_tables(freq)
+        freq = _normalise(q8)
     cum = np.concatenate([np.zeros((freq.shape[0], 1), np.int64), np.cumsum(freq, 1)[:, :-1]], 1)
     nl = 1 if shared else LANES
     order, starts = _lane_order(np.array([s.shape[0] for s, _ in planes], np.int64),
@@ -459,14 +489,15 @@ def encode_planes(planes: list[tuple[np.ndarray, np.ndarray]]) -> bytes:
     states, nws = _rans_encode(idx, t_all, freq, cum, order, starts, out, starts[:-1].copy())
     esc_vals, esc_cnt = _lane_escapes(r_all, idx, order, starts, 2 * amax + 1)
     tables = []
-    for f in freq:
+    for ti, f in enumerate(freq):
         nz = np.flatnonzero(f)
         if nz.size == 0:
             tables.append(struct.pack("<HH", 0, 0))
             continue
         first, last = int(nz[0]), int(nz[-1])
-        tables.append(struct.pack("<HH", first, last - first + 1) + f[first:last + 1].astype("<u2").tobytes())
-    parts = [_HEAD.pack(npl, nact, int(shared), nl, amax)]
+        vals = q8[ti, first:last + 1].astype("u1") if shared else f[first:last + 1].astype("<u2")
+        tables.append(struct.pack("<HH", first, last - first + 1) + vals.tobytes())
+    parts = [_HEAD.pack(npl, nact, pshift, int(shared), nl, tabbits, amax)]
     parts += [_LANE.pack(int(states[j]), int(nws[j]), int(esc_cnt[j])) for j in range(nl)]
     parts.append(np.array(c0s, "<i4").tobytes())
     parts += group_heads + tables
@@ -484,9 +515,10 @@ def decode_planes(blob, dithers: list[np.ndarray]) -> list[np.ndarray]:
 
 
 def _decode(mv: memoryview, dithers: list[np.ndarray]) -> list[np.ndarray]:
-    npl, nact, shared, nl, amax = _HEAD.unpack_from(mv, 0)
+    npl, nact, pshift, shared, nl, tabbits, amax = _HEAD.unpack_from(mv, 0)
     off = _HEAD.size
-    if npl != len(dithers) or not 1 <= nact <= MAX_NACT or shared > 1 or amax > MAX_RESID or not 1 <= nl <= 16:
+    if (npl != len(dithers) or not 1 <= nact <= MAX_NACT or shared > 1 or amax > MAX_RESID or not 1 <= nl <= 16
+            or pshift not in (0, 2) or tabbits not in (8, 16)):
         raise ValueError("plane header does not match the frame")
     lanes = [_LANE.unpack_from(mv, off + _LANE.size * j) for j in range(nl)]
     off += _LANE.size * nl
@@ -503,7 +535,8 @@ def _decode(mv: memoryview, dithers: list[np.ndarray]) -> list[np.ndarray]:
         off += 4 * nact
         heads.append((thr, coef, bias))
     alpha = 2 * amax + 2
-    ntab = ngroup * nact * NPH
+    nph = NPH >> pshift
+    ntab = ngroup * nact * nph
     freq = np.zeros((ntab, alpha), np.int64)
     for t in range(ntab):
         first, span = struct.unpack_from("<HH", mv, off)
@@ -513,8 +546,14 @@ def _decode(mv: memoryview, dithers: list[np.ndarray]) -> list[np.ndarray]:
             continue
         if first + span > alpha:
             raise ValueError("frequency table overruns the alphabet")
-        freq[t, first:first + span] = np.frombuffer(mv, "<u2", span, off)
-        off += 2 * span
+        if tabbits == 8:
+            q8 = np.zeros((1, alpha), np.int64)
+            q8[0, first:first + span] = np.frombuffer(mv, "u1", span, off)
+            off += span
+            freq[t] = _normalise(q8)[0]
+        else:
+            freq[t, first:first + span] = np.frombuffer(mv, "<u2", span, off)
+            off += 2 * span
         if freq[t].sum() != PROB_SCALE:
             raise ValueError("frequency table does not sum to the probability scale")
     cum = np.concatenate([np.zeros((ntab, 1), np.int64), np.cumsum(freq, 1)[:, :-1]], 1)
@@ -540,7 +579,7 @@ def _decode(mv: memoryview, dithers: list[np.ndarray]) -> list[np.ndarray]:
         u16 = np.floor(np.asarray(u, np.float64) * (1 << FRAC)).astype(np.int64)
         h, w = u.shape
         p = np.full((h + 2, w + 4), np.int64(c0s[k]) << 16, np.int64)
-        sym, ok = _decode_plane(p, u16, thr, coef, bias, g * nact * NPH, lut, fcum, amax, words, xs, pos, pmin,
+        sym, ok = _decode_plane(p, u16, thr, coef, bias, g * nact * nph, pshift, lut, fcum, amax, words, xs, pos, pmin,
                                 esc, epos, eend)
         if not ok:
             raise ValueError("coded data ran out")
