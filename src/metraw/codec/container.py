@@ -1,15 +1,15 @@
 """Byte format of a metraw raw-codec blob (format version 3, compact binary header).
 
-    magic "MRAW" | u8 version | u8 flags | u32 height | u32 width | f64 step | u64 seed
-    | u16 tile count | u32 first row per tile
-    | [flags & 1: u32 length | zlib(JSON {profile, provenance, meta})]
-    | u16 section count | (u32 length, bytes) per section | u32 crc32c of everything before
+    magic "MRAW" | u8 version | u8 flags | f64 step | varint seed, height, width, tile count
+    | varint rows per tile (all but the last)
+    | [flags & 1: varint length | zlib(JSON {profile, provenance, meta})]
+    | varint section count | (varint length, bytes) per section | u32 crc32c of everything before
 
-The fixed part is 33 bytes plus 4 per tile; the metadata block (the calibration profile, ~350
-bytes compressed) is left out when the profile travels elsewhere (the zarr codec keeps it in the
-array metadata). Sections are the coded tiles and the escape list. The trailing CRC-32C
-detects any corruption before decoding starts. Version 2 (JSON header) blobs are refused
-with a clear error.
+Varints are LEB128 (7 bits per byte, little end first). The fixed part is ~20 bytes for a small
+image; the metadata block (the calibration profile, ~350 bytes compressed) is left out when the
+profile travels elsewhere (the zarr codec keeps it in the array metadata). Sections are the
+coded tiles and the escape list. The trailing CRC-32C detects any corruption before decoding
+starts. Version 2 (JSON header) blobs are refused with a clear error.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from metraw.errors import MetrawError
 
 MAGIC = b"MRAW"
 FORMAT_VERSION = 3
-_FIXED = struct.Struct("<4sBBIIdQH")
+_FIXED = struct.Struct("<4sBBd")
 FLAG_META = 1
 
 
@@ -45,17 +45,52 @@ class Header:
     meta: dict[str, Any] | None = field(default=None)  # {"profile", "provenance", "meta"} or None
 
 
+def put_varint(out: list[bytes], value: int) -> None:
+    """Append ``value`` (>= 0) as an LEB128 varint."""
+    value = int(value)
+    if value < 0:
+        raise ValueError("varint of a negative number")
+    b = bytearray()
+    while True:
+        byte = value & 0x7F
+        value >>= 7
+        if value:
+            b.append(byte | 0x80)
+        else:
+            b.append(byte)
+            break
+    out.append(bytes(b))
+
+
+def get_varint(mv: memoryview, off: int) -> tuple[int, int]:
+    """(value, new offset) of the LEB128 varint at ``off``."""
+    value = shift = 0
+    while True:
+        if off >= len(mv) or shift > 63:
+            raise ValueError("truncated varint")
+        byte = mv[off]
+        off += 1
+        value |= (byte & 0x7F) << shift
+        shift += 7
+        if not byte & 0x80:
+            return value, off
+
+
 def pack(header: Header, sections: list[bytes]) -> bytes:
     h, w = header.shape
     flags = FLAG_META if header.meta is not None else 0
-    parts = [_FIXED.pack(MAGIC, FORMAT_VERSION, flags, h, w, header.step, header.seed, len(header.tiles)),
-             struct.pack(f"<{len(header.tiles)}I", *[t[0] for t in header.tiles])]
+    parts = [_FIXED.pack(MAGIC, FORMAT_VERSION, flags, header.step)]
+    for v in (header.seed, h, w, len(header.tiles)):
+        put_varint(parts, v)
+    for r0, r1 in header.tiles[:-1]:
+        put_varint(parts, r1 - r0)
     if header.meta is not None:
         blob = zlib.compress(json.dumps(header.meta, sort_keys=True, separators=(",", ":")).encode(), 9)
-        parts += [struct.pack("<I", len(blob)), blob]
-    parts.append(struct.pack("<H", len(sections)))
+        put_varint(parts, len(blob))
+        parts.append(blob)
+    put_varint(parts, len(sections))
     for sec in sections:
-        parts.append(struct.pack("<I", len(sec)))
+        put_varint(parts, len(sec))
         parts.append(sec)
     body = b"".join(parts)
     return body + struct.pack("<I", crc32c(body))
@@ -63,7 +98,7 @@ def pack(header: Header, sections: list[bytes]) -> bytes:
 
 def unpack(blob: bytes | memoryview) -> tuple[Header, list[memoryview]]:
     mv = memoryview(blob if isinstance(blob, (bytes, memoryview)) else bytes(blob))
-    if len(mv) < 6 or bytes(mv[:4]) != MAGIC:
+    if len(mv) < 10 or bytes(mv[:4]) != MAGIC:
         raise MetrawError("not a metraw raw-codec blob (bad magic)")
     (stored,) = struct.unpack_from("<I", mv, len(mv) - 4)
     if crc32c(mv[:-4]) != stored:
@@ -71,28 +106,32 @@ def unpack(blob: bytes | memoryview) -> tuple[Header, list[memoryview]]:
     if mv[4] != FORMAT_VERSION:
         raise MetrawError(f"metraw raw-codec format version {mv[4]} is not supported (this metraw reads "
                           f"{FORMAT_VERSION}); re-encode the data with this version")
-    if len(mv) < _FIXED.size + 6:
-        raise MetrawError("metraw raw-codec blob is corrupt (truncated)")
     try:
-        _, _, flags, h, w, step, seed, ntiles = _FIXED.unpack_from(mv, 0)
+        _, _, flags, step = _FIXED.unpack_from(mv, 0)
         off = _FIXED.size
-        starts = list(struct.unpack_from(f"<{ntiles}I", mv, off))
-        off += 4 * ntiles
-        tiles = [(r0, r1) for r0, r1 in zip(starts, starts[1:] + [h])]
-        if any(r1 <= r0 for r0, r1 in tiles) or (tiles and tiles[0][0] != 0):
+        seed, off = get_varint(mv, off)
+        h, off = get_varint(mv, off)
+        w, off = get_varint(mv, off)
+        ntiles, off = get_varint(mv, off)
+        if not 1 <= ntiles <= max(h, 1) or h >= 2**32 or w >= 2**32 or seed >= 2**63:
+            raise ValueError("bad shape or tiling")
+        tiles, r0 = [], 0
+        for _ in range(ntiles - 1):
+            n, off = get_varint(mv, off)
+            tiles.append((r0, r0 + n))
+            r0 += n
+        tiles.append((r0, h))
+        if any(r1 <= r0 for r0, r1 in tiles) and h > 0:
             raise ValueError("bad tiling")
         meta = None
         if flags & FLAG_META:
-            (n,) = struct.unpack_from("<I", mv, off)
-            off += 4
+            n, off = get_varint(mv, off)
             meta = json.loads(zlib.decompress(bytes(mv[off:off + n])))
             off += n
-        (count,) = struct.unpack_from("<H", mv, off)
-        off += 2
+        count, off = get_varint(mv, off)
         sections = []
         for _ in range(count):
-            (n,) = struct.unpack_from("<I", mv, off)
-            off += 4
+            n, off = get_varint(mv, off)
             if off + n > len(mv) - 4:
                 raise ValueError("section overruns the blob")
             sections.append(mv[off:off + n])

@@ -35,6 +35,7 @@ import struct
 import numba as nb
 import numpy as np
 
+from metraw.codec.container import get_varint, put_varint
 from metraw.errors import MetrawError
 
 FRAC = 16                      # fixed-point bits of reconstructed values
@@ -49,8 +50,7 @@ NTAP = 12                      # W + 11 differences (n_i - W); the 12th LS unkno
 MAX_RESID = 1023
 SHARED_BELOW = 1 << 16         # tiles with fewer pixels share one model across their planes
 _HEAD = struct.Struct("<BBBBBBH")  # nplanes, nact, phase shift, shared, lanes, table bits, amax
-# then (state, words, escapes) per lane
-_LANE = struct.Struct("<III")
+# then per lane: u32 final state, varint words, varint escapes; then per plane zigzag-varint c0
 LANES = 4                      # interleaved rANS lanes (row classes) for tiles of >= SHARED_BELOW pixels
 
 
@@ -498,8 +498,12 @@ def _encode_planes(planes, shared: bool, nact: int, pshift: int) -> bytes:
         vals = q8[ti, first:last + 1].astype("u1") if shared else f[first:last + 1].astype("<u2")
         tables.append(struct.pack("<HH", first, last - first + 1) + vals.tobytes())
     parts = [_HEAD.pack(npl, nact, pshift, int(shared), nl, tabbits, amax)]
-    parts += [_LANE.pack(int(states[j]), int(nws[j]), int(esc_cnt[j])) for j in range(nl)]
-    parts.append(np.array(c0s, "<i4").tobytes())
+    for j in range(nl):
+        parts.append(struct.pack("<I", int(states[j])))
+        put_varint(parts, int(nws[j]))
+        put_varint(parts, int(esc_cnt[j]))
+    for c0 in c0s:
+        put_varint(parts, 2 * c0 if c0 >= 0 else -2 * c0 - 1)
     parts += group_heads + tables
     parts += [out[starts[j]:starts[j] + nws[j]].astype("<u2").tobytes() for j in range(nl)]
     parts.append(esc_vals.astype("<i4").tobytes())
@@ -520,10 +524,18 @@ def _decode(mv: memoryview, dithers: list[np.ndarray]) -> list[np.ndarray]:
     if (npl != len(dithers) or not 1 <= nact <= MAX_NACT or shared > 1 or amax > MAX_RESID or not 1 <= nl <= 16
             or pshift not in (0, 2) or tabbits not in (8, 16)):
         raise ValueError("plane header does not match the frame")
-    lanes = [_LANE.unpack_from(mv, off + _LANE.size * j) for j in range(nl)]
-    off += _LANE.size * nl
-    c0s = np.frombuffer(mv, "<i4", npl, off).astype(np.int64)
-    off += 4 * npl
+    lanes = []
+    for _ in range(nl):
+        (st,) = struct.unpack_from("<I", mv, off)
+        nwd, off = get_varint(mv, off + 4)
+        nes, off = get_varint(mv, off)
+        lanes.append((st, nwd, nes))
+    c0s = []
+    for _ in range(npl):
+        z, off = get_varint(mv, off)
+        c0s.append(z >> 1 if not z & 1 else -((z + 1) >> 1))
+    if any(abs(c) >= 2**31 for c in c0s) or sum(ln[1] for ln in lanes) > len(mv) or sum(ln[2] for ln in lanes) > len(mv):
+        raise ValueError("plane header is out of range")
     ngroup = 1 if shared else npl
     heads = []
     for _ in range(ngroup):

@@ -20,6 +20,7 @@ import numpy as np
 from zarr.abc.codec import ArrayBytesCodec
 from zarr.core.buffer import Buffer, NDBuffer
 
+from metraw.codec.container import get_varint, put_varint
 from metraw.errors import MetrawError
 from metraw.image import RawImage
 from metraw.profile import CalibrationProfile
@@ -78,9 +79,11 @@ class MetrawRawCodec(ArrayBytesCodec):
         lead = arr.reshape((-1,) + arr.shape[-2:])
         blobs = [codec.encode(RawImage(np.ascontiguousarray(img, dtype=np.uint16), prof), self.step,
                               self.seed, check_profile=False, embed_profile=False) for img in lead]
-        parts = [struct.pack("<I", len(blobs))]
+        parts: list[bytes] = []
+        put_varint(parts, len(blobs))
         for b in blobs:
-            parts += [struct.pack("<Q", len(b)), b]
+            put_varint(parts, len(b))
+            parts.append(b)
         return b"".join(parts)
 
     def _decode_array(self, data: bytes, shape: tuple[int, ...]) -> np.ndarray:
@@ -89,15 +92,15 @@ class MetrawRawCodec(ArrayBytesCodec):
         mv = memoryview(data)
         prof = self._profile()
         try:
-            (count,) = struct.unpack_from("<I", mv, 0)
-            off = 4
+            count, off = get_varint(mv, 0)
             imgs = []
             for _ in range(count):
-                (n,) = struct.unpack_from("<Q", mv, off)
-                off += 8
+                n, off = get_varint(mv, off)
+                if off + n > len(mv):
+                    raise ValueError("image blob overruns the chunk")
                 imgs.append(codec.decode(mv[off:off + n], profile=prof).data)
                 off += n
-        except struct.error as exc:
+        except (struct.error, ValueError) as exc:
             raise MetrawError(f"{CODEC_NAME} chunk is corrupt: {exc}") from None
         expected = int(np.prod(shape[:-2], dtype=np.int64))
         if count != expected or any(im.shape != tuple(shape[-2:]) for im in imgs):
