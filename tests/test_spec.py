@@ -316,3 +316,40 @@ def test_signal_uses_the_measured_gain_when_the_profile_marks_it_unknown():
     d = check(unknown, make_spec(), measure_noise=False)
     assert d.verdict == "REJECT" and any("signal_e cannot be determined" in r and "gain is unknown" in r
                                          for r in d.reasons)
+
+
+@pytest.mark.parametrize("rel", ["micasense/IMG_0000_1.tif", "spacenet_pan/pan1.tif", "kit_ais/MOS155.png"])
+def test_check_cli_on_each_kind_of_real_frame(tmp_path, rel):
+    # MicaSense raw TIFF, WorldView pan GeoTIFF, KIT AIS photo (see each folder's SOURCE.txt):
+    # none states a satellite's geometry and the spec is RGGB: a REJECT naming what is missing
+    path = real_data_dir() / rel
+    if not path.is_file():
+        pytest.skip("real data absent")
+    import json
+
+    from metraw.cli import main
+
+    make_spec().save(tmp_path / "spec.yaml")
+    assert main(["check", str(path), "--spec", str(tmp_path / "spec.yaml"), "--json", str(tmp_path / "d.json")]) == 0
+    d = json.loads((tmp_path / "d.json").read_text())
+    assert d["verdict"] == "REJECT"
+    assert any("gsd_m cannot be determined (the profile lacks" in r for r in d["reasons"])
+
+
+def test_a_partial_wrong_gain_on_the_real_dng_contradicts_the_pixels(tmp_path):
+    # the Canon DNG's gain is unknown in the file; its noise says K ~ 1.98 DN/e-; claiming 0.5 is flagged
+    dng = real_data_dir() / "canon_dng" / "colorchart.dng"
+    if not dng.is_file():
+        pytest.skip("real data absent")
+    import json
+
+    from metraw.cli import main
+
+    make_spec().save(tmp_path / "spec.yaml")
+    (tmp_path / "wrong.json").write_text('{"gain_dn_per_e": 0.5}')
+    assert main(["check", str(dng), "--spec", str(tmp_path / "spec.yaml"), "--profile", str(tmp_path / "wrong.json"),
+                 "--json", str(tmp_path / "d.json")]) == 0
+    d = json.loads((tmp_path / "d.json").read_text())
+    g = d["noise"]["checks"]["gain_dn_per_e"]
+    assert d["verdict"] == "REJECT" and g["contradicts"] and g["measured"] == pytest.approx(1.98, rel=0.05)
+    assert any("contradicts the pixels: gain_dn_per_e" in r for r in d["reasons"])

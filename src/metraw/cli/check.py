@@ -86,8 +86,12 @@ def load_image(args) -> RawImage:
             unknown = sorted(set(data) - known)
             if unknown:
                 raise MetrawError(f"profile {args.profile} has unknown fields: {', '.join(unknown)}")
+            # a field the user states is claimed: it loses the profile's "unknown" mark (inf
+            # uncertainty) unless the file gives its own uncertainty
+            unc = {k: v for k, v in image.profile.uncertainty.items() if k not in data}
+            unc.update(data.pop("uncertainty", None) or {})
             try:
-                profile = image.profile.replace(**data)
+                profile = image.profile.replace(**data, uncertainty=unc)
             except (TypeError, ValueError) as exc:
                 raise MetrawError(f"profile {args.profile}: {exc}") from None
         else:
