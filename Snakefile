@@ -1,6 +1,7 @@
 # metraw workflow: source raws -> emulated target raws per parameter point -> segmenter
 # training and evaluation -> compression -> Gaussian-process tolerances and figures.
 # Run: snakemake --cores all        (dvc repro drives the same rules; see dvc.yaml)
+# Report: snakemake --report results/report.html (after a run)
 
 from snakemake.utils import min_version, validate
 
@@ -8,7 +9,13 @@ min_version("9.0")
 
 configfile: "params.yaml"
 
+# DVC stages pass the point(s) they stand for (--config dvc_point=... / dvc_points=...); they are
+# checked against params.yaml in workflow/rules/common.smk and are not workflow parameters.
+DVC_CHECK = {key: str(config.pop(key)) for key in ("dvc_point", "dvc_points") if key in config}
+
 validate(config, "workflow/schemas/params.schema.yaml")
+
+report: "workflow/report/workflow.rst"
 
 
 include: "workflow/rules/common.smk"

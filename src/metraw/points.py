@@ -53,13 +53,22 @@ def _schema_path() -> Path:
     raise MetrawError("params schema not found (workflow/schemas/params.schema.yaml)")
 
 
-def format_value(value: float) -> str:
-    """Stable, file-name-safe text of a parameter value (repr of the float, 'e' kept)."""
-    text = repr(float(value))
-    return text[:-2] if text.endswith(".0") else text
+def format_value(value: float | int) -> str:
+    """Text of a sweep value in point names: ``str`` of the value as YAML loaded it.
+
+    This is exactly how DVC renders ``${item}`` of a params.yaml list in dvc.yaml (its
+    ``to_str`` is ``str``), so Snakemake targets and DVC stage outputs name the same paths:
+    ``0.8`` -> ``0.8``, ``2.0`` -> ``2.0``, ``2`` -> ``2``, ``100.0e-6`` -> ``0.0001``,
+    ``1.0e-5`` -> ``1e-05``. Floats are shortest-repr (round-trip exact), so two values
+    give the same name only if they are equal.
+    """
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise MetrawError(f"sweep value {value!r} is not a number")
+    return str(int(value)) if isinstance(value, int) else repr(float(value))
 
 
-def point_name(parameter: str, value: float) -> str:
+def point_name(parameter: str, value: float | int) -> str:
+    """``"<parameter>-<value>"`` (see `format_value`), e.g. ``focal_length_m-0.8``."""
     return f"{parameter}-{format_value(value)}"
 
 

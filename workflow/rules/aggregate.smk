@@ -8,7 +8,7 @@ rule compress:
         "results/points/{point}/compression.json",
     params:
         codec=config["codec"],
-    threads: workflow.cores
+    threads: lambda wildcards: workflow.cores  # callable: --report and dry runs need no --cores
     log:
         "logs/compress/{point}.log",
     shell:
@@ -22,9 +22,10 @@ rule aggregate:
         compression=expand("results/points/{point}/compression.json", point=POINTS),
         stores=expand("results/points/{point}/target.zarr", point=POINTS),
     output:
-        spec="results/spec.yaml",
-        table="results/aggregate.json",
-        figures=directory("results/figures"),
+        spec=report("results/spec.yaml", caption="../report/spec.rst", category="Specification"),
+        table=report("results/aggregate.json", caption="../report/aggregate.rst", category="Specification"),
+        figures=report(directory("results/figures"), patterns=["{name}.png"], caption="../report/figures.rst",
+                       category="Figures"),
         plots=directory("results/plots"),
     params:
         points=POINTS,

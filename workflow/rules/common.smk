@@ -3,6 +3,8 @@ import re
 # Shared definitions: the parameter points come from params.yaml via metraw.points,
 # never from a glob of existing outputs.
 
+from snakemake.exceptions import WorkflowError
+
 from metraw.points import parameter_points, target_params
 
 POINTS = list(parameter_points(config))
@@ -16,3 +18,21 @@ def point_target(wildcards):
 
 wildcard_constraints:
     point="|".join(re.escape(p) for p in POINTS),
+
+
+def _check_dvc_points(check):
+    """Fail in one line when a DVC stage stands for points that params.yaml does not give."""
+    known = set(POINTS)
+    if "dvc_point" in check and check["dvc_point"] not in known:
+        raise WorkflowError(
+            f"DVC stage for point {check['dvc_point']!r}, which params.yaml does not give (a sweep value equal to "
+            f"the nominal one is the nominal point); points: {', '.join(POINTS)}")
+    if "dvc_points" in check:
+        listed = check["dvc_points"].split(",")
+        if sorted(listed) != sorted(known):
+            raise WorkflowError(
+                f"dvc.yaml's aggregate stage lists points {', '.join(listed)} but params.yaml gives "
+                f"{', '.join(POINTS)}: regenerate it with `python workflow/scripts/dvc_yaml.py`")
+
+
+_check_dvc_points(DVC_CHECK)

@@ -9,7 +9,7 @@ rule train:
         directory("results/points/{point}/model"),
     params:
         training=config["training"],
-    threads: workflow.cores
+    threads: lambda wildcards: workflow.cores  # callable: --report and dry runs need no --cores
     log:
         "logs/train/{point}.log",
     shell:
@@ -22,7 +22,7 @@ rule evaluate:
         model="results/points/{point}/model",
     output:
         "results/points/{point}/metrics.json",
-    threads: workflow.cores
+    threads: lambda wildcards: workflow.cores  # callable: --report and dry runs need no --cores
     log:
         "logs/evaluate/{point}.log",
     shell:
@@ -36,7 +36,7 @@ rule train_source:
         directory("results/source/model"),
     params:
         training=config["training"],
-    threads: workflow.cores
+    threads: lambda wildcards: workflow.cores  # callable: --report and dry runs need no --cores
     log:
         "logs/train/source.log",
     shell:
@@ -49,7 +49,7 @@ rule evaluate_source:
         model="results/source/model",
     output:
         "results/source/metrics.json",
-    threads: workflow.cores
+    threads: lambda wildcards: workflow.cores  # callable: --report and dry runs need no --cores
     log:
         "logs/evaluate/source.log",
     shell:
