@@ -6,9 +6,11 @@ quantisation with step ``step`` in units of the noise sigma using subtractive di
 counter-based generator keyed by (seed, pixel index), exact removal of the inverse transform's
 curvature bias, lossless escapes for saturated and below-domain pixels, final rounding to
 integer DN. Coding (``metraw.codec.predictive``): per CFA plane, dither-aware causal linear
-prediction in the reconstructed domain with 8 activity contexts (per-context least-squares
-predictor and static rANS table), compiled with numba; the frame is cut into row tiles coded
-in parallel threads (the kernels release the GIL). Escape lists use ``metraw.codec.entropy``. The blob embeds the profile and a CRC-32C (``metraw.codec.container``).
+prediction in the reconstructed domain, rANS with static tables per (activity, dither-phase)
+context, compiled with numba; large frames are cut into row tiles coded in parallel threads
+(the kernels release the GIL), each tile with 4 interleaved rANS lanes; small tiles share one
+model across their planes. Escape lists use ``metraw.codec.entropy``. The blob has a compact
+binary header with an optional embedded profile and a CRC-32C (``metraw.codec.container``).
 
 Only the pixel array is coded; ``mask`` and ``flags`` are not part of the blob.
 """
