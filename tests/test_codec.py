@@ -179,6 +179,11 @@ def test_zarr_entry_point_without_import(tmp_path):
             store.append(im)
     back = RawStore.open(tmp_path / "s.zarr")[2]
     _within_bound(imgs[2], back, 1.0)
+    # per-image dither seeds: deterministic, different between images
+    from metraw.codec.zarr_codec import image_seed
+
+    seeds = {image_seed(0, im.data) for im in imgs}
+    assert len(seeds) == 3 and image_seed(0, imgs[0].data) == image_seed(0, imgs[0].data.copy())
     code = (f"import sys, zarr, numpy as np; a = zarr.open_array({str(tmp_path / 's.zarr/raw')!r}, mode='r')[:]; "
             "assert 'metraw' not in sys.modules or True; print(a.shape, a.dtype)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

@@ -2,7 +2,8 @@
 
 Registered through the ``zarr.codecs`` entry point (pyproject.toml), so
 ``zarr.open_array(path)[:]`` decodes with metraw merely installed. The configuration carries
-the step, the seed and the calibration profile: one profile per array (the store's ``raw``
+the step, the array's seed (each image is dithered with ``image_seed(seed, pixels)``, stored
+in its blob) and the calibration profile: one profile per array (the store's ``raw``
 array uses the first image's profile; images with another noise model still decode exactly to
 what was encoded, but their error budget is relative to that profile). Chunks of any rank
 >= 2 are coded image by image over the last two axes; each image blob (compact header without the profile, which is in
@@ -26,6 +27,18 @@ from metraw.image import RawImage
 from metraw.profile import CalibrationProfile
 
 CODEC_NAME = "metraw.raw"
+
+
+def image_seed(seed: int, image: np.ndarray) -> int:
+    """Dither seed of one image in an array: a hash of the array's seed and the image's bytes.
+
+    Deterministic (same pixels, same seed, same bytes) and different for different images, so
+    the dither, hence the coding error, is independent between the images of a store even at
+    the same pixel position. The seed is stored in each blob, so decoding does not recompute it."""
+    from metraw.codec.container import crc32c
+    from metraw.codec.prepare import _splitmix64
+
+    return _splitmix64((int(seed) << 32) ^ crc32c(image.tobytes())) & (2**63 - 1)
 
 
 @dataclass(frozen=True)
@@ -77,8 +90,11 @@ class MetrawRawCodec(ArrayBytesCodec):
 
         prof = self._profile()
         lead = arr.reshape((-1,) + arr.shape[-2:])
-        blobs = [codec.encode(RawImage(np.ascontiguousarray(img, dtype=np.uint16), prof), self.step,
-                              self.seed, check_profile=False, embed_profile=False) for img in lead]
+        blobs = []
+        for img in lead:
+            img = np.ascontiguousarray(img, dtype=np.uint16)
+            blobs.append(codec.encode(RawImage(img, prof), self.step, image_seed(self.seed, img),
+                                      check_profile=False, embed_profile=False))
         parts: list[bytes] = []
         put_varint(parts, len(blobs))
         for b in blobs:
