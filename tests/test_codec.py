@@ -69,10 +69,14 @@ def test_unbiased_conditional_on_value():
         assert abs(col.mean()) <= 4 * col.std() / math.sqrt(col.size) + 1e-12
 
 
-def test_deterministic_and_seed_dependent():
+def test_deterministic_and_seed_dependent(monkeypatch):
     img = _scene((64, 64))
     assert codec.encode(img, 1.0, 5) == codec.encode(img, 1.0, 5)
     assert codec.encode(img, 1.0, 5) != codec.encode(img, 1.0, 6)
+    big = _scene((300, 64))  # two row tiles: the bytes do not depend on the worker count
+    ref = codec.encode(big, 1.0, 5)
+    monkeypatch.setattr(codec, "THREADS", 1)
+    assert codec.encode(big, 1.0, 5) == ref
 
 
 def test_dither_is_counter_based_and_uniform():

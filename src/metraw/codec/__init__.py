@@ -31,8 +31,10 @@ from metraw.profile import CalibrationProfile
 
 __all__ = ["encode", "decode", "ProfileMismatchWarning", "measured_noise_sigma", "THREADS"]
 
-#: Worker threads for tile-parallel coding (numpy releases the GIL in the heavy loops).
+#: Worker threads for tile-parallel coding (the numba kernels release the GIL).
 THREADS = 2
+#: Row tiles of frames with >= 256 rows (part of the format: fixed, so the bytes do not depend on THREADS).
+TILES = 2
 #: Relative difference between measured and claimed noise that triggers a warning.
 MISMATCH_TOLERANCE = 0.2
 
@@ -43,7 +45,7 @@ class ProfileMismatchWarning(UserWarning):
 
 def _tiles(h: int, cell: int) -> list[tuple[int, int]]:
     """Row tiles (start, stop), starting on a CFA cell boundary."""
-    n = 1 if h < 256 else THREADS
+    n = 1 if h < 256 else TILES
     size = -(-h // n)
     size += size % cell
     return [(r, min(h, r + size)) for r in range(0, h, size)]
