@@ -133,7 +133,14 @@ def build(params: dict[str, Any]) -> dict[str, Any]:
         + ["workflow/rules/aggregate.smk"],
         "outs": outs,
     }
-    return {"stages": stages}
+    # DVC plots of the aggregate's tables (dvc plots show / dvc plots diff across experiments)
+    plots = []
+    for parameter in sweeps:
+        for what, label in (("iou", "IoU"), ("ratio", "compression ratio")):
+            plots.append({f"results/plots/{what}_{parameter}.csv": {
+                "x": parameter, "y": ["mean", "lower", "upper"],
+                "title": f"{label} vs {parameter} (GP mean and 2-sigma band, others nominal)"}})
+    return {"stages": stages, "plots": plots}
 
 
 def render(params: dict[str, Any]) -> str:
