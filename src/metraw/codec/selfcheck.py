@@ -14,6 +14,19 @@ from metraw.codec import prepare
 from metraw.image import RawImage
 
 
+def rounded_uniform_var_dn2(a: np.ndarray) -> np.ndarray:
+    """E[rint(e)^2] [DN^2] for e uniform on (-a, a) [DN]: the variance of a subtractively dithered
+    error after rounding an integer original to the integer DN grid."""
+    a = np.asarray(a, dtype=np.float64)
+    kmax = int(np.ceil(a.max() + 0.5)) if a.size else 0
+    if kmax > 64:  # many DN per step: the continuous limit is exact to < 1e-6 relative
+        return a * a / 3.0 + 1.0 / 12.0
+    tot = np.zeros_like(a)
+    for k in range(1, kmax + 1):
+        tot += k * k * np.clip(a - (k - 0.5), 0.0, 1.0)
+    return np.where(a > 0, tot / np.where(a > 0, a, 1.0), 0.0)
+
+
 def self_check(original: RawImage, decoded: RawImage, step: float) -> dict[str, float]:
     """Error statistics: bound violations, bias (frame and worst decile), rms vs step/sqrt(12),
     neighbour correlation (horizontal and vertical, same CFA plane), escapes exact."""
@@ -39,8 +52,12 @@ def self_check(original: RawImage, decoded: RawImage, step: float) -> dict[str, 
     out["mean_error_se_sigma"] = float(ev.std() / math.sqrt(n))
     out["rms_error_sigma"] = float(math.sqrt(np.mean(ev * ev)))
     out["rms_over_uniform"] = out["rms_error_sigma"] / (step / math.sqrt(12.0))
-    # expected rms including the final rounding to integer DN: q^2/12 + 1/(12 sigma^2)
-    out["rms_over_expected"] = out["rms_error_sigma"] / math.sqrt(np.mean(step * step / 12.0 + 1.0 / (12.0 * sig[ok] ** 2)))
+    # expected rms including the final rounding to integer DN. The original y is an integer, so the
+    # decoded error is rint(e) with e ~ U(-a, a), a = q sigma_T / 2 [DN] (curvature term neglected):
+    # E rint(e)^2 = (1/a) sum_k k^2 |{t in [0, a): rint(t) = k}| (-> a^2/3 + 1/12 for a >> 1 DN,
+    # 0 for a < 1/2: then every pixel decodes exactly).
+    out["rms_over_expected"] = out["rms_error_sigma"] / math.sqrt(np.mean(rounded_uniform_var_dn2(0.5 * step * sig[ok])
+                                                                          / sig[ok] ** 2))
     out["max_error_dn"] = float(np.abs(err[ok]).max())
     cell = 1 if prof.cfa_pattern == "mono" else 2
     corrs = []
