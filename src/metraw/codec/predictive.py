@@ -282,13 +282,13 @@ def _normalise(counts):
 
 
 @nb.njit(cache=True, nogil=True)
-def _rans_encode(idx, tab, freq, cum, order, starts, out, wstart):
+def _rans_encode(idx, tab, freq, cum, rcp, order, starts, out, wstart):
     """Encode lane j = symbols ``idx[order[starts[j]:starts[j + 1]]]`` (tables ``tab``) into its own rANS
     stream, in reverse; lanes advance in lock step (independent dependency chains). Lane j's words go
     to ``out[wstart[j]:]`` (room for one word per symbol). Returns (final states, word counts).
 
-    x // f via a float64 reciprocal: exact for x < 2^32 and f <= 2^12 (rounding error < 2^-19,
-    the fraction of x / f is 0 or >= 2^-12)."""
+    x // f via the float64 reciprocal ``rcp`` = 1 / freq: exact for x < 2^32 and f <= 2^12
+    (rounding error < 2^-19, the fraction of x / f is 0 or >= 2^-12)."""
     nl = starts.size - 1
     xs = np.full(nl, RANS_L, np.uint64)
     nws = np.zeros(nl, np.int64)
@@ -309,7 +309,7 @@ def _rans_encode(idx, tab, freq, cum, order, starts, out, wstart):
             out[wstart[j] + nws[j]] = np.uint16(x & np.uint64(0xFFFF))
             nws[j] += np.int64(emit)
             x >>= emit << np.uint64(4)
-            q = np.uint64(np.float64(x) * (1.0 / fi) + 1.52587890625e-05)
+            q = np.uint64(np.float64(x) * rcp[t, sy] + 1.52587890625e-05)
             xs[j] = (q << np.uint64(PROB_BITS)) + (x - q * f) + np.uint64(cum[t, sy])
     return xs, nws
 
@@ -486,7 +486,8 @@ def _encode_planes(planes, shared: bool, nact: int, pshift: int) -> bytes:
     order, starts = _lane_order(np.array([s.shape[0] for s, _ in planes], np.int64),
                                 np.array([s.shape[1] for s, _ in planes], np.int64), nl)
     out = np.empty(max(order.size, 1), np.uint16)
-    states, nws = _rans_encode(idx, t_all, freq, cum, order, starts, out, starts[:-1].copy())
+    rcp = 1.0 / np.maximum(freq, 1)
+    states, nws = _rans_encode(idx, t_all, freq, cum, rcp, order, starts, out, starts[:-1].copy())
     esc_vals, esc_cnt = _lane_escapes(r_all, idx, order, starts, 2 * amax + 1)
     tables = []
     for ti, f in enumerate(freq):
