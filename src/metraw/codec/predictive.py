@@ -24,7 +24,9 @@ activity context has its own least-squares predictor x ~ W + sum_i c_i (n_i - W)
 causal neighbours (fitted by the encoder, stored) and each (activity, phase) context its own
 static rANS table. The number of activity contexts shrinks with the plane size so that side
 information stays a small fraction of the rate (small images: one context, tables shared by
-the planes). Decoding is a sequential compiled loop (numba, ``nogil``), so tiles decode in
+the planes). Large tiles code their rows in 4 interleaved rANS lanes (row classes, each with
+its own state; the decoder runs lane j three pixels behind lane j - 1, so the four dependency
+chains overlap). Decoding is a sequential compiled loop (numba, ``nogil``), so tiles decode in
 parallel threads.
 """
 
@@ -414,8 +416,8 @@ def _fit(ata: np.ndarray, atb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _quantise_tables(freq: np.ndarray) -> np.ndarray:
-    """8-bit table storage for small tiles: frequencies / 16 (>= 1 where used), renormalised by
-    the same integer function the decoder applies."""
+    """8-bit table storage for small tiles: frequencies / 16, rounded, >= 1 where used. Both
+    sides code with ``_normalise`` of these values (the same integer function)."""
     q8 = np.where(freq > 0, np.clip((freq + 8) >> 4, 1, 255), 0)
     return q8
 
