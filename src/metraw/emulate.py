@@ -46,6 +46,7 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -184,8 +185,13 @@ def _poly_otf_table(band, diameter, obscuration, altitude, n_lambda, f_max):
     return f, otf
 
 
+@lru_cache(maxsize=16)
 def _ee_table(obscuration: float, v_max: float):
-    """Encircled-energy table of the annulus PSF in v = pi D theta / lambda (trapezoid, fine grid)."""
+    """Encircled-energy table of the annulus PSF in v = pi D theta / lambda (trapezoid, fine grid).
+
+    Cached (read-only arrays): it depends on the target optics only, while plans are per source
+    profile (each scene has its own exposure), and it is the costliest part of a plan (~0.3 s).
+    """
     from metraw.optics import annulus_intensity
 
     v = np.linspace(0.0, v_max, int(v_max / 0.005) + 1)
@@ -193,6 +199,8 @@ def _ee_table(obscuration: float, v_max: float):
     ee = np.concatenate(([0.0], np.cumsum(0.5 * (integrand[1:] + integrand[:-1]) * np.diff(v))))
     tail = 2.0 / (math.pi * v_max * (1.0 - obscuration))  # asymptotic 1 - EE(v_max)
     ee *= (1.0 - tail) / ee[-1]
+    v.flags.writeable = False
+    ee.flags.writeable = False
     return {"v": v, "ee": ee, "tail": tail, "v_max": v_max}
 
 
