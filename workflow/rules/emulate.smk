@@ -1,4 +1,5 @@
-# Emulate the target (satellite) raws of every parameter point from the source store.
+# Emulate the target (satellite) raws of every parameter point from the source store; the raw
+# array is stored with the noise-preserving codec at params.yaml codec.step.
 
 
 def point_overrides(wildcards):
@@ -16,8 +17,10 @@ rule emulate:
         target=point_target,
         point=point_overrides,
         emulation=config["target"].get("emulation", {}),
+        codec=config["codec"],
     log:
         "logs/emulate/{point}.log",
     shell:
         "metraw emulate {input} {output} --params params.yaml --point '{params.point}'"
-        " --mode {params.emulation[mode]} --seed {params.emulation[seed]} 2> {log}"
+        " --mode {params.emulation[mode]} --seed {params.emulation[seed]}"
+        " --codec-step {params.codec[step]} --codec-seed {params.codec[seed]} 2> {log}"

@@ -1,5 +1,6 @@
 # Source data: the embedded synthetic drone scenes or the real KIT aerial path
-# (params.yaml source.dataset), then a calibration check of the stored profiles.
+# (params.yaml source.dataset), raw array stored with the noise-preserving codec (params.yaml codec),
+# then a calibration check of the stored profiles.
 
 if config["source"]["dataset"] == "synthetic":
 
@@ -9,11 +10,13 @@ if config["source"]["dataset"] == "synthetic":
         params:
             synthetic=config["source"]["synthetic"],
             camera=config["source"]["camera"],
+            codec=config["codec"],
         log:
             "logs/source_store.log",
         shell:
             "metraw scenes --n {params.synthetic[n_scenes]} --seed {params.synthetic[seed]}"
-            " --size {params.synthetic[size_px]} --camera params.yaml --out {output} 2> {log}"
+            " --size {params.synthetic[size_px]} --camera params.yaml --out {output}"
+            " --codec-step {params.codec[step]} --codec-seed {params.codec[seed]} 2> {log}"
 
 else:
 
@@ -23,11 +26,13 @@ else:
         params:
             kit=config["source"]["kit_ais"],
             camera=config["source"]["camera"],
+            codec=config["codec"],
         log:
             "logs/source_store.log",
         shell:
             "metraw ingest {params.kit[path]} --labels yolo --camera params.yaml --gsd-m {params.kit[gsd_m]}"
-            " --white-fraction {params.kit[white_fraction]} --seed {params.kit[seed]} --out {output} 2> {log}"
+            " --white-fraction {params.kit[white_fraction]} --seed {params.kit[seed]} --out {output}"
+            " --codec-step {params.codec[step]} --codec-seed {params.codec[seed]} 2> {log}"
 
 
 rule calibrate_source:

@@ -67,7 +67,7 @@ def _params_for(rule: str, params: dict[str, Any]) -> list[str]:
     """Keys of params.yaml that the rule reads (only those present: DVC refuses missing keys)."""
     target = params.get("target", {})
     keys = {
-        "emulate": ["target.nominal"] + (["target.emulation"] if "emulation" in target else []),
+        "emulate": ["target.nominal"] + (["target.emulation"] if "emulation" in target else []) + ["codec"],
         "train": ["training"],
         "evaluate": [],  # the split and architecture travel inside the model folder (a dep)
         "compress": ["codec"],
@@ -103,7 +103,7 @@ def build(params: dict[str, Any]) -> dict[str, Any]:
     parameter_points(params)  # validates sweep names against target.nominal
 
     stages: dict[str, Any] = {
-        "source_store": {"cmd": _cmd("source_store", [SOURCE_STORE]), "params": ["source"],
+        "source_store": {"cmd": _cmd("source_store", [SOURCE_STORE]), "params": ["source", "codec"],
                          "deps": ["workflow/rules/source.smk"], "outs": [SOURCE_STORE]},
         "calibrate_source": {"cmd": _cmd("calibrate_source", ["results/source/calibration.json"]),
                              "deps": [SOURCE_STORE, "workflow/scripts/calibrate_store.py"],

@@ -6,6 +6,8 @@ import argparse
 import time
 from pathlib import Path
 
+from metraw.cli._rawcodec import StoreCodec, add_arguments as add_codec_arguments
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser("emulate", help="emulate the raws a target system (satellite) would record",
@@ -25,6 +27,7 @@ def register(subparsers) -> None:
     p.add_argument("--accuracy", default="", help="Accuracy overrides name=value,... (e.g. kernel_flux_loss=1e-2)")
     p.add_argument("--limit", type=int, default=None, help="emulate only the first N images")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output")
+    add_codec_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -39,6 +42,7 @@ def run(args: argparse.Namespace) -> int:
     from metraw.store import RawStore
     from metraw.target import TargetSystem, parse_point
 
+    codec = StoreCodec(args)
     params = load_params(args.params)
     emu = dict((params.get("target") or {}).get("emulation") or {})
     mode = args.mode or emu.get("mode", "auto")
@@ -61,15 +65,15 @@ def run(args: argparse.Namespace) -> int:
         raise MetrawError(f"source store {args.source} holds no images")
     t0 = time.perf_counter()
     mean_e = []
-    with RawStore.create(args.output, overwrite=args.overwrite) as out:
+    with RawStore.create(args.output, overwrite=args.overwrite, **codec.create_kwargs()) as out:
         out.set_attrs(generator="metraw.emulate", source=str(args.source), target=target.to_dict(), mode=mode,
-                      seed=seed, edge=args.edge, accuracy=accuracy.to_dict())
+                      seed=seed, edge=args.edge, accuracy=accuracy.to_dict(), **codec.attrs())
         for i in progress_bar(range(n), total=n, desc="emulate"):
             rng = np.random.Generator(np.random.PCG64([seed, i]))
             img = emulate(source[i], target, mode=mode, seed=rng, accuracy=accuracy, edge=args.edge)
             img.provenance[-1]["params"]["seed"] = [seed, i]
             mean_e.append(img.meta["emulation"]["mean_signal_e"])
-            out.append(img)
+            out.append(codec.mark(img))
             ratio = img.meta["emulation"]["gsd_ratio"]
     dt = time.perf_counter() - t0
     print(f"metraw emulate: {n} images -> {args.output} in {dt:.1f} s ({dt / n:.3f} s/image); GSD ratio {ratio:.3g}, "

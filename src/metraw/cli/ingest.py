@@ -5,6 +5,8 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+from metraw.cli._rawcodec import StoreCodec, add_arguments as add_codec_arguments
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser("ingest", help="read raw / processed images (+ labels) into a metraw zarr store",
@@ -24,6 +26,7 @@ def register(subparsers) -> None:
                    help="metadata of headerless .raw files (width, height, dtype, cfa_pattern, black_level_dn, "
                         "adc_bits, ...); repeatable")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output store")
+    add_codec_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -48,6 +51,7 @@ def run(args) -> int:
     from metraw.store import RawStore
 
     t0 = time.perf_counter()
+    codec = StoreCodec(args)
     out = Path(args.out)
     if out.exists() and not args.overwrite:
         raise MetrawError(f"output {out} already exists (use --overwrite to replace it)")
@@ -55,18 +59,19 @@ def run(args) -> int:
     camera = load_camera(args.camera) if args.camera else None
     meta = parse_meta(args.meta)
     shapes, approx, car_boxes = set(), 0, 0
-    with RawStore.create(out, overwrite=args.overwrite) as store:
+    with RawStore.create(out, overwrite=args.overwrite, **codec.create_kwargs()) as store:
         for f in progress_bar(files, total=len(files), desc="ingest"):
             kwargs = dict(meta) if f.suffix.lower() in (".raw", ".bin") else {}
             image = read_raw(f, camera=camera, labels=args.labels, seed=args.seed, gsd_m=args.gsd_m,
                              white_fraction=args.white_fraction, **kwargs)
-            store.append(image)
+            store.append(codec.mark(image))
             shapes.add(image.shape)
             approx += image.profile.approximate
             car_boxes += int(image.meta.get("car_boxes", 0))
         store.set_attrs(ingest={"inputs": [str(i) for i in args.inputs], "files": [f.name for f in files],
                                 "labels": args.labels, "seed": args.seed, "gsd_m": args.gsd_m,
-                                "camera": camera.camera if camera else "default (params.yaml source.camera)"})
+                                "camera": camera.camera if camera else "default (params.yaml source.camera)"},
+                        **codec.attrs())
     dt = time.perf_counter() - t0
     print(f"ingested {len(files)} images ({approx} approximate, {car_boxes} car boxes) into {out} "
           f"in {dt:.1f} s; shapes (H, W): {sorted(shapes)}")

@@ -6,6 +6,7 @@ import argparse
 import time
 from pathlib import Path
 
+from metraw.cli._rawcodec import StoreCodec, add_arguments as add_codec_arguments
 from metraw.errors import MetrawError
 
 
@@ -29,6 +30,7 @@ def register(subparsers) -> None:
     p.add_argument("--camera", default=None, help="source camera profile (JSON, or a params.yaml with "
                    "source.camera); default: the Hasselblad L1D-20c of DESIGN.md section 3")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output")
+    add_codec_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -45,6 +47,7 @@ def run(args: argparse.Namespace) -> int:
         raise MetrawError(f"--size must be an even number >= 16, got {args.size}")
     if args.workers < 1:
         raise MetrawError(f"--workers must be >= 1, got {args.workers}")
+    codec = StoreCodec(args)
     kinds = tuple(k.strip() for k in args.kinds.split(",") if k.strip())
     if args.camera:
         from metraw.io import load_camera
@@ -53,11 +56,12 @@ def run(args: argparse.Namespace) -> int:
     else:
         camera = default_camera()
     t0 = time.perf_counter()
-    with RawStore.create(args.out, overwrite=args.overwrite) as store:
-        store.set_attrs(generator="metraw.scenes", seed=args.seed, n=args.n, size_px=args.size, kinds=list(kinds))
+    with RawStore.create(args.out, overwrite=args.overwrite, **codec.create_kwargs()) as store:
+        store.set_attrs(generator="metraw.scenes", seed=args.seed, n=args.n, size_px=args.size, kinds=list(kinds),
+                        **codec.attrs())
         images = generate(args.n, args.seed, size_px=args.size, camera=camera, kinds=kinds, workers=args.workers)
         for img in progress_bar(images, total=args.n, desc="scenes"):
-            store.append(img)
+            store.append(codec.mark(img))
     dt = time.perf_counter() - t0
     print(f"metraw scenes: wrote {args.n} scenes of {args.size}x{args.size} to {args.out} in {dt:.1f} s "
           f"({dt / args.n:.3f} s/scene, {args.workers} workers)")

@@ -142,3 +142,41 @@ def raw_codecs(step: float = 1.0, seed: int = 0) -> Callable[[CalibrationProfile
         return {"serializer": MetrawRawCodec(step=step, seed=seed, profile=profile), "compressors": None}
 
     return factory
+
+
+def quantisation_record(step: float, seed: int) -> dict[str, Any]:
+    """What a ``raw_codecs(step, seed)`` store did to its raw array, for store attributes and provenance.
+
+    The decoded raw carries an extra, independent, zero-mean error: uniform of variance
+    ``step^2 / 12`` in the variance-stabilised (generalised Anscombe, unit noise sigma) domain,
+    i.e. about ``step^2 / 12 * sigma_T^2`` DN^2 with sigma_T = K sqrt(x + c) the transform's
+    noise scale, plus the final rounding to integer DN; saturated and below-domain pixels are
+    exact. The error budget refers to the profile in the codec configuration (the store's first
+    image's profile)."""
+    step = float(step)
+    return {"codec": CODEC_NAME, "step_sigma": step, "seed": int(seed),
+            "added_variance_vst": step * step / 12.0,
+            "noise_variance_vst": 1.0 + step * step / 12.0,
+            "note": "lossy noise-preserving codec: decoded DN = original + independent unbiased error of variance "
+                    "step^2/12 in VST units (sigma_T^2 step^2/12 DN^2) + final rounding to integer DN; "
+                    "|error| <= step sigma_T / 2 + K step^2 / 24 + 0.5 DN; saturated / below-black pixels exact"}
+
+
+#: Profile fields the codec's preparation uses (transform, escapes, CFA planes).
+NOISE_MODEL_FIELDS = ("gain_dn_per_e", "read_noise_e", "black_level_dn", "white_level_dn", "cfa_pattern")
+
+
+def same_noise_model(a: CalibrationProfile, b: CalibrationProfile) -> bool:
+    """Whether two profiles give the codec the same transform, escapes and planes."""
+    return all(getattr(a, f) == getattr(b, f) for f in NOISE_MODEL_FIELDS)
+
+
+def mark_quantised(image: RawImage, step: float, seed: int, codec_profile: CalibrationProfile | None = None) -> RawImage:
+    """``image`` with a provenance entry saying its raw array is stored quantised at ``step``
+    (``quantisation_record``). ``codec_profile``: the profile the store's codec uses (its first
+    image's); the entry says whether this image's noise model (``NOISE_MODEL_FIELDS``) is the same:
+    if not, the image still decodes to exactly what was encoded, but its error budget is relative
+    to the codec's profile."""
+    rec = quantisation_record(step, seed)
+    rec["profile_matches_codec"] = bool(codec_profile is None or same_noise_model(codec_profile, image.profile))
+    return image.derive(image.data, function="metraw.codec.zarr_codec", params=rec)

@@ -1,0 +1,74 @@
+"""Stores written with ``--codec-step``: the raw array uses the metraw.raw zarr codec, reads back in a
+fresh process, every pixel's error obeys the codec's bound and the store says it is quantised."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from metraw.cli import main
+from metraw.codec.prepare import error_bound_dn
+from metraw.store import RawStore
+
+STEP = 2.0
+
+
+@pytest.fixture(scope="module")
+def stores(tmp_path_factory):
+    d = tmp_path_factory.mktemp("codec_store")
+    plain, coded = d / "plain.zarr", d / "coded.zarr"
+    assert main(["scenes", "--n", "2", "--size", "96", "--workers", "1", "--out", str(plain)]) == 0
+    assert main(["scenes", "--n", "2", "--size", "96", "--workers", "1", "--out", str(coded),
+                 "--codec-step", str(STEP), "--codec-seed", "3"]) == 0
+    return plain, coded
+
+
+READ = """
+import json, sys
+import numpy as np, zarr
+from metraw.store import RawStore
+s = RawStore.open(sys.argv[1])
+np.save(sys.argv[2], np.stack([im.data for im in s]))
+codecs = [c.to_dict()["name"] for c in zarr.open_group(sys.argv[1])["raw"].metadata.codecs]
+inner = zarr.open_group(sys.argv[1])["raw"].metadata.codecs[0].to_dict().get("configuration", {}).get("codecs", [])
+print(json.dumps({"codecs": codecs + [c["name"] for c in inner], "attrs": s.attrs,
+                  "provenance": [im.provenance[-1] for im in s]}))
+"""
+
+
+def test_codec_store_reads_back_in_fresh_process_within_bound(stores, tmp_path):
+    plain, coded = stores
+    out = tmp_path / "decoded.npy"
+    res = subprocess.run([sys.executable, "-c", READ, str(coded), str(out)], capture_output=True, text=True, check=True)
+    info = json.loads(res.stdout)
+    assert "metraw.raw" in info["codecs"]
+    rec = info["attrs"]["raw_codec"]
+    assert rec["codec"] == "metraw.raw" and rec["step_sigma"] == STEP and rec["seed"] == 3
+    assert rec["added_variance_vst"] == pytest.approx(STEP ** 2 / 12)
+    assert all(p["function"] == "metraw.codec.zarr_codec" and p["params"]["step_sigma"] == STEP
+               and p["params"]["profile_matches_codec"] for p in info["provenance"])
+    decoded = np.load(out)
+    ref = RawStore.open(plain)
+    assert decoded.shape[0] == len(ref) == 2
+    for i, img in enumerate(ref):
+        err = decoded[i].astype(np.int64) - img.data.astype(np.int64)
+        assert np.any(err != 0)  # really quantised
+        assert np.all(np.abs(err) <= error_bound_dn(img.data, img.profile, STEP))
+
+
+def test_without_codec_step_store_is_lossless(stores):
+    plain, _ = stores
+    s = RawStore.open(plain)
+    assert "raw_codec" not in s.attrs
+    assert all(im.provenance[-1]["function"] != "metraw.codec.zarr_codec" for im in s)
+
+
+@pytest.mark.parametrize("step", ["0", "-1", "nan"])
+def test_bad_codec_step_is_a_clear_error(tmp_path, step, capsys):
+    assert main(["scenes", "--n", "1", "--size", "32", "--out", str(tmp_path / "x.zarr"), "--codec-step", step]) == 2
+    assert "--codec-step must be a positive number" in capsys.readouterr().err
+    assert not (tmp_path / "x.zarr").exists()
