@@ -2,10 +2,15 @@
 
 Every image of the store is encoded with `metraw.codec.encode` (step in noise sigmas, seeded
 dither) as a whole, as the zarr codec stores it (compact header, the profile lives in the array
-metadata: ``bits_per_pixel`` and ``ratio`` vs 16-bit storage), and
-each CFA colour plane on its own, as a mono raw with the same noise model, for the per-channel
-numbers. The median photoelectrons per pixel of each image are reported too (the compressed
-size follows the signal level; `metraw aggregate` takes the nominal point's scene spread from it).
+metadata: ``bits_per_pixel`` and ``ratio`` vs 16-bit storage). The per-channel numbers come
+from the same blob: each CFA colour's code length under the rANS tables actually used (sum of
+-log2 p over its symbols, which rANS attains to within its final state) plus its share of the
+side information (its own predictor and tables; shared overhead in proportion), so the channel
+bits add up exactly to the blob's bits. The median photoelectrons per pixel of each image are
+reported too (the compressed size follows the signal level; `metraw aggregate` takes the
+nominal point's scene spread from it). When the store's raw array is itself stored with the
+codec (``metraw emulate --codec-step``), its pixels are already quantised; ``stored`` then gives
+the bytes the raw array takes on disk (zarr ``nbytes_stored``, shard indexes included).
 """
 
 from __future__ import annotations
@@ -36,7 +41,7 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def channel_images(image: RawImage) -> dict[str, RawImage]:
+def channel_images(image: RawImage) -> dict[str, RawImage]:  # kept for callers; compress uses the blob's accounting
     """Each CFA colour plane as a mono RawImage (same noise model; planes of one colour concatenated
     side by side, e.g. the two green planes of a Bayer pattern)."""
     from metraw.cfa import plane_offsets, split_planes
@@ -58,15 +63,19 @@ def channel_images(image: RawImage) -> dict[str, RawImage]:
 
 
 def measure_image(image: RawImage, step: float, seed: int, encode: Callable[..., bytes]) -> dict[str, Any]:
-    """bits/pixel and ratio of the whole image and of each channel, and the median signal [e-]."""
-    whole = len(encode(image, step=step, seed=seed, embed_profile=False))
+    """bits/pixel and ratio of the whole image and of each channel (exact attribution of the whole
+    blob's bits, see the module docstring), and the median signal [e-]."""
+    account: dict[str, Any] = {}
+    whole = len(encode(image, step=step, seed=seed, embed_profile=False, account=account))
     n = image.data.size
     rec: dict[str, Any] = {"bytes": whole, "pixels": n, "bits_per_pixel": 8 * whole / n,
                            "ratio": BITS_RAW * n / (8 * whole), "channels": {}}
-    for colour, sub in channel_images(image).items():
-        b = len(encode(sub, step=step, seed=seed, embed_profile=False))
-        rec["channels"][colour] = {"bytes": b, "pixels": sub.data.size, "bits_per_pixel": 8 * b / sub.data.size,
-                                   "ratio": BITS_RAW * sub.data.size / (8 * b)}
+    for colour, bits in account["bits"].items():
+        npx = account["pixels"][colour]
+        if npx == 0:
+            continue
+        rec["channels"][colour] = {"bits": bits, "pixels": npx, "bits_per_pixel": bits / npx,
+                                   "ratio": BITS_RAW * npx / bits}
     e = image.electrons()[~image.saturated()]
     rec["signal_median_e"] = float(np.median(e)) if e.size else None
     return rec
@@ -76,10 +85,10 @@ def summarise(images: list[dict[str, Any]], step: float, seed: int) -> dict[str,
     tot_b = sum(r["bytes"] for r in images)
     tot_n = sum(r["pixels"] for r in images)
     channels = {}
-    for c in images[0]["channels"]:
-        b = sum(r["channels"][c]["bytes"] for r in images)
-        n = sum(r["channels"][c]["pixels"] for r in images)
-        channels[c] = {"bits_per_pixel": 8 * b / n, "ratio": BITS_RAW * n / (8 * b)}
+    for c in dict.fromkeys(k for r in images for k in r["channels"]):
+        b = sum(r["channels"][c]["bits"] for r in images if c in r["channels"])
+        n = sum(r["channels"][c]["pixels"] for r in images if c in r["channels"])
+        channels[c] = {"bits_per_pixel": b / n, "ratio": BITS_RAW * n / b}
     sig = np.array([r["signal_median_e"] for r in images if r["signal_median_e"] is not None], dtype=np.float64)
     return {"codec": "metraw.codec", "step": step, "seed": seed, "n_images": len(images), "bits_raw": BITS_RAW,
             "overall": {"bits_per_pixel": 8 * tot_b / tot_n, "ratio": BITS_RAW * tot_n / (8 * tot_b)},
@@ -88,6 +97,32 @@ def summarise(images: list[dict[str, Any]], step: float, seed: int) -> dict[str,
                                                     "p05": float(np.percentile(sig, 5)),
                                                     "p95": float(np.percentile(sig, 95))},
             "images": images}
+
+
+def stored_raw(store, n: int) -> dict[str, Any]:
+    """How the store holds its raw array: the codec record (``raw_codec`` attribute; None = lossless
+    zstd) and the bytes of its image chunks on disk, read from the shard indexes (the indexes
+    themselves, 16 bytes per chunk slot, are excluded and reported apart), per true pixel over
+    all images (images smaller than the array are zero-padded)."""
+    import zarr
+
+    arr = zarr.open_group(str(store.path), mode="r")["raw"]
+    per_shard = int(arr.shards[0]) if arr.shards else 1
+    index_len = 16 * per_shard + 4  # (offset, nbytes) uint64 per chunk + CRC-32C, at the end
+    chunk_bytes = index_bytes = 0
+    for f in sorted((Path(store.path) / "raw" / "c").rglob("*")):
+        if not f.is_file():
+            continue
+        with open(f, "rb") as fh:
+            fh.seek(max(0, f.stat().st_size - index_len))
+            idx = np.frombuffer(fh.read(index_len)[:-4], "<u8").reshape(-1, 2)
+        used = idx[:, 0] != np.uint64(2**64 - 1)
+        chunk_bytes += int(idx[used, 1].sum())
+        index_bytes += index_len
+    pixels = sum(int(np.prod(store.shape(i))) for i in range(len(store)))
+    return {"raw_codec": store.attrs.get("raw_codec"), "chunk_bytes": chunk_bytes, "shard_index_bytes": index_bytes,
+            "pixels": pixels, "bits_per_pixel": 8 * chunk_bytes / pixels if pixels else None,
+            "all_images": n == len(store)}
 
 
 def run(args) -> int:
@@ -114,6 +149,9 @@ def run(args) -> int:
             images.append({"index": i, **rec})
     result = summarise(images, args.step, args.seed)
     result["store"] = str(args.store)
+    result["channel_attribution"] = ("code length of each colour's symbols under the coder's tables + share of "
+                                     "side information; channel bits sum to the blob's bits")
+    result["stored"] = stored_raw(store, n)
     result["warnings"] = sorted({str(w.message) for w in caught})
     with atomic_path(out, overwrite=args.overwrite) as tmp:
         tmp.write_text(json.dumps(result, indent=1) + "\n")

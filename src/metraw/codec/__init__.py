@@ -56,8 +56,14 @@ def _planes(a: np.ndarray, pattern: str) -> list[np.ndarray]:
     return [a[dy::step, dx::step] for _, dy, dx in plane_offsets(pattern) if a[dy::step, dx::step].size]
 
 
-def _encode_tile(sym: np.ndarray, u: np.ndarray, pattern: str) -> bytes:
-    return predictive.encode_planes(list(zip(_planes(sym, pattern), _planes(u, pattern))))
+def _plane_colours(shape: tuple[int, int], pattern: str) -> list[str]:
+    """Colours of the non-empty planes of ``_planes`` for an array of ``shape``."""
+    step = cell_size(pattern)
+    return [c for c, dy, dx in plane_offsets(pattern) if shape[0] > dy and shape[1] > dx]
+
+
+def _encode_tile(sym: np.ndarray, u: np.ndarray, pattern: str, account: list | None = None) -> bytes:
+    return predictive.encode_planes(list(zip(_planes(sym, pattern), _planes(u, pattern))), account)
 
 
 def _decode_tile(blob, u: np.ndarray, pattern: str) -> np.ndarray:
@@ -100,7 +106,7 @@ def measured_noise_sigma(symbols: np.ndarray, pattern: str, step: float) -> floa
 
 
 def encode(image: RawImage, step: float = 1.0, seed: int = 0, check_profile: bool = True,
-           embed_profile: bool = True) -> bytes:
+           embed_profile: bool = True, account: dict | None = None) -> bytes:
     """Compress ``image``: quantisation step ``step`` in noise sigmas, dither seed ``seed``.
 
     ``embed_profile=False`` leaves the profile, provenance and meta out of the blob (the zarr
@@ -108,6 +114,11 @@ def encode(image: RawImage, step: float = 1.0, seed: int = 0, check_profile: boo
 
     Warns (``ProfileMismatchWarning``) when the noise measured in the pixels differs from the
     profile's by more than ``MISMATCH_TOLERANCE`` (relative).
+
+    ``account``: if a dict, it receives ``bits`` and ``pixels`` per CFA colour (``{"R": ...}``),
+    the bits summing to 8 len(blob): each colour plane's code length under the tables the coder
+    used plus its share of the side information (``predictive.encode_planes``), the lossless
+    escapes split by escaped pixels of each colour, the container header by pixels.
     """
     if not isinstance(image, RawImage):
         raise MetrawError("codec.encode needs a RawImage (uint16 DN with a calibration profile)")
@@ -131,7 +142,8 @@ def encode(image: RawImage, step: float = 1.0, seed: int = 0, check_profile: boo
         r0, r1 = tile
         u = prepare.dither(seed, r0 * w, (r1 - r0) * w).reshape(r1 - r0, w)
         sym = prepare.forward(data[r0:r1], prof, step, u)
-        return sym, _encode_tile(sym, u, pattern)
+        acc = [] if account is not None else None
+        return sym, _encode_tile(sym, u, pattern, acc), acc
 
     if len(tiles) == 1:
         results = [work(tiles[0])]
@@ -151,7 +163,36 @@ def encode(image: RawImage, step: float = 1.0, seed: int = 0, check_profile: boo
     meta = ({"profile": prof.to_dict(), "provenance": image.provenance, "meta": image.meta}
             if embed_profile else None)
     header = container.Header((h, w), step, seed, tiles, meta)
-    return container.pack(header, [r[1] for r in results] + [esc_blob])
+    blob = container.pack(header, [r[1] for r in results] + [esc_blob])
+    if account is not None:
+        _account(account, blob, results, tiles, esc, esc_blob, pattern, w)
+    return blob
+
+
+def _account(account: dict, blob: bytes, results, tiles, esc: np.ndarray, esc_blob: bytes, pattern: str,
+             w: int) -> None:
+    """Fill ``account`` (see ``encode``): bits and pixels per CFA colour, bits summing to 8 len(blob)."""
+    colours = list(dict.fromkeys(c for c, _, _ in plane_offsets(pattern)))
+    bits = dict.fromkeys(colours, 0.0)
+    pix = dict.fromkeys(colours, 0)
+    nesc = dict.fromkeys(colours, 0)
+    step_c = cell_size(pattern)
+    for c, dy, dx in plane_offsets(pattern):
+        pix[c] += int(esc[dy::step_c, dx::step_c].size)
+        nesc[c] += int(esc[dy::step_c, dx::step_c].sum())
+    for (r0, r1), (_, sec, acc) in zip(tiles, results):
+        for c, b in zip(_plane_colours((r1 - r0, w), pattern), acc):
+            bits[c] += b
+    total_esc = sum(nesc.values())
+    for c in colours:
+        if total_esc:
+            bits[c] += 8.0 * len(esc_blob) * nesc[c] / total_esc
+    rest = 8.0 * len(blob) - sum(bits.values())  # container header, section lengths, CRC
+    npix = sum(pix.values())
+    for c in colours:
+        bits[c] += rest * pix[c] / npix
+    account["bits"] = bits
+    account["pixels"] = pix
 
 
 def _check_profile(sym: np.ndarray, esc: np.ndarray, pattern: str, step: float) -> None:

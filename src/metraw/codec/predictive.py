@@ -383,6 +383,24 @@ def _decode_plane(p, u16, thr, coef, bias, tab0, pshift, lut, fcum, amax, words,
     return sym, True
 
 
+@nb.njit(cache=True, nogil=True)
+def _plane_symbol_bits(idx, tab, freq, bounds, esc_i):
+    """Ideal code length [bits] of each plane's symbols under the coding tables: sum of
+    -log2(freq / 2^PROB_BITS) (what rANS achieves to within its final state) plus 32 bits per
+    escaped residual (stored as int32). Plane k holds flat symbols ``bounds[k]:bounds[k + 1]``."""
+    n = bounds.size - 1
+    out = np.zeros(n)
+    for k in range(n):
+        acc = 0.0
+        for i in range(bounds[k], bounds[k + 1]):
+            sy = idx[i]
+            acc += PROB_BITS - np.log2(np.float64(freq[tab[i], sy]))
+            if sy == esc_i:
+                acc += 32.0
+        out[k] = acc
+    return out
+
+
 def _thresholds(sample: np.ndarray, nact: int) -> np.ndarray:
     """nact - 1 activity thresholds (multiples of 256, at quantiles of ``sample``), padded with +inf."""
     if nact == 1:
@@ -422,27 +440,35 @@ def _quantise_tables(freq: np.ndarray) -> np.ndarray:
     return q8
 
 
-def encode_planes(planes: list[tuple[np.ndarray, np.ndarray]]) -> bytes:
+def encode_planes(planes: list[tuple[np.ndarray, np.ndarray]], account: list | None = None) -> bytes:
     """Code planes given as (symbols int32, dither float in [-1/2, 1/2)) pairs into one section.
 
     Tiles of >= ``SHARED_BELOW`` pixels: per-plane models, ``n_activity_contexts`` contexts x
     ``NPH`` phase bins, 12-bit tables, 4 rANS lanes. Smaller tiles: one model for all planes,
-    8-bit tables, and the smallest of (1, 1), (1, NPH), (2, NPH) (activity contexts, phase bins)."""
+    8-bit tables, and the smallest of (1, 1), (1, NPH), (2, NPH) (activity contexts, phase bins).
+
+    ``account``: if a list, it receives each plane's share of the section [bits], summing to
+    8 len(section): the plane's ideal code length (``_plane_symbol_bits``), plus its group's side
+    information (predictor, thresholds, tables; split by pixels where planes share a model), plus
+    a share of the common overhead (plane header, rANS flush) proportional to its code length."""
     total = sum(s.size for s, _ in planes)
     if total >= SHARED_BELOW:
         nact = n_activity_contexts(min(s.size for s, _ in planes))
-        return _encode_planes(planes, False, nact, 0)
-    best = None
+        return _encode_planes(planes, False, nact, 0, account)
+    best, best_acc = None, None
     for nact, pshift in ((1, 2), (1, 0), (2, 0)):
         if nact > 1 and total < 2048:
             continue
-        blob = _encode_planes(planes, True, nact, pshift)
+        acc = [] if account is not None else None
+        blob = _encode_planes(planes, True, nact, pshift, acc)
         if best is None or len(blob) < len(best):
-            best = blob
+            best, best_acc = blob, acc
+    if account is not None:
+        account[:] = best_acc
     return best
 
 
-def _encode_planes(planes, shared: bool, nact: int, pshift: int) -> bytes:
+def _encode_planes(planes, shared: bool, nact: int, pshift: int, account: list | None = None) -> bytes:
     npl = len(planes)
     total = sum(s.size for s, _ in planes)
     groups = [list(range(npl))] if shared else [[k] for k in range(npl)]
@@ -510,7 +536,26 @@ def _encode_planes(planes, shared: bool, nact: int, pshift: int) -> bytes:
     parts += group_heads + tables
     parts += [out[starts[j]:starts[j] + nws[j]].astype("<u2").tobytes() for j in range(nl)]
     parts.append(esc_vals.astype("<i4").tobytes())
-    return b"".join(parts)
+    blob = b"".join(parts)
+    if account is not None:
+        account[:] = _account(planes, groups, idx, t_all, freq, 2 * amax + 1, group_heads, tables, nact * nph, len(blob))
+    return blob
+
+
+def _account(planes, groups, idx, t_all, freq, esc_i, group_heads, tables, tabs_per_group, nbytes) -> list[float]:
+    """Per-plane bits of a section (see ``encode_planes``); they sum to 8 ``nbytes``."""
+    sizes = np.array([s.size for s, _ in planes], np.int64)
+    bounds = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+    bits = _plane_symbol_bits(idx, t_all, freq, bounds, esc_i)
+    side = np.zeros(len(planes))
+    for gi, g in enumerate(groups):
+        gbits = 8.0 * (len(group_heads[gi]) + sum(len(t) for t in tables[gi * tabs_per_group:(gi + 1) * tabs_per_group]))
+        gpix = sizes[g].sum()
+        for k in g:
+            side[k] += gbits * (sizes[k] / gpix if gpix else 1.0 / len(g))
+    rest = 8.0 * nbytes - bits.sum() - side.sum()
+    w = bits / bits.sum() if bits.sum() > 0 else np.full(len(planes), 1.0 / len(planes))
+    return list(bits + side + rest * w)
 
 
 def decode_planes(blob, dithers: list[np.ndarray]) -> list[np.ndarray]:
