@@ -29,6 +29,9 @@ from metraw.profile import CalibrationProfile
 STORE_VERSION = 1
 #: Target bytes of uncompressed raw data per shard file.
 SHARD_TARGET_BYTES = 64 * 2**20
+#: At most this many images per shard: a shard's index holds 16 bytes per image slot whether
+#: filled or not, so small (emulated satellite) images must not get thousands of slots.
+MAX_IMAGES_PER_SHARD = 256
 
 #: A function (first image's profile) -> keyword arguments of ``zarr.Group.create_array`` that
 #: choose the ``raw`` array's codecs (``serializer``, ``compressors``); ``None`` means lossless zstd.
@@ -195,7 +198,7 @@ class RawStore:
     def _shard_images(self, shape: tuple[int, int]) -> int:
         if self._images_per_shard:
             return self._images_per_shard
-        return max(1, SHARD_TARGET_BYTES // (2 * shape[0] * shape[1]))
+        return max(1, min(MAX_IMAGES_PER_SHARD, SHARD_TARGET_BYTES // (2 * shape[0] * shape[1])))
 
     def _ensure_arrays(self, images: list[RawImage]) -> None:
         if "raw" in self._group:
