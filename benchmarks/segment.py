@@ -4,6 +4,9 @@ and the robust (on-the-fly emulation) model against per-point models.
     nice -n 5 python benchmarks/segment.py source SRC.zarr [--profile default] [--n N]
     nice -n 5 python benchmarks/segment.py resolution SRC.zarr --n 60 --points nominal focal_length_m=0.8
     nice -n 5 python benchmarks/segment.py robust SRC.zarr --n 60 --points ...
+    nice -n 5 python benchmarks/segment.py robust data/source.zarr --results results
+        (robust model over the box spanned by params.yaml's sweeps, against the workflow's
+         per-point models: their stores and metrics under results/points/)
 
 Prints tables (IoU pooled over the test split, mean per-image IoU +- standard error, times).
 Emulated stores are cached under --work (default /tmp/metraw_seg_bench).
@@ -70,19 +73,20 @@ def _run(store: Path, config, label: str):
     ev = evaluate_images(model, test_imgs, "cpu", False)
     ev_s = time.perf_counter() - t1
     row = {"label": label, "packed": "x".join(map(str, test_imgs[0].packed_shape)), "upsample": rec["upsample"],
+           "pool": rec["pool"],
            "iou": ev["iou"], "mean_iou": ev["mean_image_iou"], "se": ev["mean_image_iou_se"],
            "precision": ev["precision"], "recall": ev["recall"], "prep_s": prep, "train_s": rec["training_time_s"],
            "eval_s": ev_s, "n_train": len(tr), "n_test": len(te)}
     def fmt(v):
         return "  n/a" if v is None else f"{v:.3f}"
 
-    print(f"{label:<34} {row['packed']:>8} {row['upsample']:>3} {fmt(row['iou'])} {fmt(row['mean_iou'])}"
+    print(f"{label:<34} {row['packed']:>8} {row['upsample']:>3} {row['pool']:>4} {fmt(row['iou'])} {fmt(row['mean_iou'])}"
           f"+-{fmt(row['se'])} {fmt(row['precision'])} {fmt(row['recall'])} {prep:6.1f} {rec['training_time_s']:7.1f}"
           f" {ev_s:6.1f}", flush=True)
     return row, model
 
 
-HEADER = (f"{'run':<34} {'packed':>8} {'up':>3} {'IoU':>5} {'mean+-se':>11} {'prec':>5} {'rec':>5} "
+HEADER = (f"{'run':<34} {'packed':>8} {'up':>3} {'pool':>4} {'IoU':>5} {'mean+-se':>11} {'prec':>5} {'rec':>5} "
           f"{'prep_s':>6} {'train_s':>7} {'eval_s':>6}")
 
 
@@ -101,6 +105,8 @@ def main() -> None:
     ap.add_argument("--epochs", type=int, default=None)
     ap.add_argument("--work", default="/tmp/metraw_seg_bench")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--results", default=None, help="robust: compare with the workflow's per-point results here")
+    ap.add_argument("--workers", type=int, default=2, help="robust: emulation worker processes")
     args = ap.parse_args()
     torch.set_num_threads(2)
     work = Path(args.work)
@@ -119,6 +125,8 @@ def main() -> None:
             store = _emulated(source, point, work)
             for g in args.grids:
                 rows.append(_run(store, replace(config, min_grid_px=g), f"{point} grid>={g}")[0])
+    elif args.results:
+        rows.extend(_robust_vs_workflow(Path(args.source), Path(args.results), config, args.workers))
     else:
         rows.extend(_robust(source, args.points, config, work))
     if args.json:
@@ -161,6 +169,46 @@ def _robust(source: Path, points: list[str], config, work: Path):
         print(f"{p:<34} {per_point[p]['iou']:13.3f} {ev['iou']:10.3f}", flush=True)
         rows.append({"point": p, "per_point_iou": per_point[p]["iou"], "robust_iou": ev["iou"],
                      "robust_mean_iou": ev["mean_image_iou"], "robust_train_s": rec["training_time_s"]})
+    return rows
+
+
+def _robust_vs_workflow(source: Path, results: Path, config, workers: int):
+    """One model trained on the fly over the sweep box vs the workflow's per-point models.
+
+    The box spans each swept parameter's range (uniform draws, all parameters at once, so the
+    robust model also sees combinations the one-at-a-time sweep never ran). Both models are
+    scored on the same test split of every point's stored images.
+    """
+    from metraw.cli.aggregate import iou_measurement
+    from metraw.points import load_params, parameter_points
+    from metraw.segment.data import prepare_store, split_indices
+    from metraw.segment.emulated import EmulatedDataset, fit_emulated
+    from metraw.segment.evaluate import evaluate_images
+    from metraw.store import RawStore
+
+    params = load_params("params.yaml")
+    sweeps = params["target"]["sweeps"]
+    nominal = params["target"]["nominal"]
+    box = {k: [min(min(v), nominal[k]), max(max(v), nominal[k])] for k, v in sweeps.items()}
+    n = len(RawStore.open(source))
+    tr, te = split_indices(n, config.test_fraction, config.split_seed)
+    ds = EmulatedDataset(source, tr, box, params, crop_px=config.crop_px, seed=config.seed)
+    model, rec = fit_emulated(ds, config, workers=workers, device="cpu", progress=False)
+    print(f"# robust model over box {box}: {rec['steps']} steps in {rec['training_time_s']:.1f} s "
+          f"(on-the-fly emulation, {workers} workers)", flush=True)
+    print(f"{'point':<24} {'per-point IoU':>16} {'robust IoU':>16} {'robust - per-point':>19}")
+    rows = []
+    for p in parameter_points(params):
+        metrics = json.loads((results / "points" / p / "metrics.json").read_text())
+        per, per_var = iou_measurement(metrics, p)
+        imgs = prepare_store(RawStore.open(results / "points" / p / "target.zarr"), te, False)
+        ev = evaluate_images(model, imgs, "cpu", False)
+        rob, rob_var = iou_measurement(ev, p)
+        print(f"{p:<24} {per:8.3f} +- {per_var ** 0.5:.3f} {rob:8.3f} +- {rob_var ** 0.5:.3f} {rob - per:+19.3f}",
+              flush=True)
+        rows.append({"point": p, "per_point_iou": per, "per_point_sd": per_var ** 0.5, "robust_iou": rob,
+                     "robust_sd": rob_var ** 0.5, "robust_train_s": rec["training_time_s"], "box": box,
+                     "robust_steps": rec["steps"], "n_test": len(ev["per_image"])})
     return rows
 
 

@@ -224,3 +224,25 @@ def test_emulated_dataset_is_deterministic_and_trains_with_workers(small_source)
         EmulatedDataset(small_source, range(4), {"diameter_m": [0.5, 0.1]}, params)
     model, rec = fit_emulated(ds, _cfg(epochs=1, batch_size=2), workers=2, device="cpu", progress=False)
     assert rec["steps"] == 2 and np.isfinite(rec["loss_per_epoch"][0])
+
+
+def test_pool_factor_follows_ground_sampling_and_keeps_the_grid():
+    import torch
+
+    from metraw.segment.data import PreparedImage
+    from metraw.segment.model import Segmenter
+    from metraw.segment.train import pool_factor
+
+    z = np.zeros((8, 8), np.float32)
+    drone = PreparedImage(z, z.astype(np.float16), "RGGB", 0, gsd_m=0.0587)   # packed cell 0.117 m
+    sat = PreparedImage(z, z.astype(np.float16), "RGGB", 1, gsd_m=0.876)      # packed cell 1.75 m
+    assert pool_factor([drone], 0.47) == 4 and pool_factor([drone], 0.2) == 1
+    assert pool_factor([sat], 0.47) == 1 and pool_factor([drone], 0.0) == 1
+    assert pool_factor([drone, PreparedImage(z, z.astype(np.float16), "RGGB", 2)], 0.47) == 1  # GSD unknown
+    torch.manual_seed(0)
+    model = Segmenter(4, 8, 2, pool=4).eval()
+    with torch.no_grad():
+        y = model(torch.randn(1, 4, 50, 70))
+    assert y.shape == (1, 4, 50, 70)
+    with pytest.raises(ValueError):
+        Segmenter(4, 8, 2, upsample=2, pool=2)
