@@ -68,8 +68,7 @@ def _encode_tile(sym: np.ndarray, u: np.ndarray, pattern: str, account: list | N
 
 def _decode_tile(blob, u: np.ndarray, pattern: str) -> np.ndarray:
     out = np.empty(u.shape, np.int32)
-    for view, plane in zip(_planes(out, pattern), predictive.decode_planes(blob, _planes(u, pattern))):
-        view[...] = plane
+    predictive.decode_planes(blob, _planes(u, pattern), _planes(out, pattern))  # symbols straight into out
     return out
 
 

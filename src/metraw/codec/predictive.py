@@ -28,6 +28,12 @@ the planes). Large tiles code their rows in 4 interleaved rANS lanes (row classe
 its own state; the decoder runs lane j three pixels behind lane j - 1, so the four dependency
 chains overlap). Decoding is a sequential compiled loop (numba, ``nogil``), so tiles decode in
 parallel threads.
+
+Speed without changing the stream: the encoder computes activities, contexts and predictions row
+by row in passes without a sequential dependence; the least squares accumulate X^T X from
+per-context sample buffers in vectorised blocks (encoder only: the coefficients are stored);
+the decoder runs the steady part of each 4-row group with the lane states in registers and
+evaluates sum_i k_i (n_i - W) as sum_i k_i n_i - W sum_i k_i (exact integers, the same value).
 """
 
 from __future__ import annotations
@@ -83,16 +89,15 @@ def _ctx_of(act, thr):
     return c
 
 
-@nb.njit(cache=True, nogil=True, inline="always")
-def _predict(p, y, x, k, o, b):
-    """W + sum_i k[o + i] (n_i - W) / 2^COEF_BITS + b (fixed point)."""
-    ref = p[y, x - 1]
-    acc = (k[o] * (p[y - 1, x] - ref) + k[o + 1] * (p[y - 1, x - 1] - ref) + k[o + 2] * (p[y - 1, x + 1] - ref)
-           + k[o + 3] * (p[y, x - 2] - ref) + k[o + 4] * (p[y - 2, x] - ref) + k[o + 5] * (p[y - 1, x - 2] - ref)
-           + k[o + 6] * (p[y - 2, x - 1] - ref) + k[o + 7] * (p[y - 2, x + 1] - ref)
-           + k[o + 8] * (p[y - 1, x + 2] - ref) + k[o + 9] * (p[y - 2, x - 2] - ref)
-           + k[o + 10] * (p[y - 2, x + 2] - ref))
-    return ref + (acc >> 12) + b
+@nb.njit(cache=True, nogil=True)
+def _sum(s):
+    """Exact sum of an integer plane (int64)."""
+    t = np.int64(0)
+    h, w = s.shape
+    for y in range(h):
+        for x in range(w):
+            t += s[y, x]
+    return t
 
 
 @nb.njit(cache=True, nogil=True)
@@ -128,105 +133,137 @@ def _activity_samples(p, stride):
     return out[:n]
 
 
+LS_BLOCK = 512                  # samples buffered per activity context before they are added to X^T X
+
+
+@nb.njit(cache=True, nogil=True, fastmath=True)
+def _gram_add(buf, n, ata_c, atb_c):
+    """Add X^T X (lower triangle) and X^T t of ``n`` buffered samples (rows of ``buf``: 12 regressors,
+    then the target). Encoder only (the fitted coefficients are stored in the stream), so the
+    summation order is free: vectorised dot products."""
+    for i in range(12):
+        di = buf[i]
+        for j in range(i + 1):
+            dj = buf[j]
+            acc = 0.0
+            for m in range(n):
+                acc += di[m] * dj[m]
+            ata_c[i, j] += acc
+        dt = buf[12]
+        acc = 0.0
+        for m in range(n):
+            acc += di[m] * dt[m]
+        atb_c[i] += acc
+
+
 @nb.njit(cache=True, nogil=True)
 def _normal_equations(p, thr, stride, ata, atb):
     """Accumulate per-context X^T X (lower triangle) and X^T t of t = x - W on (n_i - W, 1) over
-    the sampling lattice (rows every ``stride``, sheared columns: no column aliasing)."""
+    the sampling lattice (rows every ``stride``, sheared columns: no column aliasing). Samples are
+    buffered per context (``LS_BLOCK``, cache resident) and added in vectorised blocks."""
     h = p.shape[0] - 2
     w = p.shape[1] - 4
-    d = np.empty(12)
+    nact = thr.size + 1
+    buf = np.empty((nact, 13, LS_BLOCK + 24))  # padded rows: no 4 KiB cache-set aliasing
+    fill = np.zeros(nact, np.int64)
     sc = 1.0 / 65536.0
     for y in range(0, h, stride):
         yy = y + 2
+        r0 = p[yy]
+        r1 = p[yy - 1]
+        r2 = p[yy - 2]
         for x0 in range((y // stride) % stride, w, stride):
             xx = x0 + 2
-            ref = p[yy, xx - 1]
-            d[0] = (p[yy - 1, xx] - ref) * sc
-            d[1] = (p[yy - 1, xx - 1] - ref) * sc
-            d[2] = (p[yy - 1, xx + 1] - ref) * sc
-            d[3] = (p[yy, xx - 2] - ref) * sc
-            d[4] = (p[yy - 2, xx] - ref) * sc
-            d[5] = (p[yy - 1, xx - 2] - ref) * sc
-            d[6] = (p[yy - 2, xx - 1] - ref) * sc
-            d[7] = (p[yy - 2, xx + 1] - ref) * sc
-            d[8] = (p[yy - 1, xx + 2] - ref) * sc
-            d[9] = (p[yy - 2, xx - 2] - ref) * sc
-            d[10] = (p[yy - 2, xx + 2] - ref) * sc
-            d[11] = 1.0
-            tv = (p[yy, xx] - ref) * sc
             c = _ctx_of(_activity(p, yy, xx), thr)
-            for i in range(12):
-                di = d[i]
-                atb[c, i] += di * tv
-                for j in range(i + 1):
-                    ata[c, i, j] += di * d[j]
+            k = fill[c]
+            b = buf[c]
+            ref = r0[xx - 1]
+            b[0, k] = (r1[xx] - ref) * sc
+            b[1, k] = (r1[xx - 1] - ref) * sc
+            b[2, k] = (r1[xx + 1] - ref) * sc
+            b[3, k] = (r0[xx - 2] - ref) * sc
+            b[4, k] = (r2[xx] - ref) * sc
+            b[5, k] = (r1[xx - 2] - ref) * sc
+            b[6, k] = (r2[xx - 1] - ref) * sc
+            b[7, k] = (r2[xx + 1] - ref) * sc
+            b[8, k] = (r1[xx + 2] - ref) * sc
+            b[9, k] = (r2[xx - 2] - ref) * sc
+            b[10, k] = (r2[xx + 2] - ref) * sc
+            b[11, k] = 1.0
+            b[12, k] = (r0[xx] - ref) * sc
+            k += 1
+            if k == LS_BLOCK:
+                _gram_add(b, k, ata[c], atb[c])
+                k = 0
+            fill[c] = k
+    for c in range(nact):
+        if fill[c]:
+            _gram_add(buf[c], fill[c], ata[c], atb[c])
 
 
 @nb.njit(cache=True, nogil=True)
-def _residuals(s, p, u, thr, coef, bias, tab0, pshift, r_out, t_out, off):
+def _residuals(s, p, thr, coef, bias, tab0, pshift, r_out, t_out, off):
     """Residuals r (phase folded) and table indices of one plane into flat outputs at ``off``.
 
+    Row by row in passes without a sequential dependence (every neighbour is known to the
+    encoder), so they vectorise; the integer arithmetic is that of ``_decode_pixel``.
     Returns max |r|."""
     h, w = s.shape
     half = np.int64(1 << 15)
     rmax = np.int64(0)
-    k = off
+    nthr = thr.size
+    act = np.empty(w, np.int64)
+    ctx = np.empty(w, np.int64)
+    acc = np.empty(w, np.int64)
+    nact = nthr + 1
+    coef12 = np.empty(nact * 13, np.int64)  # per context: the 11 coefficients, their sum, the bias
+    for c in range(nact):
+        tot = np.int64(0)
+        for i in range(11):
+            coef12[c * 13 + i] = coef[c * 11 + i]
+            tot += coef[c * 11 + i]
+        coef12[c * 13 + 11] = tot
+        coef12[c * 13 + 12] = bias[c]
     for y in range(h):
         yy = y + 2
+        r0 = p[yy, :]
+        r1 = p[yy - 1, :]
+        r2 = p[yy - 2, :]
         for x in range(w):
             xx = x + 2
-            c = _ctx_of(_activity(p, yy, xx), thr)
-            uv = np.int64(np.floor(u[y, x] * 65536.0))
-            mh = _predict(p, yy, xx, coef, c * 11, bias[c]) + uv + half
-            r = np.int64(s[y, x]) - (mh >> 16)
+            w_ = r0[xx - 1]
+            n_ = r1[xx]
+            nw = r1[xx - 1]
+            act[x] = abs(w_ - nw) + abs(n_ - nw) + abs(n_ - r1[xx + 1]) + abs(w_ - r0[xx - 2]) + abs(n_ - r2[xx])
+            ctx[x] = 0
+        for i in range(nthr):
+            ti = thr[i]
+            for x in range(w):
+                ctx[x] += act[x] > ti
+        for x in range(w):
+            xx = x + 2
+            o = ctx[x] * 13
+            # sum_i k_i (n_i - W) = sum_i k_i n_i - W sum_i k_i (exact integers, as in ``_decode_pixel``)
+            acc[x] = (coef12[o] * r1[xx] + coef12[o + 1] * r1[xx - 1] + coef12[o + 2] * r1[xx + 1]
+                      + coef12[o + 3] * r0[xx - 2] + coef12[o + 4] * r2[xx] + coef12[o + 5] * r1[xx - 2]
+                      + coef12[o + 6] * r2[xx - 1] + coef12[o + 7] * r2[xx + 1] + coef12[o + 8] * r1[xx + 2]
+                      + coef12[o + 9] * r2[xx - 2] + coef12[o + 10] * r2[xx + 2] - coef12[o + 11] * r0[xx - 1])
+            acc[x] = r0[xx - 1] + (acc[x] >> 12) + coef12[o + 12]
+        sr = s[y]
+        k = off + y * w
+        for x in range(w):
+            c = ctx[x]
+            sv = np.int64(sr[x])
+            mh = acc[x] + ((sv << 16) - r0[x + 2]) + half   # p = s 2^16 - floor(u 2^16): the dither term
+            r = sv - (mh >> 16)
             fr = mh & 0xFFFF
             f = 1 - (fr >> 15)              # 1 when t < 0: fold (r, t) -> (-r, -t)
             fr ^= -f & 0xFFFF
             r = (r ^ -f) + f
-            r_out[k] = r
-            t_out[k] = tab0 + c * (4 >> pshift) + (((fr >> 13) & 3) >> pshift)
+            r_out[k + x] = r
+            t_out[k + x] = tab0 + c * (4 >> pshift) + (((fr >> 13) & 3) >> pshift)
             rmax = max(rmax, abs(r))
-            k += 1
     return rmax
-
-
-@nb.njit(cache=True, nogil=True)
-def _lane_order(hs, ws, nl):
-    """Flat indices (planes concatenated, row-major) grouped by lane: lane j = rows j, j + nl, ... of
-    every plane in turn. Returns (order, starts)."""
-    n = 0
-    for k in range(hs.size):
-        n += hs[k] * ws[k]
-    order = np.empty(n, np.int64)
-    starts = np.zeros(nl + 1, np.int64)
-    m = 0
-    for j in range(nl):
-        off = 0
-        for k in range(hs.size):
-            for y in range(j, hs[k], nl):
-                for x in range(ws[k]):
-                    order[m] = off + y * ws[k] + x
-                    m += 1
-            off += hs[k] * ws[k]
-        starts[j + 1] = m
-    return order, starts
-
-
-@nb.njit(cache=True, nogil=True)
-def _lane_escapes(r, idx, order, starts, esc_i):
-    """Escaped residuals in decoding order, lane by lane; returns (values, count per lane)."""
-    nl = starts.size - 1
-    out = np.empty(order.size, np.int32)
-    cnt = np.zeros(nl, np.int64)
-    m = 0
-    for j in range(nl):
-        for k in range(starts[j], starts[j + 1]):
-            i = order[k]
-            if idx[i] == esc_i:
-                out[m] = np.int32(r[i])
-                m += 1
-                cnt[j] += 1
-    return out[:m], cnt
 
 
 @nb.njit(cache=True, nogil=True)
@@ -283,45 +320,25 @@ def _normalise(counts):
     return freq
 
 
-@nb.njit(cache=True, nogil=True)
-def _rans_encode(idx, tab, freq, cum, rcp, order, starts, out, wstart):
-    """Encode lane j = symbols ``idx[order[starts[j]:starts[j + 1]]]`` (tables ``tab``) into its own rANS
-    stream, in reverse; lanes advance in lock step (independent dependency chains). Lane j's words go
-    to ``out[wstart[j]:]`` (room for one word per symbol). Returns (final states, word counts).
-
-    x // f via the float64 reciprocal ``rcp`` = 1 / freq: exact for x < 2^32 and f <= 2^12
-    (rounding error < 2^-19, the fraction of x / f is 0 or >= 2^-12)."""
-    nl = starts.size - 1
-    xs = np.full(nl, RANS_L, np.uint64)
-    nws = np.zeros(nl, np.int64)
-    longest = 0
-    for j in range(nl):
-        longest = max(longest, starts[j + 1] - starts[j])
-    for k in range(longest - 1, -1, -1):
-        for j in range(nl):
-            if k >= starts[j + 1] - starts[j]:
-                continue
-            i = order[starts[j] + k]
-            t = tab[i]
-            sy = idx[i]
-            fi = freq[t, sy]
-            f = np.uint64(fi)
-            x = xs[j]
-            emit = np.uint64(x >= (f << np.uint64(32 - PROB_BITS)))
-            out[wstart[j] + nws[j]] = np.uint16(x & np.uint64(0xFFFF))
-            nws[j] += np.int64(emit)
-            x >>= emit << np.uint64(4)
-            q = np.uint64(np.float64(x) * rcp[t, sy] + 1.52587890625e-05)
-            xs[j] = (q << np.uint64(PROB_BITS)) + (x - q * f) + np.uint64(cum[t, sy])
-    return xs, nws
-
-
 @nb.njit(cache=True, nogil=True, inline="always")
 def _decode_pixel(p, yy, xx, uv, thr, coef, bias, tab0, pshift, lut, fcum, amax, words, x, pos, pmin, esc, epos, eend):
     """Decode pixel (yy, xx) of the padded buffer ``p`` from one lane; returns (symbol, x, pos, epos, ok)."""
     half = np.int64(1 << 15)
-    c = _ctx_of(_activity(p, yy, xx), thr)
-    mh = _predict(p, yy, xx, coef, c * 11, bias[c]) + uv + half
+    r0 = p[yy]
+    r1 = p[yy - 1]
+    r2 = p[yy - 2]
+    w_ = r0[xx - 1]
+    n_ = r1[xx]
+    nw = r1[xx - 1]
+    act = abs(w_ - nw) + abs(n_ - nw) + abs(n_ - r1[xx + 1]) + abs(w_ - r0[xx - 2]) + abs(n_ - r2[xx])
+    c = ((act > thr[0]) + (act > thr[1]) + (act > thr[2]) + (act > thr[3]) + (act > thr[4]) + (act > thr[5])
+         + (act > thr[6]))
+    o = c * 12
+    # sum_i k_i (n_i - W) = sum_i k_i n_i - W sum_i k_i (exact integers: the encoder's value)
+    acc = (coef[o] * n_ + coef[o + 1] * nw + coef[o + 2] * r1[xx + 1] + coef[o + 3] * r0[xx - 2] + coef[o + 4] * r2[xx]
+           + coef[o + 5] * r1[xx - 2] + coef[o + 6] * r2[xx - 1] + coef[o + 7] * r2[xx + 1] + coef[o + 8] * r1[xx + 2]
+           + coef[o + 9] * r2[xx - 2] + coef[o + 10] * r2[xx + 2] - coef[o + 11] * w_)
+    mh = w_ + (acc >> 12) + bias[c] + uv + half
     sh = mh >> 16
     fr = mh & 0xFFFF
     f = 1 - (fr >> 15)
@@ -348,18 +365,76 @@ def _decode_pixel(p, yy, xx, uv, thr, coef, bias, tab0, pshift, lut, fcum, amax,
 
 
 @nb.njit(cache=True, nogil=True)
-def _decode_plane(p, u16, thr, coef, bias, tab0, pshift, lut, fcum, amax, words, xs, pos, pmin, esc, epos, eend):
-    """Decode one plane into the padded buffer ``p``; lane j holds rows j, j + L, ... (L = xs.size)
-    and runs 3 pixels behind lane j - 1, so its causal neighbours are ready and the L dependency
-    chains overlap. Updates the per-lane state ``xs``, word positions ``pos`` (lower limits ``pmin``)
-    and escape positions ``epos`` (limits ``eend``) in place; returns (symbols, ok)."""
+def _decode_plane(p, u, sym, thr, coef, bias, tab0, pshift, lut, fcum, amax, words, xs, pos, pmin, esc, epos, eend):
+    """Decode one plane into the padded buffer ``p`` and the symbols ``sym`` (the plane's view of the
+    tile); ``u`` is the plane's dither. Lane j holds rows j, j + L, ... (L = xs.size) and runs 3
+    pixels behind lane j - 1, so its causal neighbours are ready and the L dependency chains
+    overlap. Updates the per-lane state ``xs``, word positions ``pos`` (lower limits ``pmin``) and
+    escape positions ``epos`` (limits ``eend``) in place; returns ok.
+
+    Groups of 4 full rows run their steady part (every lane inside the row, no padding to write)
+    with the lane states in local variables; edges and other groups take the general path."""
     h = p.shape[0] - 2
     w = p.shape[1] - 4
     nl = xs.size
-    sym = np.empty((h, w), np.int32)
     for y0 in range(0, h, nl):
         nr = min(nl, h - y0)
+        fast = nr == 4 and w >= 12
+        # general path: all of the schedule, or its edges (xsw < 10 and xsw > w - 2) in fast groups
         for xsw in range(w + 3 * (nr - 1)):
+            if fast and xsw == 10:
+                # steady part: xsw = 10 .. w - 2, lanes at x = xsw, xsw - 3, xsw - 6, xsw - 9
+                a0 = xs[0]
+                a1 = xs[1]
+                a2 = xs[2]
+                a3 = xs[3]
+                q0 = pos[0]
+                q1 = pos[1]
+                q2 = pos[2]
+                q3 = pos[3]
+                e0 = epos[0]
+                e1 = epos[1]
+                e2 = epos[2]
+                e3 = epos[3]
+                good = True
+                for xs_ in range(10, w - 1):
+                    yy = y0 + 2
+                    xx = xs_ + 2
+                    v, a0, q0, e0, ok = _decode_pixel(p, yy, xx, np.int64(np.floor(u[y0, xs_] * 65536.0)), thr, coef, bias,
+                                                      tab0, pshift, lut, fcum, amax, words, a0, q0, pmin[0], esc, e0, eend[0])
+                    sym[y0, xs_] = v
+                    good &= ok
+                    v, a1, q1, e1, ok = _decode_pixel(p, yy + 1, xx - 3, np.int64(np.floor(u[y0 + 1, xs_ - 3] * 65536.0)), thr,
+                                                      coef, bias, tab0, pshift, lut, fcum, amax, words, a1, q1, pmin[1], esc,
+                                                      e1, eend[1])
+                    sym[y0 + 1, xs_ - 3] = v
+                    good &= ok
+                    v, a2, q2, e2, ok = _decode_pixel(p, yy + 2, xx - 6, np.int64(np.floor(u[y0 + 2, xs_ - 6] * 65536.0)), thr,
+                                                      coef, bias, tab0, pshift, lut, fcum, amax, words, a2, q2, pmin[2], esc,
+                                                      e2, eend[2])
+                    sym[y0 + 2, xs_ - 6] = v
+                    good &= ok
+                    v, a3, q3, e3, ok = _decode_pixel(p, yy + 3, xx - 9, np.int64(np.floor(u[y0 + 3, xs_ - 9] * 65536.0)), thr,
+                                                      coef, bias, tab0, pshift, lut, fcum, amax, words, a3, q3, pmin[3], esc,
+                                                      e3, eend[3])
+                    sym[y0 + 3, xs_ - 9] = v
+                    good &= ok
+                    if not good:
+                        return False
+                xs[0] = a0
+                xs[1] = a1
+                xs[2] = a2
+                xs[3] = a3
+                pos[0] = q0
+                pos[1] = q1
+                pos[2] = q2
+                pos[3] = q3
+                epos[0] = e0
+                epos[1] = e1
+                epos[2] = e2
+                epos[3] = e3
+            if fast and 10 <= xsw <= w - 2:
+                continue
             for j in range(nr):
                 x0 = xsw - 3 * j
                 if x0 < 0 or x0 >= w:
@@ -369,10 +444,10 @@ def _decode_plane(p, u16, thr, coef, bias, tab0, pshift, lut, fcum, amax, words,
                 if x0 == 0 and y > 0:
                     p[yy, 0] = p[yy - 1, 2]
                     p[yy, 1] = p[yy - 1, 2]
-                v, x, ps, ep, ok = _decode_pixel(p, yy, x0 + 2, u16[y, x0], thr, coef, bias, tab0, pshift, lut, fcum, amax,
-                                                 words, xs[j], pos[j], pmin[j], esc, epos[j], eend[j])
+                v, x, ps, ep, ok = _decode_pixel(p, yy, x0 + 2, np.int64(np.floor(u[y, x0] * 65536.0)), thr, coef, bias, tab0,
+                                                 pshift, lut, fcum, amax, words, xs[j], pos[j], pmin[j], esc, epos[j], eend[j])
                 if not ok:
-                    return sym, False
+                    return False
                 xs[j] = x
                 pos[j] = ps
                 epos[j] = ep
@@ -380,7 +455,106 @@ def _decode_plane(p, u16, thr, coef, bias, tab0, pshift, lut, fcum, amax, words,
                 if x0 == w - 1:
                     p[yy, w + 2] = p[yy, w + 1]
                     p[yy, w + 3] = p[yy, w + 1]
-    return sym, True
+    return True
+
+
+@nb.njit(cache=True, nogil=True)
+def _lane_rows(hs, ws, nl):
+    """Rows of each lane (lane j = rows j, j + nl, ... of every plane in turn, planes concatenated
+    row-major): flat start and length of every row, lane by lane; returns (row_start, row_len,
+    lane_row_starts, lane_symbol_starts)."""
+    nrows = 0
+    for k in range(hs.size):
+        nrows += hs[k]
+    rs = np.empty(nrows, np.int64)
+    rl = np.empty(nrows, np.int64)
+    lr = np.zeros(nl + 1, np.int64)
+    ls = np.zeros(nl + 1, np.int64)
+    m = 0
+    n = 0
+    for j in range(nl):
+        off = 0
+        for k in range(hs.size):
+            for y in range(j, hs[k], nl):
+                rs[m] = off + y * ws[k]
+                rl[m] = ws[k]
+                n += ws[k]
+                m += 1
+            off += hs[k] * ws[k]
+        lr[j + 1] = m
+        ls[j + 1] = n
+    return rs, rl, lr, ls
+
+
+@nb.njit(cache=True, nogil=True)
+def _lane_escapes(r, idx, rs, rl, lr, esc_i):
+    """Escaped residuals in decoding order, lane by lane; returns (values, count per lane)."""
+    nl = lr.size - 1
+    m = 0
+    for i in range(idx.size):
+        m += idx[i] == esc_i
+    out = np.empty(m, np.int32)
+    cnt = np.zeros(nl, np.int64)
+    if m == 0:
+        return out, cnt
+    m = 0
+    for j in range(nl):
+        for q in range(lr[j], lr[j + 1]):
+            for i in range(rs[q], rs[q] + rl[q]):
+                if idx[i] == esc_i:
+                    out[m] = np.int32(r[i])
+                    m += 1
+                    cnt[j] += 1
+    return out, cnt
+
+
+@nb.njit(cache=True, nogil=True)
+def _rans_encode(idx, tab, freq, cum, rcp, rs, rl, lr, ls, out):
+    """Encode lane j = the symbols of rows lr[j] .. lr[j + 1] - 1 (``_lane_rows``; tables ``tab``) into
+    its own rANS stream, in reverse; lanes advance in lock step (independent dependency chains).
+    Lane j's words go to ``out[ls[j]:]`` (room for one word per symbol). Returns (final states,
+    word counts).
+
+    x // f via the float64 reciprocal ``rcp`` = 1 / freq: exact for x < 2^32 and f <= 2^12
+    (rounding error < 2^-19, the fraction of x / f is 0 or >= 2^-12)."""
+    nl = lr.size - 1
+    xs = np.full(nl, RANS_L, np.uint64)
+    nws = np.zeros(nl, np.int64)
+    cq = np.empty(nl, np.int64)   # current row of each lane (walking backwards)
+    ci = np.empty(nl, np.int64)   # current flat index
+    ce = np.empty(nl, np.int64)   # first flat index of the current row
+    longest = 0
+    for j in range(nl):
+        longest = max(longest, ls[j + 1] - ls[j])
+        q = lr[j + 1] - 1
+        cq[j] = q
+        if q >= lr[j]:
+            ci[j] = rs[q] + rl[q] - 1
+            ce[j] = rs[q]
+    for k in range(longest - 1, -1, -1):
+        for j in range(nl):
+            if k >= ls[j + 1] - ls[j]:
+                continue
+            i = ci[j]
+            t = tab[i]
+            sy = idx[i]
+            fi = freq[t, sy]
+            f = np.uint64(fi)
+            x = xs[j]
+            emit = np.uint64(x >= (f << np.uint64(32 - PROB_BITS)))
+            out[ls[j] + nws[j]] = np.uint16(x & np.uint64(0xFFFF))
+            nws[j] += np.int64(emit)
+            x >>= emit << np.uint64(4)
+            q = np.uint64(np.float64(x) * rcp[t, sy] + 1.52587890625e-05)
+            xs[j] = (q << np.uint64(PROB_BITS)) + (x - q * f) + np.uint64(cum[t, sy])
+            if i > ce[j]:
+                ci[j] = i - 1
+            elif k > 0:
+                r = cq[j] - 1
+                cq[j] = r
+                ci[j] = rs[r] + rl[r] - 1
+                ce[j] = rs[r]
+    return xs, nws
 
 
 @nb.njit(cache=True, nogil=True)
@@ -475,7 +649,7 @@ def _encode_planes(planes, shared: bool, nact: int, pshift: int, account: list |
     nph = NPH >> pshift
     fronts, c0s = [], []
     for s, u in planes:
-        c0 = int(np.rint(s.mean())) if s.size else 0
+        c0 = int(np.rint(_sum(s) / s.size)) if s.size else 0
         c0s.append(c0)
         fronts.append(_front(s, u, np.int64(c0) << 16))
     ngroup = len(groups)
@@ -497,7 +671,7 @@ def _encode_planes(planes, shared: bool, nact: int, pshift: int, account: list |
         ata = np.tril(ata) + np.transpose(np.tril(ata, -1), (0, 2, 1))
         coef, bias = _fit(ata, atb)
         for k in g:
-            rmax = max(rmax, int(_residuals(planes[k][0], fronts[k], planes[k][1], thr, coef.reshape(-1), bias,
+            rmax = max(rmax, int(_residuals(planes[k][0], fronts[k], thr, coef.reshape(-1), bias,
                                             gi * nact * nph, pshift, r_all, t_all, off)))
             off += planes[k][0].size
         group_heads.append((thr >> 8).astype("<u4").tobytes() + coef.astype("<i2").tobytes()
@@ -511,12 +685,12 @@ def _encode_planes(planes, shared: bool, nact: int, pshift: int, account: list |
         freq = _normalise(q8)
     cum = np.concatenate([np.zeros((freq.shape[0], 1), np.int64), np.cumsum(freq, 1)[:, :-1]], 1)
     nl = 1 if shared else LANES
-    order, starts = _lane_order(np.array([s.shape[0] for s, _ in planes], np.int64),
-                                np.array([s.shape[1] for s, _ in planes], np.int64), nl)
-    out = np.empty(max(order.size, 1), np.uint16)
+    rs, rl, lr, starts = _lane_rows(np.array([s.shape[0] for s, _ in planes], np.int64),
+                                    np.array([s.shape[1] for s, _ in planes], np.int64), nl)
+    out = np.empty(max(total, 1), np.uint16)
     rcp = 1.0 / np.maximum(freq, 1)
-    states, nws = _rans_encode(idx, t_all, freq, cum, rcp, order, starts, out, starts[:-1].copy())
-    esc_vals, esc_cnt = _lane_escapes(r_all, idx, order, starts, 2 * amax + 1)
+    states, nws = _rans_encode(idx, t_all, freq, cum, rcp, rs, rl, lr, starts, out)
+    esc_vals, esc_cnt = _lane_escapes(r_all, idx, rs, rl, lr, 2 * amax + 1)
     tables = []
     for ti, f in enumerate(freq):
         nz = np.flatnonzero(f)
@@ -558,15 +732,16 @@ def _account(planes, groups, idx, t_all, freq, esc_i, group_heads, tables, tabs_
     return list(bits + side + rest * w)
 
 
-def decode_planes(blob, dithers: list[np.ndarray]) -> list[np.ndarray]:
-    """Inverse of ``encode_planes``; ``dithers`` are the planes' dither arrays (same shapes)."""
+def decode_planes(blob, dithers: list[np.ndarray], outs: list[np.ndarray] | None = None) -> list[np.ndarray]:
+    """Inverse of ``encode_planes``; ``dithers`` are the planes' dither arrays (same shapes). The
+    symbols (int32) go to ``outs`` (arrays or views of the planes' shapes) if given."""
     try:
-        return _decode(memoryview(blob), dithers)
+        return _decode(memoryview(blob), dithers, outs)
     except (struct.error, ValueError, IndexError) as exc:
         raise MetrawError(f"codec stream is corrupt: {exc}") from None
 
 
-def _decode(mv: memoryview, dithers: list[np.ndarray]) -> list[np.ndarray]:
+def _decode(mv: memoryview, dithers: list[np.ndarray], outs) -> list[np.ndarray]:
     npl, nact, pshift, shared, nl, tabbits, amax = _HEAD.unpack_from(mv, 0)
     off = _HEAD.size
     if (npl != len(dithers) or not 1 <= nact <= MAX_NACT or shared > 1 or amax > MAX_RESID or not 1 <= nl <= 16
@@ -632,18 +807,19 @@ def _decode(mv: memoryview, dithers: list[np.ndarray]) -> list[np.ndarray]:
     eend = epos + np.array(nesc, np.int64)
     xs = np.array([ln[0] for ln in lanes], np.uint64)
     pos = pmin + np.array(nwords, np.int64)
-    out = []
+    if outs is None:
+        outs = [np.empty(u.shape, np.int32) for u in dithers]
     for k, u in enumerate(dithers):
         g = 0 if shared else k
         thr, coef, bias = heads[g]
-        u16 = np.floor(np.asarray(u, np.float64) * (1 << FRAC)).astype(np.int64)
+        thr7 = np.concatenate([thr, np.full(MAX_NACT - 1 - thr.size, np.iinfo(np.int64).max, np.int64)])
+        c11 = coef.reshape(nact, NTAP - 1)
+        coef12 = np.concatenate([c11, c11.sum(1, keepdims=True)], 1).reshape(-1)
         h, w = u.shape
         p = np.full((h + 2, w + 4), np.int64(c0s[k]) << 16, np.int64)
-        sym, ok = _decode_plane(p, u16, thr, coef, bias, g * nact * nph, pshift, lut, fcum, amax, words, xs, pos, pmin,
-                                esc, epos, eend)
-        if not ok:
+        if not _decode_plane(p, np.asarray(u, np.float64), outs[k], thr7, coef12, bias, g * nact * nph, pshift, lut, fcum,
+                             amax, words, xs, pos, pmin, esc, epos, eend):
             raise ValueError("coded data ran out")
-        out.append(sym)
     if np.any(pos != pmin) or np.any(xs != RANS_L) or np.any(epos != eend):
         raise ValueError("rANS did not end in its initial state")
-    return out
+    return outs
