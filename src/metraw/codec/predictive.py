@@ -792,7 +792,7 @@ def _decode(mv: memoryview, dithers: list[np.ndarray], outs) -> list[np.ndarray]
         if freq[t].sum() != PROB_SCALE:
             raise ValueError("frequency table does not sum to the probability scale")
     cum = np.concatenate([np.zeros((ntab, 1), np.int64), np.cumsum(freq, 1)[:, :-1]], 1)
-    lut = np.stack([np.repeat(np.arange(alpha, dtype=np.int16), f) for f in freq])
+    lut = np.stack([np.repeat(np.arange(alpha, dtype=np.uint8 if alpha <= 256 else np.int16), f) for f in freq])
     fcum = (freq << 16) | cum
     # words of lane j at [pmin_j + 1, pmin_j + n_j], with a pad word at pmin_j (branch-free renormalisation)
     nwords = [ln[1] for ln in lanes]
