@@ -308,3 +308,21 @@ def test_lane_decoder_round_trip_exact(shape):
     back = predictive.decode_planes(blob, [u], [out[:, ::2]])
     assert np.array_equal(out[:, ::2], s) and np.array_equal(back[0], s)
     assert np.array_equal(predictive.decode_planes(blob, [np.ascontiguousarray(u)])[0], s)
+
+
+def _encode_in_child(args):
+    img, step = args
+    return codec.encode(img, step, 3, check_profile=False)
+
+
+def test_worker_pool_survives_fork_and_thread_changes(monkeypatch):
+    """The reused worker threads: a forked child (the parent's pool is started) and a change of
+    THREADS give the same bytes."""
+    import multiprocessing as mp
+
+    img = _scene((300, 64))  # 2 row tiles: coded on the pool
+    ref = codec.encode(img, 1.0, 3, check_profile=False)
+    with mp.get_context("fork").Pool(1) as pool:
+        assert pool.map(_encode_in_child, [(img, 1.0)])[0] == ref
+    monkeypatch.setattr(codec, "THREADS", 1)
+    assert codec.encode(img, 1.0, 3, check_profile=False) == ref
