@@ -107,6 +107,9 @@ def main() -> None:
     ap.add_argument("--json", default=None)
     ap.add_argument("--results", default=None, help="robust: compare with the workflow's per-point results here")
     ap.add_argument("--workers", type=int, default=2, help="robust: emulation worker processes")
+    ap.add_argument("--robust-model", default=None,
+                    help="robust: directory of the robust model: loaded if it exists, else trained and saved there")
+    ap.add_argument("--train-only", action="store_true", help="robust: train (and save) the robust model, then stop")
     args = ap.parse_args()
     torch.set_num_threads(2)
     work = Path(args.work)
@@ -126,7 +129,8 @@ def main() -> None:
             for g in args.grids:
                 rows.append(_run(store, replace(config, min_grid_px=g), f"{point} grid>={g}")[0])
     elif args.results:
-        rows.extend(_robust_vs_workflow(Path(args.source), Path(args.results), config, args.workers))
+        rows.extend(_robust_vs_workflow(Path(args.source), Path(args.results), config, args.workers,
+                                        args.robust_model, args.train_only))
     else:
         rows.extend(_robust(source, args.points, config, work))
     if args.json:
@@ -172,7 +176,7 @@ def _robust(source: Path, points: list[str], config, work: Path):
     return rows
 
 
-def _robust_vs_workflow(source: Path, results: Path, config, workers: int):
+def _robust_vs_workflow(source: Path, results: Path, config, workers: int, model_dir=None, train_only=False):
     """One model trained on the fly over the sweep box vs the workflow's per-point models.
 
     The box spans each swept parameter's range (uniform draws, all parameters at once, so the
@@ -192,10 +196,19 @@ def _robust_vs_workflow(source: Path, results: Path, config, workers: int):
     box = {k: [min(min(v), nominal[k]), max(max(v), nominal[k])] for k, v in sweeps.items()}
     n = len(RawStore.open(source))
     tr, te = split_indices(n, config.test_fraction, config.split_seed)
-    ds = EmulatedDataset(source, tr, box, params, crop_px=config.crop_px, seed=config.seed)
-    model, rec = fit_emulated(ds, config, workers=workers, device="cpu", progress=False)
+    from metraw.segment.train import load_model, save_model
+
+    if model_dir and (Path(model_dir) / "model.pt").exists():
+        model, _, rec = load_model(model_dir, "cpu")
+    else:
+        ds = EmulatedDataset(source, tr, box, params, crop_px=config.crop_px, seed=config.seed)
+        model, rec = fit_emulated(ds, config, workers=workers, device="cpu", progress=False)
+        if model_dir:
+            save_model(model_dir, model, config, rec, te)
     print(f"# robust model over box {box}: {rec['steps']} steps in {rec['training_time_s']:.1f} s "
           f"(on-the-fly emulation, {workers} workers)", flush=True)
+    if train_only:
+        return []
     print(f"{'point':<24} {'per-point IoU':>16} {'robust IoU':>16} {'robust - per-point':>19}")
     rows = []
     for p in parameter_points(params):
