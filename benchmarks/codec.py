@@ -3,6 +3,8 @@
 Real data: ../shared/data/real (canon_dng, micasense, spacenet_pan; see each SOURCE.txt).
 Profiles: calibrated from each frame (metraw.calibrate.from_image). Timings side by side in one
 run (2 threads for metraw). Writes docs/figures/codec_rd.png.  Run: nice -n 5 python benchmarks/codec.py
+Speed only (real frames, steps 1 and 2: 2-thread wall and 1-thread CPU ratios against JPEG-LS):
+nice -n 5 python benchmarks/codec.py --speed
 """
 
 from __future__ import annotations
@@ -54,15 +56,41 @@ def frames():
     return out
 
 
-def side_by_side(fns, reps=7):
-    """Median wall times [s] of several functions, run interleaved (same load for each)."""
+def side_by_side(fns, reps=9, cpu=False):
+    """Median wall times [s] of several functions, run interleaved (same load for each); with
+    ``cpu=True`` also the median process CPU times [s] (all threads): returns (walls, cpus)."""
     ts = [[] for _ in fns]
+    cs = [[] for _ in fns]
     for _ in range(reps):
-        for t_list, fn in zip(ts, fns):
+        for t_list, c_list, fn in zip(ts, cs, fns):
+            c = time.process_time()
             t = time.perf_counter()
             fn()
             t_list.append(time.perf_counter() - t)
-    return [float(np.median(t)) for t in ts]
+            c_list.append(time.process_time() - c)
+    walls = [float(np.median(t)) for t in ts]
+    return (walls, [float(np.median(c)) for c in cs]) if cpu else walls
+
+
+def speed_vs_jpegls(img, blob, jl, step, small):
+    """metraw against lossless JPEG-LS (CharLS, single-threaded) on the same frame, interleaved:
+    2-thread wall times and, with codec.THREADS = 1, single-thread CPU times (the cost per core,
+    insensitive to other processes sharing the cores). Returns a dict of medians [s] and ratios."""
+    d = img.data
+    fns = [lambda: codec.encode(img, step, 0, embed_profile=not small),
+           lambda: codec.decode(blob, profile=img.profile),
+           lambda: imagecodecs.jpegls_encode(d), lambda: imagecodecs.jpegls_decode(jl)]
+    threads = codec.THREADS
+    try:
+        (te, td, te_j, td_j), (ce2, cd2, _, _) = side_by_side(fns, cpu=True)
+        codec.THREADS = 1
+        _, (ce, cd, ce_j, cd_j) = side_by_side(fns, cpu=True)
+    finally:
+        codec.THREADS = threads
+    return {"wall_enc": te, "wall_dec": td, "wall_enc_jls": te_j, "wall_dec_jls": td_j,
+            "cpu1_enc": ce, "cpu1_dec": cd, "cpu1_enc_jls": ce_j, "cpu1_dec_jls": cd_j,
+            # CPU time / wall time of the 2-thread runs: ~2 when the row tiles really run at once
+            "par_enc": ce2 / te, "par_dec": cd2 / td}
 
 
 def fpack(d, step):
@@ -139,7 +167,36 @@ def err_stats(img, dec_data, step_for_sigma=None):
     return ev.mean(), math.sqrt(np.mean(ev * ev)), c
 
 
+def speed_main() -> int:
+    """``--speed``: only the speed comparison with lossless JPEG-LS on the real frames (steps 1, 2)."""
+    print(f"# load: {os.getloadavg()} at the start (2 cores); medians of 9, interleaved with JPEG-LS (CharLS)")
+    print(f"{'frame':12s} {'q':>4s} {'bpp':>6s} {'enc ms':>7s} {'dec ms':>7s} {'jls e':>6s} {'jls d':>6s} "
+          f"{'wall2 e':>7s} {'wall2 d':>7s} | {'cpu1 ms e':>9s} {'cpu1 ms d':>9s} {'jls e':>6s} {'jls d':>6s} "
+          f"{'cpu1 e':>6s} {'cpu1 d':>6s} {'par e':>5s} {'par d':>5s}")
+    for name, img in frames():
+        if name not in REAL_NAMES:
+            continue
+        jl = imagecodecs.jpegls_encode(img.data)
+        for step in (1.0, 2.0):
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                blob = codec.encode(img, step, 0)
+                sp = speed_vs_jpegls(img, blob, jl, step, False)
+            print(f"{name:12s} {step:4.1f} {8 * len(blob) / img.data.size:6.3f} {sp['wall_enc'] * 1e3:7.1f} "
+                  f"{sp['wall_dec'] * 1e3:7.1f} {sp['wall_enc_jls'] * 1e3:6.1f} {sp['wall_dec_jls'] * 1e3:6.1f} "
+                  f"{sp['wall_enc_jls'] / sp['wall_enc']:7.2f} {sp['wall_dec_jls'] / sp['wall_dec']:7.2f} | "
+                  f"{sp['cpu1_enc'] * 1e3:9.1f} {sp['cpu1_dec'] * 1e3:9.1f} {sp['cpu1_enc_jls'] * 1e3:6.1f} "
+                  f"{sp['cpu1_dec_jls'] * 1e3:6.1f} {sp['cpu1_enc'] / sp['cpu1_enc_jls']:6.2f} "
+                  f"{sp['cpu1_dec'] / sp['cpu1_dec_jls']:6.2f} {sp['par_enc']:5.2f} {sp['par_dec']:5.2f}")
+    print("# wall2 = JPEG-LS wall / metraw wall, metraw on 2 threads (> 1: metraw faster); cpu1 = metraw CPU time "
+          "on 1 thread / JPEG-LS CPU time; par = metraw CPU / wall on 2 threads (2: tiles fully concurrent)")
+    print(f"# load: {os.getloadavg()} at the end")
+    return 0
+
+
 def main() -> int:
+    if "--speed" in sys.argv[1:]:
+        return speed_main()
     print(f"# load: {os.getloadavg()} at the start (2 cores)")
     rows = []
     rd = {}
@@ -180,11 +237,8 @@ def main() -> int:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 blob = codec.encode(img, step, 0, embed_profile=not small)
-                # metraw (2 threads) and lossless JPEG-LS (CharLS, single-threaded) interleaved
-                te, td, te_j, td_j = side_by_side([
-                    lambda: codec.encode(img, step, 0, embed_profile=not small),
-                    lambda: codec.decode(blob, profile=img.profile),
-                    lambda: imagecodecs.jpegls_encode(d), lambda: imagecodecs.jpegls_decode(jl)])
+                sp = speed_vs_jpegls(img, blob, jl, step, small)
+                te, td = sp["wall_enc"], sp["wall_dec"]
             dec = codec.decode(blob, profile=img.profile)
             s = self_check(img, dec, step)
             row(f"metraw q={step}", len(blob), te, td, s["mean_error_sigma"], s["rms_error_sigma"], s["neighbour_corr"])
@@ -194,7 +248,7 @@ def main() -> int:
             seeds = 100 if name == "spacenet_pan" else 40
             sb = seed_bias(img, step, seeds) if name in REAL_NAMES else (math.nan,) * 5
             accept.append((name, step, 8 * len(blob) / n, math.log2(math.sqrt(2 * math.pi * math.e) / step),
-                           16 * n / 8 / len(blob), mb / te, mb / td, te_j / te, td_j / td, sb,
+                           16 * n / 8 / len(blob), mb / te, mb / td, sp, sb,
                            s["rms_over_uniform"], s["rms_over_expected"], s["neighbour_corr"],
                            s["bound_violations"], s["issue_bound_violations"]))
             # JPEG-LS near-lossless with the same max error as metraw's median-sigma bound
@@ -227,17 +281,21 @@ def main() -> int:
         extra = f" {r[9]:6.3f} {r[10]:9.2e} {int(r[11]):4d} {r[12]:8.1e}" if len(r) > 9 else ""
         print(f"{r[0]:12s} {r[1]:20s} {r[2]:6.3f} {r[3]:6.2f} {r[4]:8.1f} {r[5]:8.1f} {r[6]:9.2e} {r[7]:7.4f} {r[8]:7.4f}{extra}")
     print("\n# acceptance: bias averaged over dither seeds (100 for spacenet_pan, 40 for the other real frames; "
-          "mean +- standard error); speed: medians of 7 repetitions interleaved with lossless JPEG-LS (CharLS, "
-          "single-threaded); metraw uses 2 threads; ratio > 1 = faster than JPEG-LS")
+          "mean +- standard error); speed: medians of 9 repetitions interleaved with lossless JPEG-LS (CharLS, "
+          "single-threaded). wall2 = JPEG-LS wall time / metraw wall time with 2 threads (> 1: metraw faster); "
+          "cpu1 = metraw CPU time with 1 thread / JPEG-LS CPU time (cost per core; < 2 means 2 free cores "
+          "beat JPEG-LS); par = metraw CPU time / wall time with 2 threads (2 = tiles fully concurrent)")
     print(f"# load: {os.getloadavg()} at the end (2 cores)")
     print(f"{'frame':12s} {'q':>4s} {'bpp':>6s} {'bound':>6s} {'excess':>6s} {'x16bit':>6s} {'encMB/s':>8s} {'decMB/s':>8s} "
-          f"{'enc/jls':>7s} {'dec/jls':>7s} {'bias[s] +- se':>20s} {'worst decile +- se':>20s} {'rms/(q/v12)':>11s} "
+          f"{'wall2 e':>7s} {'wall2 d':>7s} {'cpu1 e':>6s} {'cpu1 d':>6s} {'par e':>5s} {'par d':>5s} {'bias[s] +- se':>20s} {'worst decile +- se':>20s} {'rms/(q/v12)':>11s} "
           f"{'rms/exp':>7s} {'nbcorr':>7s} {'viol':>4s} {'viol(q/2+.5)':>12s}")
     for a in accept:
-        sb = a[9]
+        sp, sb = a[7], a[8]
         print(f"{a[0]:12s} {a[1]:4.1f} {a[2]:6.3f} {a[3]:6.3f} {a[2] - a[3]:6.3f} {a[4]:6.2f} {a[5]:8.1f} {a[6]:8.1f} "
-              f"{a[7]:7.2f} {a[8]:7.2f} {sb[0]:+9.1e} +- {sb[1]:7.1e} {sb[2]:+9.1e} +- {sb[3]:7.1e} {a[10]:11.4f} "
-              f"{a[11]:7.4f} {a[12]:+7.4f} {int(a[13]):4d} {int(a[14]):12d}")
+              f"{sp['wall_enc_jls'] / sp['wall_enc']:7.2f} {sp['wall_dec_jls'] / sp['wall_dec']:7.2f} "
+              f"{sp['cpu1_enc'] / sp['cpu1_enc_jls']:6.2f} {sp['cpu1_dec'] / sp['cpu1_dec_jls']:6.2f} "
+              f"{sp['par_enc']:5.2f} {sp['par_dec']:5.2f} {sb[0]:+9.1e} +- {sb[1]:7.1e} {sb[2]:+9.1e} +- {sb[3]:7.1e} {a[9]:11.4f} "
+              f"{a[10]:7.4f} {a[11]:+7.4f} {int(a[12]):4d} {int(a[13]):12d}")
     try:
         import matplotlib
         matplotlib.use("Agg")

@@ -176,9 +176,11 @@ def encode(image: RawImage, step: float = 1.0, seed: int = 0, check_profile: boo
 
     if len(tiles) == 1:
         results = [work(tiles[0])]
+        esc = prepare.escape_mask(data, prof)
     else:
-        results = list(_pool().map(work, tiles))
-    esc = prepare.escape_mask(data, prof)
+        futures = [_pool().submit(work, t) for t in tiles]
+        esc = prepare.escape_mask(data, prof)  # meanwhile, in this thread
+        results = [f.result() for f in futures]
     idx = np.flatnonzero(esc)
     if idx.size:
         esc_idx = np.diff(idx, prepend=0).astype(np.int32)

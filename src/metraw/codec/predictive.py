@@ -691,15 +691,17 @@ def _encode_planes(planes, shared: bool, nact: int, pshift: int, account: list |
     rcp = 1.0 / np.maximum(freq, 1)
     states, nws = _rans_encode(idx, t_all, freq, cum, rcp, rs, rl, lr, starts, out)
     esc_vals, esc_cnt = _lane_escapes(r_all, idx, rs, rl, lr, 2 * amax + 1)
+    used = freq > 0
+    firsts = np.argmax(used, 1).tolist()
+    lasts = (freq.shape[1] - 1 - np.argmax(used[:, ::-1], 1)).tolist()
+    stored = q8.astype("u1") if shared else freq.astype("<u2")
     tables = []
-    for ti, f in enumerate(freq):
-        nz = np.flatnonzero(f)
-        if nz.size == 0:
-            tables.append(struct.pack("<HH", 0, 0))
+    for ti, used_any in enumerate(used.any(1).tolist()):
+        if not used_any:
+            tables.append(b"\0\0\0\0")  # struct.pack("<HH", 0, 0)
             continue
-        first, last = int(nz[0]), int(nz[-1])
-        vals = q8[ti, first:last + 1].astype("u1") if shared else f[first:last + 1].astype("<u2")
-        tables.append(struct.pack("<HH", first, last - first + 1) + vals.tobytes())
+        first, last = firsts[ti], lasts[ti]
+        tables.append(struct.pack("<HH", first, last - first + 1) + stored[ti, first:last + 1].tobytes())
     parts = [_HEAD.pack(npl, nact, pshift, int(shared), nl, tabbits, amax)]
     for j in range(nl):
         parts.append(struct.pack("<I", int(states[j])))

@@ -72,9 +72,21 @@ def offset_e(profile: CalibrationProfile) -> float:
     return 0.375 + effective_read_variance_e2(profile)
 
 
+@nb.njit(cache=True, nogil=True)
+def _escape_kernel(data, white, low, out):
+    for i in range(data.size):
+        v = np.float64(data[i])
+        out[i] = (v >= white) | (v <= low)
+
+
 def escape_mask(data: np.ndarray, profile: CalibrationProfile) -> np.ndarray:
     """Pixels stored losslessly: saturated (>= white) or below the transform's domain."""
     low = profile.black_level_dn - profile.gain_dn_per_e * offset_e(profile)
+    data = np.asarray(data)
+    if data.dtype == np.uint16 and data.flags.c_contiguous:  # one compiled pass, no temporaries
+        out = np.empty(data.shape, np.bool_)
+        _escape_kernel(data.reshape(-1), float(profile.white_level_dn), float(low), out.reshape(-1))
+        return out
     return (data >= profile.white_level_dn) | (data <= low)
 
 
