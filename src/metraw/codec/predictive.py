@@ -508,6 +508,31 @@ def _lane_escapes(r, idx, rs, rl, lr, esc_i):
     return out, cnt
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _enc_symbol(idx, tab, freq, cum, rcp, out, o, nw, x, i):
+    """Push symbol ``i`` onto a lane's rANS state ``x`` (words at ``out[o:]``, ``nw`` so far)."""
+    t = tab[i]
+    sy = idx[i]
+    f = np.uint64(freq[t, sy])
+    emit = np.uint64(x >= (f << np.uint64(32 - PROB_BITS)))
+    out[o + nw] = np.uint16(x & np.uint64(0xFFFF))
+    nw += np.int64(emit)
+    x >>= emit << np.uint64(4)
+    q = np.uint64(np.float64(x) * rcp[t, sy] + 1.52587890625e-05)
+    return (q << np.uint64(PROB_BITS)) + (x - q * f) + np.uint64(cum[t, sy]), nw
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _enc_cursor(i, e, q, rs, rl, more):
+    """A lane's previous symbol: (flat index, first index of its row, row) walking backwards."""
+    if i > e:
+        return i - 1, e, q
+    if more:
+        r = q - 1
+        return rs[r] + rl[r] - 1, rs[r], r
+    return i, e, q
+
+
 @nb.njit(cache=True, nogil=True)
 def _rans_encode(idx, tab, freq, cum, rcp, rs, rl, lr, ls, out):
     """Encode lane j = the symbols of rows lr[j] .. lr[j + 1] - 1 (``_lane_rows``; tables ``tab``) into
@@ -531,29 +556,39 @@ def _rans_encode(idx, tab, freq, cum, rcp, rs, rl, lr, ls, out):
         if q >= lr[j]:
             ci[j] = rs[q] + rl[q] - 1
             ce[j] = rs[q]
-    for k in range(longest - 1, -1, -1):
+    shortest = longest
+    for j in range(nl):
+        shortest = min(shortest, ls[j + 1] - ls[j])
+    lo = shortest if nl == 4 else 0
+    for k in range(longest - 1, lo - 1, -1):
         for j in range(nl):
             if k >= ls[j + 1] - ls[j]:
                 continue
             i = ci[j]
-            t = tab[i]
-            sy = idx[i]
-            fi = freq[t, sy]
-            f = np.uint64(fi)
-            x = xs[j]
-            emit = np.uint64(x >= (f << np.uint64(32 - PROB_BITS)))
-            out[ls[j] + nws[j]] = np.uint16(x & np.uint64(0xFFFF))
-            nws[j] += np.int64(emit)
-            x >>= emit << np.uint64(4)
-            q = np.uint64(np.float64(x) * rcp[t, sy] + 1.52587890625e-05)
-            xs[j] = (q << np.uint64(PROB_BITS)) + (x - q * f) + np.uint64(cum[t, sy])
-            if i > ce[j]:
-                ci[j] = i - 1
-            elif k > 0:
-                r = cq[j] - 1
-                cq[j] = r
-                ci[j] = rs[r] + rl[r] - 1
-                ce[j] = rs[r]
+            x, nw = _enc_symbol(idx, tab, freq, cum, rcp, out, ls[j], nws[j], xs[j], i)
+            xs[j] = x
+            nws[j] = nw
+            ci[j], ce[j], cq[j] = _enc_cursor(i, ce[j], cq[j], rs, rl, k > 0)
+    if lo > 0:
+        # every lane active: lane states in registers
+        x0, x1, x2, x3 = xs[0], xs[1], xs[2], xs[3]
+        n0, n1, n2, n3 = nws[0], nws[1], nws[2], nws[3]
+        i0, i1, i2, i3 = ci[0], ci[1], ci[2], ci[3]
+        e0, e1, e2, e3 = ce[0], ce[1], ce[2], ce[3]
+        q0, q1, q2, q3 = cq[0], cq[1], cq[2], cq[3]
+        o0, o1, o2, o3 = ls[0], ls[1], ls[2], ls[3]
+        for k in range(lo - 1, -1, -1):
+            more = k > 0
+            x0, n0 = _enc_symbol(idx, tab, freq, cum, rcp, out, o0, n0, x0, i0)
+            x1, n1 = _enc_symbol(idx, tab, freq, cum, rcp, out, o1, n1, x1, i1)
+            x2, n2 = _enc_symbol(idx, tab, freq, cum, rcp, out, o2, n2, x2, i2)
+            x3, n3 = _enc_symbol(idx, tab, freq, cum, rcp, out, o3, n3, x3, i3)
+            i0, e0, q0 = _enc_cursor(i0, e0, q0, rs, rl, more)
+            i1, e1, q1 = _enc_cursor(i1, e1, q1, rs, rl, more)
+            i2, e2, q2 = _enc_cursor(i2, e2, q2, rs, rl, more)
+            i3, e3, q3 = _enc_cursor(i3, e3, q3, rs, rl, more)
+        xs[0], xs[1], xs[2], xs[3] = x0, x1, x2, x3
+        nws[0], nws[1], nws[2], nws[3] = n0, n1, n2, n3
     return xs, nws
 
 
