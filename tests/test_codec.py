@@ -326,3 +326,16 @@ def test_worker_pool_survives_fork_and_thread_changes(monkeypatch):
         assert pool.map(_encode_in_child, [(img, 1.0)])[0] == ref
     monkeypatch.setattr(codec, "THREADS", 1)
     assert codec.encode(img, 1.0, 3, check_profile=False) == ref
+
+
+def test_compiled_kernels_release_the_gil():
+    """Tile-parallel coding needs every compiled kernel to release the GIL (numba nogil)."""
+    import numba
+
+    from metraw.codec import predictive
+
+    kernels = [(m.__name__, k, v) for m in (predictive, prepare) for k, v in vars(m).items()
+               if isinstance(v, numba.core.registry.CPUDispatcher)]
+    assert len(kernels) >= 15
+    held = [f"{m}.{k}" for m, k, v in kernels if not v.targetoptions.get("nogil")]
+    assert not held, held
