@@ -384,18 +384,9 @@ def _decode_plane(p, u, sym, thr, coef, bias, tab0, pshift, lut, fcum, amax, wor
         for xsw in range(w + 3 * (nr - 1)):
             if fast and xsw == 10:
                 # steady part: xsw = 10 .. w - 2, lanes at x = xsw, xsw - 3, xsw - 6, xsw - 9
-                a0 = xs[0]
-                a1 = xs[1]
-                a2 = xs[2]
-                a3 = xs[3]
-                q0 = pos[0]
-                q1 = pos[1]
-                q2 = pos[2]
-                q3 = pos[3]
-                e0 = epos[0]
-                e1 = epos[1]
-                e2 = epos[2]
-                e3 = epos[3]
+                a0, a1, a2, a3 = xs[0], xs[1], xs[2], xs[3]
+                q0, q1, q2, q3 = pos[0], pos[1], pos[2], pos[3]
+                e0, e1, e2, e3 = epos[0], epos[1], epos[2], epos[3]
                 good = True
                 for xs_ in range(10, w - 1):
                     yy = y0 + 2
@@ -421,18 +412,9 @@ def _decode_plane(p, u, sym, thr, coef, bias, tab0, pshift, lut, fcum, amax, wor
                     good &= ok
                     if not good:
                         return False
-                xs[0] = a0
-                xs[1] = a1
-                xs[2] = a2
-                xs[3] = a3
-                pos[0] = q0
-                pos[1] = q1
-                pos[2] = q2
-                pos[3] = q3
-                epos[0] = e0
-                epos[1] = e1
-                epos[2] = e2
-                epos[3] = e3
+                xs[0], xs[1], xs[2], xs[3] = a0, a1, a2, a3
+                pos[0], pos[1], pos[2], pos[3] = q0, q1, q2, q3
+                epos[0], epos[1], epos[2], epos[3] = e0, e1, e2, e3
             if fast and 10 <= xsw <= w - 2:
                 continue
             for j in range(nr):
