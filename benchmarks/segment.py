@@ -103,6 +103,7 @@ def main() -> None:
     ap.add_argument("--points", nargs="*", default=["nominal", "focal_length_m=0.8"])
     ap.add_argument("--grids", nargs="*", type=int, default=[0, 64, 128])
     ap.add_argument("--epochs", type=int, default=None)
+    ap.add_argument("--threads", type=int, default=None, help="override the profile's torch thread count")
     ap.add_argument("--work", default="/tmp/metraw_seg_bench")
     ap.add_argument("--json", default=None)
     ap.add_argument("--results", default=None, help="robust: compare with the workflow's per-point results here")
@@ -117,6 +118,8 @@ def main() -> None:
     config = load_config("params.yaml", args.profile)
     if args.epochs:
         config = replace(config, epochs=args.epochs)
+    if args.threads:
+        config = replace(config, threads=args.threads)
     source = _subset(args.source, args.n, work)
     rows = []
     print(f"# profile {args.profile}: {json.dumps(config.__dict__)}")
