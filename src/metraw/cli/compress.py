@@ -10,7 +10,8 @@ bits add up exactly to the blob's bits. The median photoelectrons per pixel of e
 reported too (the compressed size follows the signal level; `metraw aggregate` takes the
 nominal point's scene spread from it). When the store's raw array is itself stored with the
 codec (``metraw emulate --codec-step``), its pixels are already quantised; ``stored`` then gives
-the bytes the raw array takes on disk (zarr ``nbytes_stored``, shard indexes included).
+the bytes of the raw array's chunks on disk (read from the shard indexes; the indexes themselves
+are reported apart).
 """
 
 from __future__ import annotations
@@ -39,27 +40,6 @@ def register(sub) -> None:
     p.add_argument("--limit", type=int, default=None, help="only the first N images")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output")
     p.set_defaults(func=run)
-
-
-def channel_images(image: RawImage) -> dict[str, RawImage]:  # kept for callers; compress uses the blob's accounting
-    """Each CFA colour plane as a mono RawImage (same noise model; planes of one colour concatenated
-    side by side, e.g. the two green planes of a Bayer pattern)."""
-    from metraw.cfa import plane_offsets, split_planes
-
-    p = image.profile
-    if p.is_mono:
-        return {"L": image}
-    groups: dict[str, list[np.ndarray]] = {}
-    for (colour, _, _), plane in zip(plane_offsets(p.cfa_pattern), split_planes(image.data, p.cfa_pattern)):
-        groups.setdefault(colour, []).append(np.ascontiguousarray(plane))
-    out = {}
-    for colour, planes in groups.items():
-        h = min(pl.shape[0] for pl in planes)
-        data = np.concatenate([pl[:h] for pl in planes], axis=1)
-        prof = p.replace(cfa_pattern="mono", qe_per_channel={"L": p.qe_per_channel.get(colour, 1.0)},
-                         band_edges_m={"L": p.band_edges_m.get(colour, (0.0, 0.0))})
-        out[colour] = RawImage(data=data, profile=prof)
-    return out
 
 
 def measure_image(image: RawImage, step: float, seed: int, encode: Callable[..., bytes]) -> dict[str, Any]:
