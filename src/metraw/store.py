@@ -78,12 +78,17 @@ class RawStore:
         """A new store at ``path``, written atomically (use as a context manager)."""
         return _AtomicStore(Path(path), overwrite, raw_codecs, images_per_shard)
 
+    @staticmethod
+    def is_store(path: str | os.PathLike) -> bool:
+        """Whether ``path`` is a zarr v3 group (a directory holding ``zarr.json``)."""
+        return (Path(path) / "zarr.json").is_file()
+
     @classmethod
     def open(cls, path: str | os.PathLike, mode: str = "r") -> "RawStore":
         """Open an existing store for reading (``"r"``) or appending (``"a"``)."""
         zarr = _zarr()
         path = Path(path)
-        if not (path / "zarr.json").is_file():
+        if not cls.is_store(path):
             raise MetrawError(f"{path} is not a zarr v3 store (no zarr.json)")
         try:
             group = zarr.open_group(str(path), mode="r" if mode == "r" else "r+", zarr_format=3)

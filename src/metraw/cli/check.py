@@ -18,6 +18,7 @@ from pathlib import Path
 from metraw.atomic import atomic_path
 from metraw.errors import MetrawError
 from metraw.image import RawImage
+from metraw.store import RawStore
 
 
 def add_input_arguments(p) -> None:
@@ -27,10 +28,6 @@ def add_input_arguments(p) -> None:
     p.add_argument("--profile", default=None,
                    help="calibration profile JSON replacing the image's own (a full profile with schema_version, "
                         "or an object of fields to change, e.g. {\"gain_dn_per_e\": 0.5})")
-
-
-def _is_store(path: Path) -> bool:
-    return (path / "zarr.json").is_file()
 
 
 def split_image_argument(text: str, index: int | None) -> tuple[Path, int | None]:
@@ -45,7 +42,7 @@ def split_image_argument(text: str, index: int | None) -> tuple[Path, int | None
             raise MetrawError(f"{text}: the part after '#' must be an image index (STORE.zarr#3)") from None
         if index is not None and index != i:
             raise MetrawError(f"{text} and --index {index} name different images")
-        if not _is_store(Path(head)):
+        if not RawStore.is_store(Path(head)):
             raise MetrawError(f"{head} is not a metraw store (no zarr.json): '#INDEX' applies to stores only")
         return Path(head), i
     return path, index
@@ -54,9 +51,7 @@ def split_image_argument(text: str, index: int | None) -> tuple[Path, int | None
 def load_image(args) -> RawImage:
     """The image named on the command line (store + index, or a file), with ``--profile`` applied."""
     path, index = split_image_argument(args.image, args.index)
-    if _is_store(path):
-        from metraw.store import RawStore
-
+    if RawStore.is_store(path):
         if index is None:
             raise MetrawError(f"{path} is a store: choose an image with STORE.zarr#INDEX or --index")
         store = RawStore.open(path)

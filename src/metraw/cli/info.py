@@ -56,9 +56,9 @@ def run(args) -> int:
     from metraw.errors import MetrawError
 
     path = Path(args.path)
-    if path.is_dir() and (path / "zarr.json").is_file():
-        from metraw.store import RawStore
+    from metraw.store import RawStore
 
+    if RawStore.is_store(path):
         store = RawStore.open(path)
         n = len(store)
         shapes = [store.shape(i) for i in range(n)]
