@@ -106,7 +106,7 @@ def evaluate_store(store_path, model_dir, device: str | None = None, progress: b
 
     from metraw.errors import MetrawError
     from metraw.segment.data import prepare_store, split_indices
-    from metraw.segment.train import TrainConfig, default_device, load_model, set_determinism
+    from metraw.segment.train import TrainConfig, default_device, flush_denormals, load_model, set_determinism
     from metraw.store import RawStore
 
     device = device or default_device()
@@ -120,7 +120,8 @@ def evaluate_store(store_path, model_dir, device: str | None = None, progress: b
                           f"model in {model_dir} was trained with")
     t0 = time.perf_counter()
     images = prepare_store(store, test_idx, progress)
-    out = evaluate_images(model, images, device, progress)
+    with flush_denormals():
+        out = evaluate_images(model, images, device, progress)
     out.update({"evaluation_time_s": time.perf_counter() - t0, "store": str(store_path), "model": str(model_dir),
                 "training_time_s": record.get("training_time_s"), "epochs": record.get("epochs"),
                 "upsample": ckpt["upsample"], "pool": ckpt.get("pool", 1), "device": device, "config": ckpt["config"],

@@ -14,6 +14,7 @@ import json
 import math
 import os
 import time
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any
@@ -102,7 +103,6 @@ def set_determinism(seed: int, threads: int, device: str) -> None:
     torch.manual_seed(seed)
     torch.use_deterministic_algorithms(True, warn_only=device != "cpu")
     torch.set_num_threads(threads)
-    torch.set_flush_denormal(True)  # denormal activations slow CPU convolutions; results stay deterministic
     if device != "cpu":
         torch.backends.cudnn.benchmark = False
 
@@ -140,6 +140,20 @@ def segmentation_loss(logits, target):
     return bce + (1.0 - dice)
 
 
+@contextmanager
+def flush_denormals():
+    """Flush denormal floats to zero inside the block only (denormal activations slow CPU
+    convolutions; results stay deterministic). The flag is processor state shared by the whole
+    process (numpy included), so it is switched back off on exit, never left on for other code."""
+    import torch
+
+    torch.set_flush_denormal(True)
+    try:
+        yield
+    finally:
+        torch.set_flush_denormal(False)
+
+
 def train_loop(model, epoch_batches, steps_per_epoch: int, config: TrainConfig, device: str,
                progress: bool | None = None) -> list[float]:
     """AdamW + one-cycle schedule over ``config.epochs``; ``epoch_batches(epoch)`` yields (x, y) batches.
@@ -156,23 +170,24 @@ def train_loop(model, epoch_batches, steps_per_epoch: int, config: TrainConfig, 
                                                 total_steps=steps_per_epoch * config.epochs, pct_start=0.15)
     losses = []
     bar = progress_bar(range(config.epochs), desc="train", disable=None if progress is None else not progress)
-    for epoch in bar:
-        model.train()
-        run, n = 0.0, 0
-        for x, y in epoch_batches(epoch):
-            x = torch.as_tensor(x).to(device)
-            y = torch.as_tensor(y).to(device)
-            loss = segmentation_loss(model(x), y)
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-            if n < steps_per_epoch:  # the schedule has exactly steps_per_epoch steps per epoch
-                sched.step()
-            run += float(loss.detach())
-            n += 1
-        losses.append(run / max(n, 1))
-        if hasattr(bar, "set_postfix"):
-            bar.set_postfix(loss=f"{losses[-1]:.4f}")
+    with flush_denormals():
+        for epoch in bar:
+            model.train()
+            run, n = 0.0, 0
+            for x, y in epoch_batches(epoch):
+                x = torch.as_tensor(x).to(device)
+                y = torch.as_tensor(y).to(device)
+                loss = segmentation_loss(model(x), y)
+                opt.zero_grad(set_to_none=True)
+                loss.backward()
+                opt.step()
+                if n < steps_per_epoch:  # the schedule has exactly steps_per_epoch steps per epoch
+                    sched.step()
+                run += float(loss.detach())
+                n += 1
+            losses.append(run / max(n, 1))
+            if hasattr(bar, "set_postfix"):
+                bar.set_postfix(loss=f"{losses[-1]:.4f}")
     return losses
 
 
