@@ -4,7 +4,7 @@ Real data: ../shared/data/real (canon_dng, micasense, spacenet_pan; see each SOU
 Profiles: calibrated from each frame (metraw.calibrate.from_image). Timings side by side in one
 run (2 threads for metraw). Writes docs/figures/codec_rd.png.  Run: nice -n 5 python benchmarks/codec.py
 Speed only (real frames, steps 1 and 2: 2-thread wall and 1-thread CPU ratios against JPEG-LS):
-nice -n 5 python benchmarks/codec.py --speed
+nice -n 5 python benchmarks/codec.py --speed   (all cases round-robin, medians of SPEED_REPS rounds)
 """
 
 from __future__ import annotations
@@ -56,9 +56,10 @@ def frames():
     return out
 
 
-def side_by_side(fns, reps=9, cpu=False):
+def side_by_side(fns, reps=9, cpu=False, samples=False):
     """Median wall times [s] of several functions, run interleaved (same load for each); with
-    ``cpu=True`` also the median process CPU times [s] (all threads): returns (walls, cpus)."""
+    ``cpu=True`` also the median process CPU times [s] (all threads): returns (walls, cpus).
+    ``samples=True``: the lists of times instead of their medians."""
     ts = [[] for _ in fns]
     cs = [[] for _ in fns]
     for _ in range(reps):
@@ -68,6 +69,8 @@ def side_by_side(fns, reps=9, cpu=False):
             fn()
             t_list.append(time.perf_counter() - t)
             c_list.append(time.process_time() - c)
+    if samples:
+        return (ts, cs) if cpu else ts
     walls = [float(np.median(t)) for t in ts]
     return (walls, [float(np.median(c)) for c in cs]) if cpu else walls
 
@@ -167,12 +170,21 @@ def err_stats(img, dec_data, step_for_sigma=None):
     return ev.mean(), math.sqrt(np.mean(ev * ev)), c
 
 
+SPEED_REPS = 21
+
+
 def speed_main() -> int:
-    """``--speed``: only the speed comparison with lossless JPEG-LS on the real frames (steps 1, 2)."""
-    print(f"# load: {os.getloadavg()} at the start (2 cores); medians of 9, interleaved with JPEG-LS (CharLS)")
+    """``--speed``: only the speed comparison with lossless JPEG-LS on the real frames (steps 1, 2).
+
+    All (frame, step) cases run round-robin, ``SPEED_REPS`` rounds: each round times every case's
+    metraw encode/decode on 2 threads, then on 1 thread, each next to CharLS. A spell in which the
+    shared machine gives this process one core then hits every case alike instead of one row."""
+    print(f"# load: {os.getloadavg()} at the start (2 cores); medians of {SPEED_REPS} rounds, all cases "
+          "round-robin, each interleaved with JPEG-LS (CharLS)")
     print(f"{'frame':12s} {'q':>4s} {'bpp':>6s} {'enc ms':>7s} {'dec ms':>7s} {'jls e':>6s} {'jls d':>6s} "
           f"{'wall2 e':>7s} {'wall2 d':>7s} | {'cpu1 ms e':>9s} {'cpu1 ms d':>9s} {'jls e':>6s} {'jls d':>6s} "
-          f"{'cpu1 e':>6s} {'cpu1 d':>6s} {'par e':>5s} {'par d':>5s}")
+          f"{'cpu1 e':>6s} {'cpu1 d':>6s} {'par e':>5s} {'par d':>5s} {'won e':>5s} {'won d':>5s}")
+    cases = []
     for name, img in frames():
         if name not in REAL_NAMES:
             continue
@@ -181,15 +193,41 @@ def speed_main() -> int:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 blob = codec.encode(img, step, 0)
-                sp = speed_vs_jpegls(img, blob, jl, step, False)
-            print(f"{name:12s} {step:4.1f} {8 * len(blob) / img.data.size:6.3f} {sp['wall_enc'] * 1e3:7.1f} "
-                  f"{sp['wall_dec'] * 1e3:7.1f} {sp['wall_enc_jls'] * 1e3:6.1f} {sp['wall_dec_jls'] * 1e3:6.1f} "
-                  f"{sp['wall_enc_jls'] / sp['wall_enc']:7.2f} {sp['wall_dec_jls'] / sp['wall_dec']:7.2f} | "
-                  f"{sp['cpu1_enc'] * 1e3:9.1f} {sp['cpu1_dec'] * 1e3:9.1f} {sp['cpu1_enc_jls'] * 1e3:6.1f} "
-                  f"{sp['cpu1_dec_jls'] * 1e3:6.1f} {sp['cpu1_enc'] / sp['cpu1_enc_jls']:6.2f} "
-                  f"{sp['cpu1_dec'] / sp['cpu1_dec_jls']:6.2f} {sp['par_enc']:5.2f} {sp['par_dec']:5.2f}")
+            cases.append((name, step, img, blob, jl))
+    # per case: [2-thread walls, 2-thread cpus, 1-thread cpus], each 4 lists (enc, dec, jls enc, jls dec)
+    samples = [[[[] for _ in range(4)] for _ in range(3)] for _ in cases]
+    threads = codec.THREADS
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            for _ in range(SPEED_REPS):
+                for (name, step, img, blob, jl), smp in zip(cases, samples):
+                    d = img.data
+                    fns = [lambda: codec.encode(img, step, 0), lambda: codec.decode(blob, profile=img.profile),
+                           lambda: imagecodecs.jpegls_encode(d), lambda: imagecodecs.jpegls_decode(jl)]
+                    for nthreads, walls, cpus in ((threads, smp[0], smp[1]), (1, None, smp[2])):
+                        codec.THREADS = nthreads
+                        w, c = side_by_side(fns, reps=1, cpu=True, samples=True)
+                        for k in range(4):
+                            if walls is not None:
+                                walls[k] += w[k]
+                            cpus[k] += c[k]
+    finally:
+        codec.THREADS = threads
+    for (name, step, img, blob, jl), (walls, cpus2, cpus1) in zip(cases, samples):
+        te, td, te_j, td_j = (float(np.median(v)) for v in walls)
+        ce2, cd2 = float(np.median(cpus2[0])), float(np.median(cpus2[1]))
+        ce, cd, ce_j, cd_j = (float(np.median(v)) for v in cpus1)
+        # share of rounds in which metraw (2 threads) beat JPEG-LS, encode and decode
+        won_e = np.mean(np.array(walls[0]) < np.array(walls[2]))
+        won_d = np.mean(np.array(walls[1]) < np.array(walls[3]))
+        print(f"{name:12s} {step:4.1f} {8 * len(blob) / img.data.size:6.3f} {te * 1e3:7.1f} {td * 1e3:7.1f} "
+              f"{te_j * 1e3:6.1f} {td_j * 1e3:6.1f} {te_j / te:7.2f} {td_j / td:7.2f} | {ce * 1e3:9.1f} {cd * 1e3:9.1f} "
+              f"{ce_j * 1e3:6.1f} {cd_j * 1e3:6.1f} {ce / ce_j:6.2f} {cd / cd_j:6.2f} {ce2 / te:5.2f} {cd2 / td:5.2f} "
+              f"{won_e:5.2f} {won_d:5.2f}")
     print("# wall2 = JPEG-LS wall / metraw wall, metraw on 2 threads (> 1: metraw faster); cpu1 = metraw CPU time "
-          "on 1 thread / JPEG-LS CPU time; par = metraw CPU / wall on 2 threads (2: tiles fully concurrent)")
+          "on 1 thread / JPEG-LS CPU time; par = metraw CPU / wall on 2 threads (2: tiles fully concurrent); "
+          "won = share of rounds in which metraw's 2-thread wall time beat JPEG-LS's")
     print(f"# load: {os.getloadavg()} at the end")
     return 0
 
