@@ -242,6 +242,31 @@ def test_thinning_uses_the_light_ratio_of_the_geometry():
     assert light_ratio(img.profile, spec.context["optimum"], 2) == pytest.approx(1.0)
 
 
+def test_optimum_signal_above_the_sampled_range_is_clipped_and_thinning_targets_it():
+    # optimal D and t at their sampled maxima: the optimum combines both (10.4x nominal light), a
+    # corner the one-at-a-time lines never reach (max 6.25x): optimal = max, light_scale = 6.25 / 10.4
+    nominal = {"altitude_m": H, "pixel_pitch_m": PITCH, "focal_length_m": 1.644, "diameter_m": 0.2,
+               "exposure_s": 180e-6, "ground_speed_m_per_s": SPEED, "obscuration_ratio": 0.3, "cfa_pattern": "RGGB"}
+    tols = {"focal_length_m": _tol("focal_length_m", 1.644, 1.2, 2.0), "diameter_m": _tol("diameter_m", 0.5, 0.15, 0.5),
+            "exposure_s": _tol("exposure_s", 300e-6, 100e-6, 300e-6)}
+    spec = build_spec(tols, nominal, 0.6, {"median": 70.0, "p05": 40.0, "p95": 80.0})
+    s = spec.properties["signal_e"]
+    joint = 70.0 * (0.5 / 0.2) ** 2 * 300 / 180
+    assert s.max == pytest.approx(80.0 * (0.5 / 0.2) ** 2) and s.max < joint
+    assert s.optimal == pytest.approx(s.max) and s.min <= s.optimal <= s.max
+    assert s.details["light_scale"] == pytest.approx(s.max / joint)
+    # an image from the optimum system itself, brighter than the spec's max: thinned by light_scale
+    # (before the fix the light ratio was 1 and the image was rejected as 'cannot be thinned')
+    spec.properties = {"signal_e": s}
+    spec.context["optimum"]["obscuration_ratio"] = 0.3
+    img = make_image(diameter=0.5, exposure=300e-6, gsd=PITCH * H / 1.644, level_e=1.3 * s.max, size=128)
+    img = RawImage(img.data, img.profile.replace(obscuration_ratio=0.3))
+    d = check(img, spec, measure_noise=False)
+    thin = [c for c in d.chain if c["function"] == "thin"]
+    assert d.verdict == "NORMALISE", d.reasons
+    assert thin[0]["params"]["p"] == pytest.approx(s.details["light_scale"], rel=1e-6)
+
+
 def _store_with(tmp_path, images):
     from metraw.store import RawStore
 
