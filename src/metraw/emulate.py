@@ -49,6 +49,7 @@ from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import Any
 
+import numba as nb
 import numpy as np
 import scipy.fft as sfft
 import scipy.sparse as sp
@@ -201,7 +202,7 @@ def _ee_table(obscuration: float, v_max: float):
     ee *= (1.0 - tail) / ee[-1]
     v.flags.writeable = False
     ee.flags.writeable = False
-    return {"v": v, "ee": ee, "tail": tail, "v_max": v_max}
+    return {"v": v, "ee": ee, "tail": tail, "v_max": v_max, "obscuration": obscuration}
 
 
 def _plan_key(profile, shape, target, acc, edge) -> str:
@@ -499,14 +500,84 @@ def _expected(cells: dict[str, np.ndarray], plan, target, fourier) -> np.ndarray
     return np.maximum(out, 0.0)
 
 
-def _sample_psf_radius(table, n: int, rng) -> np.ndarray:
-    """Radii in v = pi D theta / lambda drawn from the annulus encircled energy (asymptotic tail beyond v_max)."""
-    u = rng.random(n)
-    v = np.interp(u, table["ee"], table["v"])
-    far = u > table["ee"][-1]
-    if np.any(far):  # P(V > v) = tail * v_max / v beyond the table
-        v[far] = table["v_max"] * table["tail"] / np.maximum(1.0 - u[far], 1e-300)
-    return v
+_GUIDE_BINS = 1 << 16  # guide table of the inverse encircled energy: O(1) start of each lookup
+
+
+@lru_cache(maxsize=16)
+def _ee_guide(obscuration: float, v_max: float) -> np.ndarray:
+    """guide[k] = last table node j with ee[j] <= k / _GUIDE_BINS (so a lookup bisects a short range)."""
+    ee = _ee_table(obscuration, v_max)["ee"]
+    g = np.searchsorted(ee, np.arange(_GUIDE_BINS + 1) / _GUIDE_BINS, side="right") - 1
+    g = np.clip(g, 0, ee.size - 2).astype(np.int64)
+    g.flags.writeable = False
+    return g
+
+
+@nb.njit(cache=True, nogil=True)
+def _land_photons(src_idx, bw, block, clamp_w, clamp_h, ux, uy, ul, upsf, uphi, usm, jx, jy,
+                  lo, hi, v_scale, ee, vt, guide, v_max, tail, smear_x, smear_y, reflect, wm, hm,
+                  cx, cy, c_r, s_r, gt, wt, ht, det, out):
+    """Land photons (one loop; the uniforms were drawn by numpy in the reference order) and count
+    them per target pixel into ``out`` (flat, ht x wt). Per photon: uniform position in its source
+    block, wavelength uniform in the band, PSF radius from the inverse encircled energy (linear
+    interpolation of the table, as np.interp; the asymptotic tail beyond it), uniform angle, smear,
+    jitter, edge folding, rotation to the target grid, detection mask (``det[0] < 0``: none)."""
+    n = src_idx.size
+    ee_last = ee[ee.size - 1]
+    nb_ = guide.size - 1
+    two_pi = 2.0 * math.pi
+    for i in range(n):
+        by = src_idx[i] // bw
+        bx = src_idx[i] - by * bw
+        x = (bx + ux[i]) * block
+        y = (by + uy[i]) * block
+        if clamp_w > 0.0:
+            x = min(x, clamp_w)
+            y = min(y, clamp_h)
+        lam = lo + (hi - lo) * ul[i]
+        u = upsf[i]
+        if u > ee_last:
+            v = v_max * tail / max(1.0 - u, 1e-300)
+        else:
+            k = int(u * nb_)
+            a = guide[k]
+            b = guide[min(k + 1, nb_)] + 1
+            while b - a > 1:  # ee[a] <= u < ee[b]
+                m = (a + b) >> 1
+                if ee[m] <= u:
+                    a = m
+                else:
+                    b = m
+            d = ee[a + 1] - ee[a]
+            v = vt[a] if d <= 0.0 else vt[a] + (vt[a + 1] - vt[a]) * (u - ee[a]) / d
+        r = v * lam * v_scale
+        phi = two_pi * uphi[i]
+        x += r * math.cos(phi)
+        y += r * math.sin(phi)
+        if usm.size:
+            t = usm[i] - 0.5
+            x += t * smear_x
+            y += t * smear_y
+        if jx.size:
+            x += jx[i]
+            y += jy[i]
+        if reflect:
+            x = x % (2.0 * wm)
+            if x > wm:
+                x = 2.0 * wm - x
+            y = y % (2.0 * hm)
+            if y > hm:
+                y = 2.0 * hm - y
+        dx = x - cx
+        dy = y - cy
+        col = math.floor((c_r * dx + s_r * dy) / gt + wt / 2)
+        row = math.floor((-s_r * dx + c_r * dy) / gt + ht / 2)
+        if col < 0 or col >= wt or row < 0 or row >= ht:
+            continue
+        pix = int(row) * wt + int(col)
+        if det[0] >= 0 and not det[pix]:
+            continue
+        out[pix] += 1
 
 
 def photon_electrons(source: RawImage, target: TargetSystem, accuracy: Accuracy | None = None,
@@ -526,6 +597,9 @@ def _photons(cells: dict[str, np.ndarray], plan: EmulationPlan, target, rng) -> 
     c_r, s_r = math.cos(plan.rotation_rad), math.sin(plan.rotation_rad)
     gt = plan.target_gsd_m
     chunk = 1 << 22
+    table = plan.psf_table
+    guide = _ee_guide(table["obscuration"], table["v_max"])
+    empty = np.empty(0)
     for c, e in cells.items():
         e = np.maximum(e, 0.0)
         if B > 1:
@@ -538,7 +612,7 @@ def _photons(cells: dict[str, np.ndarray], plan: EmulationPlan, target, rng) -> 
         reps = kept[src]
         bw = e.shape[1]
         det = _detect(target, c, plan.frame_shape)
-        det = None if det is None else det.ravel()
+        det_flat = np.full(1, -1, np.int8) if det is None else det.ravel().astype(np.int8)
         lo, hi = plan.bands[c]
         starts = np.concatenate(([0], np.cumsum(reps)))
         first = 0
@@ -546,37 +620,17 @@ def _photons(cells: dict[str, np.ndarray], plan: EmulationPlan, target, rng) -> 
             last = max(first + 1, int(np.searchsorted(starts, starts[first] + chunk, side="right")) - 1)
             n = int(starts[last] - starts[first])
             idx = np.repeat(src[first:last], reps[first:last])
-            by, bx = np.divmod(idx, bw)
-            x = (bx + rng.random(n)) * block
-            y = (by + rng.random(n)) * block
-            if B > 1:  # photons of a partial edge block stay inside the footprint
-                x = np.minimum(x, Wm * (1 - 1e-12))
-                y = np.minimum(y, Hm * (1 - 1e-12))
-            lam = lo + (hi - lo) * rng.random(n)
-            r = _sample_psf_radius(plan.psf_table, n, rng) * lam / (math.pi * plan.diameter_m) * plan.altitude_m
-            phi = 2 * math.pi * rng.random(n)
-            x += r * np.cos(phi)
-            y += r * np.sin(phi)
-            if plan.smear_m > 0:
-                t = (rng.random(n) - 0.5) * plan.smear_m
-                x += t * math.cos(plan.smear_angle_rad)
-                y += t * math.sin(plan.smear_angle_rad)
-            if plan.jitter_m > 0:
-                x += rng.normal(0.0, plan.jitter_m, n)
-                y += rng.normal(0.0, plan.jitter_m, n)
-            if plan.edge == "reflect":  # fold into the footprint (repeated mirror images of the scene)
-                x = np.mod(x, 2 * Wm)
-                x = np.where(x > Wm, 2 * Wm - x, x)
-                y = np.mod(y, 2 * Hm)
-                y = np.where(y > Hm, 2 * Hm - y, y)
-            dx, dy = x - plan.centre_m[0], y - plan.centre_m[1]
-            col = np.floor((c_r * dx + s_r * dy) / gt + wt / 2).astype(np.int64)
-            row = np.floor((-s_r * dx + c_r * dy) / gt + ht / 2).astype(np.int64)
-            ok = (col >= 0) & (col < wt) & (row >= 0) & (row < ht)
-            pix = row[ok] * wt + col[ok]
-            if det is not None:
-                pix = pix[det[pix]]
-            out += np.bincount(pix, minlength=ht * wt)
+            # the uniforms in the reference order: position x, y, wavelength, PSF radius, angle, smear, jitter
+            ux, uy, ul, upsf, uphi = (rng.random(n) for _ in range(5))
+            usm = (rng.random(n) if plan.smear_m > 0 else empty)
+            jx = rng.normal(0.0, plan.jitter_m, n) if plan.jitter_m > 0 else empty
+            jy = rng.normal(0.0, plan.jitter_m, n) if plan.jitter_m > 0 else empty
+            _land_photons(idx, bw, block, Wm * (1 - 1e-12) if B > 1 else 0.0, Hm * (1 - 1e-12) if B > 1 else 0.0,
+                          ux, uy, ul, upsf, uphi, usm, jx, jy, lo, hi,
+                          plan.altitude_m / (math.pi * plan.diameter_m), table["ee"], table["v"], guide,
+                          table["v_max"], table["tail"], plan.smear_m * math.cos(plan.smear_angle_rad),
+                          plan.smear_m * math.sin(plan.smear_angle_rad), plan.edge == "reflect", Wm, Hm,
+                          plan.centre_m[0], plan.centre_m[1], c_r, s_r, gt, wt, ht, det_flat, out)
             first = last
     return out.reshape(ht, wt)
 
