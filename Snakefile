@@ -1,11 +1,21 @@
 # metraw workflow: source raws -> emulated target raws per parameter point -> segmenter
 # training and evaluation -> compression -> Gaussian-process tolerances and figures.
-# Run: snakemake --cores all        (dvc repro drives the same rules; see dvc.yaml)
+# Run: snakemake --cores all        (profiles/default applies; dvc repro drives the same rules; see dvc.yaml)
 # Report: snakemake --report results/report.html (after a run)
+
+import os
+from pathlib import Path
 
 from snakemake.utils import min_version, validate
 
 min_version("9.0")
+
+# Between-workflow output cache (--cache, on in profiles/default): the aggregate comes back from it when a sweep
+# value is reverted. Default location .snakemake-cache/ next to this file (ignored by git and DVC); a
+# SNAKEMAKE_OUTPUT_CACHE set by the user wins. Snakemake creates no cache folder itself.
+if workflow.enable_cache:
+    Path(os.environ.setdefault("SNAKEMAKE_OUTPUT_CACHE", str(Path(workflow.basedir) / ".snakemake-cache"))).mkdir(
+        parents=True, exist_ok=True)
 
 configfile: "params.yaml"
 

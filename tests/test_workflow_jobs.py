@@ -5,11 +5,18 @@ workflow/scripts/dvc_yaml.py) runs the chain source -> emulate -> train -> evalu
 aggregate for 4 points (nominal, one focal length, one diameter, one exposure). Then one sweep value changes
 (focal_length_m 1.2 -> 2.0) and back. Counted:
 
-- Snakemake: the real first run (jobs finished, from its log); dry-run job tables after the change
-  and after the revert.
+- Snakemake (plain ``snakemake``, so profiles/default applies: between-workflow output cache on,
+  in the workspace's .snakemake-cache/): the real first run (jobs finished, from its log; the
+  aggregate's outputs are moved into the cache and symlinked back); dry-run job tables after the
+  change; after the revert, a real run. Reverting changes the aggregate's params, so Snakemake
+  still schedules the aggregate job, but its provenance hash (command, params, upstream jobs' hashes)
+  is the first run's: the job is not executed, its outputs are symlinked from the cache. Counted from
+  the log: jobs listed minus jobs whose every output is reported "from cache" = 0 executed, and the
+  restored aggregate.json is byte-identical to the first run's.
 - DVC: the Snakemake outputs adopted with ``dvc commit`` (DVC then reports nothing to do: the two
   definitions name the same files); a real ``dvc repro`` after the change (each stage runs
-  Snakemake for its one rule) and after the revert (stages restored from the run-cache, none run).
+  Snakemake for its one rule, without the profile, hence without Snakemake's cache) and after the
+  revert (stages restored from DVC's run-cache, none run).
 
 Never touches the repository's data/ or results/.
 """
@@ -17,6 +24,7 @@ Never touches the repository's data/ or results/.
 from __future__ import annotations
 
 import collections
+import hashlib
 import importlib.util
 import json
 import os
@@ -58,6 +66,7 @@ def tiny_params() -> dict:
 
 def _run(cmd: list[str], cwd: Path, check: bool = True) -> subprocess.CompletedProcess:
     env = {**os.environ, "PYTHONHASHSEED": "0"}
+    env.pop("SNAKEMAKE_OUTPUT_CACHE", None)  # the workspace's own .snakemake-cache/ (the Snakefile's default)
     proc = subprocess.run(["nice", "-n", "5", *cmd], cwd=cwd, capture_output=True, text=True, env=env)
     if check and proc.returncode != 0:
         raise AssertionError(f"{' '.join(cmd)} failed ({proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
@@ -68,9 +77,10 @@ def make_workspace(root: Path, params: dict) -> Path:
     """Workflow files + params + generated dvc.yaml in a fresh git + DVC repository."""
     for name in ("Snakefile", ".dvcignore"):
         shutil.copy2(REPO / name, root / name)
-    shutil.copytree(REPO / "workflow", root / "workflow", ignore=shutil.ignore_patterns("__pycache__"))
+    for name in ("workflow", "profiles"):
+        shutil.copytree(REPO / name, root / name, ignore=shutil.ignore_patterns("__pycache__"))
     (root / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
-    (root / ".gitignore").write_text("/data/\n/results/\n/logs/\n.snakemake/\n")
+    (root / ".gitignore").write_text("/data/\n/results/\n/logs/\n.snakemake/\n/.snakemake-cache/\n")
     _run(["python", str(SCRIPT)], root)
     _run(["git", "init", "-q"], root)
     _run(["dvc", "init", "-q"], root)
@@ -95,20 +105,56 @@ def _jobs(text: str) -> collections.Counter:
     return jobs
 
 
-def snakemake_dry(root: Path, *targets: str) -> collections.Counter:
-    """Jobs Snakemake would run (its dry run)."""
+def snakemake_dry(root: Path, *targets: str, cache: dict[str, str] | None = None) -> collections.Counter:
+    """Jobs Snakemake would schedule (its dry run); `cache` gets, per output of a cached rule's job, whether it
+    "will be obtained from" or "written to" the between-workflow cache."""
     proc = _run(["snakemake", "--cores", "2", "--dry-run", "--", *targets], root)
+    if cache is not None:
+        cache.update((path, how) for path, how in re.findall(
+            r"^Output file (\S+) will be (obtained from|written to) global between-workflow cache", proc.stdout, re.M))
     return _jobs(proc.stdout)
 
 
-def snakemake_ran(root: Path, text: str) -> collections.Counter:
-    """Jobs that finished in a real Snakemake run (its log), checked against the 'Finished jobid' lines."""
+def _outputs(text: str) -> dict[str, list[str]]:
+    """Each job's outputs, keyed as in _jobs."""
+    outs = {}
+    for m in re.finditer(r"^(?:local)?rule (\w+):\n((?:[ \t]+.*\n?)*)", text, flags=re.M):
+        point = re.search(r"wildcards: point=(\S+)", m.group(2))
+        output = re.search(r"^\s+output: (.*)$", m.group(2), flags=re.M)
+        if m.group(1) != "all" and output:
+            outs[f"{m.group(1)}[{point.group(1)}]" if point else m.group(1)] = output.group(1).split(", ")
+    return outs
+
+
+def snakemake_ran(root: Path, text: str) -> tuple[collections.Counter, ...]:
+    """Jobs of a real Snakemake run, from its log: (finished, executed, fetched from / stored in the output cache).
+
+    Finished is checked against the 'Finished jobid' lines. A job of a cached rule whose provenance hash
+    is in the cache finishes without running its command: the log then says "Symlinking output file P from
+    cache." for each of its outputs (each file of a directory output) and never "Moving output file P to
+    cache." (which a job that ran and was stored says for each output, before symlinking it back).
+    Fetched: jobs all of whose outputs are symlinked and none moved; executed = finished - fetched.
+    """
     log = re.findall(r"Complete log\(s\): (\S+)", text)[-1]
     log_text = Path(log if Path(log).is_absolute() else root / log).read_text()
     jobs = _jobs(log_text)
     finished = re.findall(r"Finished jobid: \d+ \(Rule: (\w+)\)", log_text)
     assert sum(jobs.values()) == len([r for r in finished if r != "all"]), (jobs, finished)
-    return jobs
+    linked = re.findall(r"^Symlinking output file (\S+) from cache\.", log_text, flags=re.M)
+    moved = set(re.findall(r"^Moving output file (\S+) to cache\.", log_text, flags=re.M))
+    outputs = _outputs(log_text)
+    fetched = collections.Counter(
+        job for job, outs in outputs.items()
+        if not moved & set(outs) and all(any(p == o or p.startswith(o.rstrip("/") + "/") for p in linked) for o in outs))
+    stored = collections.Counter(job for job, outs in outputs.items() if set(outs) <= moved)
+    return jobs, jobs - fetched, fetched, stored
+
+
+def cache_entries(root: Path) -> dict[str, str]:
+    """Files in the workspace's Snakemake output cache and a hash of their content."""
+    cache = root / ".snakemake-cache"
+    return {str(f.relative_to(cache)): hashlib.sha256(f.read_bytes()).hexdigest()
+            for f in sorted(cache.rglob("*")) if f.is_file()}
 
 
 def dvc_repro(root: Path, *targets: str) -> dict[str, list[str]]:
@@ -184,14 +230,24 @@ def test_changing_one_sweep_value_reruns_only_that_point(tmp_path):
     points = ("nominal", "focal_length_m-1.2", "diameter_m-0.35", "exposure_s-0.0003")
     timings = {}
 
-    # 1. first real Snakemake run: the source store, the 4 jobs of each of the 4 points, the aggregate
+    # 1. first real Snakemake run: the source store, the 4 jobs of each of the 4 points, the aggregate;
+    #    the aggregate's 4 outputs go to the (empty) between-workflow cache, none comes from it
+    cache: dict[str, str] = {}
+    assert snakemake_dry(root, *targets, cache=cache)["aggregate"] == 1
+    assert cache == {"results/spec.yaml": "written to"}, cache  # Snakemake names the job's first output only
     t0 = time.perf_counter()
     first = _run(["snakemake", "--cores", "2", "--", *targets], root)
     timings["snakemake_first_s"] = time.perf_counter() - t0
     expected = {"source_store": 1, "aggregate": 1}
     for point in points:
         expected.update(point_jobs(point))
-    assert snakemake_ran(root, first.stdout + first.stderr) == expected
+    finished, executed, fetched, stored_jobs = snakemake_ran(root, first.stdout + first.stderr)
+    assert finished == executed == expected and fetched == {} and stored_jobs == {"aggregate": 1}, (fetched, stored_jobs)
+    stored = cache_entries(root)
+    # spec, table and the two directories' files, under one provenance hash
+    assert len({name.split("_")[0].split(".")[0].split("/")[0] for name in stored}) == 1, stored
+    assert {n.split("/")[0][64:] for n in stored} == {"_spec.yaml", "_table.json", "_figures", "_plots"}, stored
+    first_table = (root / "results/aggregate.json").read_bytes()
     assert snakemake_dry(root, *targets) == {}
 
     # the report of that run embeds the figures, the spec and the aggregate table
@@ -217,15 +273,33 @@ def test_changing_one_sweep_value_reruns_only_that_point(tmp_path):
     assert "focal_length_m-2.0" in (root / "results/aggregate.json").read_text()
     assert snakemake_dry(root, *targets) == {}
 
-    # 4. revert: DVC runs nothing (old point unchanged in the workspace, aggregate from the run-cache);
-    #    plain Snakemake keeps no past results, so it reruns the aggregate alone (its point list changed)
+    # the DVC stages ran Snakemake without the profile: nothing written to or read from its cache
+    assert cache_entries(root) == stored
+
+    # 4. revert, plain Snakemake: the aggregate's params changed back, so its job is scheduled again, but its
+    #    provenance hash is the first run's: it is not executed, its outputs are symlinked from the cache
     set_sweep(root, "focal_length_m", [1.2])
-    assert snakemake_dry(root, *targets) == {"aggregate": 1}
+    cache = {}
+    assert snakemake_dry(root, *targets, cache=cache) == {"aggregate": 1}
+    assert cache == {"results/spec.yaml": "obtained from"}, cache
+    t0 = time.perf_counter()
+    revert = _run(["snakemake", "--cores", "2", "--", *targets], root)
+    timings["snakemake_revert_s"] = time.perf_counter() - t0
+    finished, executed, fetched, stored_jobs = snakemake_ran(root, revert.stdout + revert.stderr)
+    assert finished == fetched == {"aggregate": 1} and executed == {} and stored_jobs == {}, (finished, fetched)
+    table = root / "results/aggregate.json"
+    assert table.is_symlink() and table.resolve().parent == (root / ".snakemake-cache").resolve()
+    assert table.read_bytes() == first_table and b"focal_length_m-2.0" not in table.read_bytes()
+    assert snakemake_dry(root, *targets) == {}
+    assert cache_entries(root) == stored
+
+    # revert, DVC: runs nothing (old point unchanged in the workspace, aggregate from its run-cache)
     t0 = time.perf_counter()
     rep = dvc_repro(root, "aggregate")
     timings["dvc_revert_s"] = time.perf_counter() - t0
     assert rep["ran"] == [] and rep["restored"] == ["aggregate"] and rep["jobs"] == {}, rep
-    assert "focal_length_m-2.0" not in (root / "results/aggregate.json").read_text()
+    assert (root / "results/aggregate.json").read_bytes() == first_table
+    assert cache_entries(root) == stored  # DVC's checkout replaced the symlinks, it did not write through them
 
     # 5. the changed-back point restored from DVC's cache when its files are gone (e.g. a fresh clone)
     shutil.rmtree(root / "results/points/focal_length_m-1.2")

@@ -30,6 +30,12 @@ rule aggregate:
     params:
         points=POINTS,
         spec=config["spec"],
+    # Between-workflow output cache (active with --cache, which profiles/default sets; location from the Snakefile):
+    # keyed by Snakemake's provenance hash (this command, these params, and the same hash of every upstream job,
+    # down to the checksums of files no rule makes). A job whose key is in the cache is not run: its outputs are
+    # symlinked from the cache, so reverting a sweep value restores the old aggregate instead of recomputing it.
+    # The key does not cover metraw's own code: after changing it, run with --workflow-profile none or clear the cache.
+    cache: True
     log:
         "logs/aggregate.log",
     shell:

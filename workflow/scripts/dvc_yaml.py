@@ -45,7 +45,9 @@ HEADER = """\
 # values one has needs `python workflow/scripts/dvc_yaml.py` (the aggregate stage says so).
 """
 
-SNAKEMAKE = "snakemake --cores all"
+# --workflow-profile none: no between-workflow output cache (profiles/default turns it on); DVC has its own,
+# and a --forcerun job would otherwise be fetched from Snakemake's cache instead of run
+SNAKEMAKE = "snakemake --workflow-profile none --cores all"
 POINT_DIR = "results/points/{point}"
 # Snakemake outputs of the per-point rules, relative to the point's folder
 PER_POINT = {
