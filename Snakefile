@@ -1,6 +1,6 @@
 # metraw workflow: source raws -> emulated target raws per parameter point -> segmenter
 # training and evaluation -> compression -> Gaussian-process tolerances and figures.
-# Run: snakemake --cores all        (profiles/default applies; dvc repro drives the same rules; see dvc.yaml)
+# Run: snakemake --cores all        (workflow/profiles/default applies, via the link profiles/; dvc repro drives the same rules; see dvc.yaml)
 # Report: snakemake --report results/report.html (after a run)
 
 import os

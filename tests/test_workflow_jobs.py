@@ -77,8 +77,8 @@ def make_workspace(root: Path, params: dict) -> Path:
     """Workflow files + params + generated dvc.yaml in a fresh git + DVC repository."""
     for name in ("Snakefile", ".dvcignore"):
         shutil.copy2(REPO / name, root / name)
-    for name in ("workflow", "profiles"):
-        shutil.copytree(REPO / name, root / name, ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copytree(REPO / "workflow", root / "workflow", ignore=shutil.ignore_patterns("__pycache__"))
+    os.symlink(os.readlink(REPO / "profiles"), root / "profiles")  # profiles -> workflow/profiles, as in the repo
     (root / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
     (root / ".gitignore").write_text("/data/\n/results/\n/logs/\n.snakemake/\n/.snakemake-cache/\n")
     _run(["python", str(SCRIPT)], root)
