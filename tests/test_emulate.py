@@ -331,6 +331,15 @@ def test_cli_emulate_writes_store_atomically(tmp_path, capsys):
     res = RawStore.open(out)
     assert len(res) == 2 and res[0].profile.exposure_s == 300e-6 and res[0].profile.focal_length_m == 1.2
     assert res[0].provenance[-1]["params"]["seed"] == [0, 0]
+    # the bytes do not depend on the number of worker processes (default 2; image i uses seed (0, i))
+    one = tmp_path / "one.zarr"
+    assert main(["emulate", str(src_path), str(one), "--params", str(params), "--point",
+                 "focal_length_m=1.2,exposure_s=300e-6", "--workers", "1"]) == 0
+    assert "1 workers" in capsys.readouterr().out
+    res1 = RawStore.open(one)
+    for i in range(2):
+        assert np.array_equal(res1[i].data, res[i].data) and res1[i].provenance == res[i].provenance
+    assert not np.array_equal(res[0].data, res[1].data)
     bad = tmp_path / "bad.zarr"
     rc = main(["emulate", str(src_path), str(bad), "--params", str(params), "--point", "diameter_m=30,exposure_s=1"])
     assert rc == 2 and "times more light" in capsys.readouterr().err

@@ -27,6 +27,7 @@ def register(subparsers) -> None:
     p.add_argument("--accuracy", default="", help="Accuracy overrides name=value,... (e.g. kernel_flux_loss=1e-2)")
     p.add_argument("--limit", type=int, default=None, help="emulate only the first N images")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output")
+    p.add_argument("--workers", type=int, default=2, help="worker processes (bytes do not depend on it; default 2)")
     add_codec_arguments(p)
     p.set_defaults(func=run)
 
@@ -35,7 +36,6 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from metraw.accuracy import Accuracy
-    from metraw.emulate import emulate
     from metraw.errors import MetrawError
     from metraw.points import load_params
     from metraw.progress import progress_bar
@@ -49,6 +49,8 @@ def run(args: argparse.Namespace) -> int:
     seed = args.seed if args.seed is not None else int(emu.get("seed", 0))
     if seed < 0:
         raise MetrawError(f"--seed must be >= 0, got {seed}")
+    if args.workers < 1:
+        raise MetrawError(f"--workers must be >= 1, got {args.workers}")
     target = TargetSystem.from_params(params, parse_point(args.point))
     acc_over = {}
     for item in filter(None, (s.strip() for s in args.accuracy.split(","))):
@@ -68,14 +70,57 @@ def run(args: argparse.Namespace) -> int:
     with RawStore.create(args.output, overwrite=args.overwrite, **codec.create_kwargs()) as out:
         out.set_attrs(generator="metraw.emulate", source=str(args.source), target=target.to_dict(), mode=mode,
                       seed=seed, edge=args.edge, accuracy=accuracy.to_dict(), **codec.attrs())
-        for i in progress_bar(range(n), total=n, desc="emulate"):
-            rng = np.random.Generator(np.random.PCG64([seed, i]))
-            img = emulate(source[i], target, mode=mode, seed=rng, accuracy=accuracy, edge=args.edge)
-            img.provenance[-1]["params"]["seed"] = [seed, i]
+        job = _Job(str(args.source), target, mode, seed, accuracy, args.edge)
+        for img in progress_bar(_emulated(job, n, args.workers), total=n, desc="emulate"):
             mean_e.append(img.meta["emulation"]["mean_signal_e"])
             out.append(codec.mark(img))
             ratio = img.meta["emulation"]["gsd_ratio"]
     dt = time.perf_counter() - t0
     print(f"metraw emulate: {n} images -> {args.output} in {dt:.1f} s ({dt / n:.3f} s/image); GSD ratio {ratio:.3g}, "
-          f"mean signal {np.mean(mean_e):.3g} e- per target pixel, mode {mode}")
+          f"mean signal {np.mean(mean_e):.3g} e- per target pixel, mode {mode}, {args.workers} workers")
     return 0
+
+
+class _Job:
+    """Emulation of image i of a source store (picklable; each process opens the store once)."""
+
+    def __init__(self, source: str, target, mode: str, seed: int, accuracy, edge: str):
+        self.source, self.target, self.mode, self.seed, self.accuracy, self.edge = source, target, mode, seed, accuracy, edge
+        self._store = None
+
+    def __getstate__(self):
+        return {**self.__dict__, "_store": None}
+
+    def __call__(self, i: int):
+        import numpy as np
+
+        from metraw.emulate import emulate
+        from metraw.store import RawStore
+
+        if self._store is None:
+            self._store = RawStore.open(self.source)
+        rng = np.random.Generator(np.random.PCG64([self.seed, i]))  # image i: seed (seed, i), any worker count
+        img = emulate(self._store[i], self.target, mode=self.mode, seed=rng, accuracy=self.accuracy, edge=self.edge)
+        img.provenance[-1]["params"]["seed"] = [self.seed, i]
+        return img
+
+
+def _emulated(job: _Job, n: int, workers: int):
+    """Images 0 .. n-1 in order; ``workers`` > 1 emulates them in forked processes (imap keeps the order)."""
+    if workers <= 1 or n <= 1:
+        for i in range(n):
+            yield job(i)
+        return
+    import multiprocessing as mp
+    import os
+
+    from metraw import codec
+
+    ctx = mp.get_context("fork" if os.name == "posix" else "spawn")
+    threads = codec.THREADS
+    codec.THREADS = 1  # each process decodes its source images on one thread: the processes fill the cores
+    try:
+        with ctx.Pool(min(workers, n)) as pool:
+            yield from pool.imap(job, range(n), chunksize=4)
+    finally:
+        codec.THREADS = threads
