@@ -227,6 +227,15 @@ def test_emulated_dataset_is_deterministic_and_trains_with_workers(small_source)
         EmulatedDataset(small_source, range(4), {"diameter_m": [0.5, 0.1]}, params)
     model, rec = fit_emulated(ds, _cfg(epochs=1, batch_size=2), workers=2, device="cpu", progress=False)
     assert rec["steps"] == 2 and np.isfinite(rec["loss_per_epoch"][0])
+    # preloaded sources (decoded once, shared with forked workers): the same items and the same training
+    import pickle
+
+    pre = EmulatedDataset(small_source, range(4), box, params, crop_px=16, seed=3).preload()
+    assert sorted(pre._preloaded) == [0, 1, 2, 3] and pickle.loads(pickle.dumps(pre))._preloaded == {}
+    xp, yp = pre[1]
+    assert np.array_equal(x, xp) and np.array_equal(y, yp)
+    _, rec_pre = fit_emulated(pre, _cfg(epochs=1, batch_size=2), workers=2, device="cpu", progress=False)
+    assert rec_pre["loss_per_epoch"] == rec["loss_per_epoch"]
 
 
 def test_pool_factor_follows_ground_sampling_and_keeps_the_grid():
