@@ -56,19 +56,21 @@ def frames():
     return out
 
 
-def side_by_side(fns, reps=9, cpu=False, samples=False):
+def side_by_side(fns, reps=9, cpu=False, samples=False, batch=1):
     """Median wall times [s] of several functions, run interleaved (same load for each); with
     ``cpu=True`` also the median process CPU times [s] (all threads): returns (walls, cpus).
-    ``samples=True``: the lists of times instead of their medians."""
+    ``samples=True``: the lists of times instead of their medians. ``batch``: each sample is the
+    mean over that many consecutive calls (throughput: a codec writing a stream of frames)."""
     ts = [[] for _ in fns]
     cs = [[] for _ in fns]
     for _ in range(reps):
         for t_list, c_list, fn in zip(ts, cs, fns):
             c = time.process_time()
             t = time.perf_counter()
-            fn()
-            t_list.append(time.perf_counter() - t)
-            c_list.append(time.process_time() - c)
+            for _ in range(batch):
+                fn()
+            t_list.append((time.perf_counter() - t) / batch)
+            c_list.append((time.process_time() - c) / batch)
     if samples:
         return (ts, cs) if cpu else ts
     walls = [float(np.median(t)) for t in ts]
@@ -171,6 +173,10 @@ def err_stats(img, dec_data, step_for_sigma=None):
 
 
 SPEED_REPS = 21
+#: Consecutive calls per sample (throughput, as when a store writes a stream of frames). On this VM an idle
+#: core takes milliseconds to wake: a 2-thread call right after ~20 ms of single-threaded JPEG-LS work runs
+#: its second tile late (spacenet_pan, 8 ms: 12.8 ms after a 50 ms pause, 7.9 ms back to back).
+SPEED_BATCH = 5
 
 
 def speed_main() -> int:
@@ -180,7 +186,7 @@ def speed_main() -> int:
     metraw encode/decode on 2 threads, then on 1 thread, each next to CharLS. A spell in which the
     shared machine gives this process one core then hits every case alike instead of one row."""
     print(f"# load: {os.getloadavg()} at the start (2 cores); medians of {SPEED_REPS} rounds, all cases "
-          "round-robin, each interleaved with JPEG-LS (CharLS)")
+          f"round-robin, each interleaved with JPEG-LS (CharLS); a sample = mean of {SPEED_BATCH} consecutive calls")
     print(f"{'frame':12s} {'q':>4s} {'bpp':>6s} {'enc ms':>7s} {'dec ms':>7s} {'jls e':>6s} {'jls d':>6s} "
           f"{'wall2 e':>7s} {'wall2 d':>7s} | {'cpu1 ms e':>9s} {'cpu1 ms d':>9s} {'jls e':>6s} {'jls d':>6s} "
           f"{'cpu1 e':>6s} {'cpu1 d':>6s} {'par e':>5s} {'par d':>5s} {'won e':>5s} {'won d':>5s}")
@@ -207,7 +213,7 @@ def speed_main() -> int:
                            lambda: imagecodecs.jpegls_encode(d), lambda: imagecodecs.jpegls_decode(jl)]
                     for nthreads, walls, cpus in ((threads, smp[0], smp[1]), (1, None, smp[2])):
                         codec.THREADS = nthreads
-                        w, c = side_by_side(fns, reps=1, cpu=True, samples=True)
+                        w, c = side_by_side(fns, reps=1, cpu=True, samples=True, batch=SPEED_BATCH)
                         for k in range(4):
                             if walls is not None:
                                 walls[k] += w[k]

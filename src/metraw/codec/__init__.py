@@ -41,28 +41,24 @@ TILES = 2
 MISMATCH_TOLERANCE = 0.2
 
 
-_POOL: ThreadPoolExecutor | None = None
-_POOL_THREADS = 0
+_POOLS: dict[int, ThreadPoolExecutor] = {}
 _POOL_LOCK = threading.Lock()
 
 
 def _pool() -> ThreadPoolExecutor:
-    """The module's worker threads (``THREADS`` of them), started once and reused: starting a pool
-    per call costs ~0.3 ms of CPU, a few per cent of a small frame's coding time. Re-created after
-    a fork (the child has no threads) or when ``THREADS`` changes."""
-    global _POOL, _POOL_THREADS
+    """The module's worker threads (``THREADS`` of them), started once per thread count and reused:
+    starting a pool per call costs ~0.3 ms of CPU, a few per cent of a small frame's coding time, and
+    fresh threads run their first tiles slower. Forgotten after a fork (the child has no threads)."""
     with _POOL_LOCK:
-        if _POOL is None or _POOL_THREADS != THREADS:
-            if _POOL is not None:
-                _POOL.shutdown(wait=False)
-            _POOL = ThreadPoolExecutor(THREADS, thread_name_prefix="metraw-codec")
-            _POOL_THREADS = THREADS
-        return _POOL
+        pool = _POOLS.get(THREADS)
+        if pool is None:
+            pool = _POOLS[THREADS] = ThreadPoolExecutor(THREADS, thread_name_prefix=f"metraw-codec{THREADS}")
+        return pool
 
 
 def _forget_pool_after_fork() -> None:
-    global _POOL, _POOL_LOCK
-    _POOL = None
+    global _POOL_LOCK
+    _POOLS.clear()
     _POOL_LOCK = threading.Lock()
 
 
