@@ -59,13 +59,16 @@ def test_spec_yaml_round_trip(tmp_path):
         Specification.load(tmp_path / "none.yaml")
 
 
+NOMINAL = {"altitude_m": H, "pixel_pitch_m": PITCH, "focal_length_m": 1.644, "diameter_m": 0.2,
+           "exposure_s": 180e-6, "ground_speed_m_per_s": SPEED, "obscuration_ratio": 0.3, "cfa_pattern": "RGGB"}
+
+
 def _tol(name, opt, lo, hi):
     return Tolerance(name, opt, 0.7, 0.65, lo, hi, "requirement", "sampled_range", False, False, lo, hi, True)
 
 
 def test_build_spec_maps_parameters_to_image_properties():
-    nominal = {"altitude_m": H, "pixel_pitch_m": PITCH, "focal_length_m": 1.644, "diameter_m": 0.2,
-               "exposure_s": 180e-6, "ground_speed_m_per_s": SPEED, "obscuration_ratio": 0.3, "cfa_pattern": "RGGB"}
+    nominal = dict(NOMINAL)
     tols = {"focal_length_m": _tol("focal_length_m", 1.644, 1.2, 2.0), "diameter_m": _tol("diameter_m", 0.35, 0.15, 0.5),
             "exposure_s": _tol("exposure_s", 180e-6, 100e-6, 300e-6)}
     spec = build_spec(tols, nominal, 0.6, {"median": 70.0, "p05": 40.0, "p95": 120.0})
@@ -245,8 +248,7 @@ def test_thinning_uses_the_light_ratio_of_the_geometry():
 def test_optimum_signal_above_the_sampled_range_is_clipped_and_thinning_targets_it():
     # optimal D and t at their sampled maxima: the optimum combines both (10.4x nominal light), a
     # corner the one-at-a-time lines never reach (max 6.25x): optimal = max, light_scale = 6.25 / 10.4
-    nominal = {"altitude_m": H, "pixel_pitch_m": PITCH, "focal_length_m": 1.644, "diameter_m": 0.2,
-               "exposure_s": 180e-6, "ground_speed_m_per_s": SPEED, "obscuration_ratio": 0.3, "cfa_pattern": "RGGB"}
+    nominal = dict(NOMINAL)
     tols = {"focal_length_m": _tol("focal_length_m", 1.644, 1.2, 2.0), "diameter_m": _tol("diameter_m", 0.5, 0.15, 0.5),
             "exposure_s": _tol("exposure_s", 300e-6, 100e-6, 300e-6)}
     spec = build_spec(tols, nominal, 0.6, {"median": 70.0, "p05": 40.0, "p95": 80.0})
