@@ -186,6 +186,9 @@ def _poly_otf_table(band, diameter, obscuration, altitude, n_lambda, f_max):
     return f, otf
 
 
+_GUIDE_BINS = 1 << 16  # guide table of the inverse encircled energy (photon chain): O(1) start of a lookup
+
+
 @lru_cache(maxsize=16)
 def _ee_table(obscuration: float, v_max: float):
     """Encircled-energy table of the annulus PSF in v = pi D theta / lambda (trapezoid, fine grid).
@@ -200,9 +203,11 @@ def _ee_table(obscuration: float, v_max: float):
     ee = np.concatenate(([0.0], np.cumsum(0.5 * (integrand[1:] + integrand[:-1]) * np.diff(v))))
     tail = 2.0 / (math.pi * v_max * (1.0 - obscuration))  # asymptotic 1 - EE(v_max)
     ee *= (1.0 - tail) / ee[-1]
-    v.flags.writeable = False
-    ee.flags.writeable = False
-    return {"v": v, "ee": ee, "tail": tail, "v_max": v_max, "obscuration": obscuration}
+    # guide[k] = last node j with ee[j] <= k / _GUIDE_BINS: each inverse lookup bisects a short range
+    guide = np.clip(np.searchsorted(ee, np.arange(_GUIDE_BINS + 1) / _GUIDE_BINS, side="right") - 1, 0, ee.size - 2)
+    for a in (v, ee, guide):
+        a.flags.writeable = False
+    return {"v": v, "ee": ee, "tail": tail, "v_max": v_max, "guide": guide}
 
 
 def _plan_key(profile, shape, target, acc, edge) -> str:
@@ -500,19 +505,6 @@ def _expected(cells: dict[str, np.ndarray], plan, target, fourier) -> np.ndarray
     return np.maximum(out, 0.0)
 
 
-_GUIDE_BINS = 1 << 16  # guide table of the inverse encircled energy: O(1) start of each lookup
-
-
-@lru_cache(maxsize=16)
-def _ee_guide(obscuration: float, v_max: float) -> np.ndarray:
-    """guide[k] = last table node j with ee[j] <= k / _GUIDE_BINS (so a lookup bisects a short range)."""
-    ee = _ee_table(obscuration, v_max)["ee"]
-    g = np.searchsorted(ee, np.arange(_GUIDE_BINS + 1) / _GUIDE_BINS, side="right") - 1
-    g = np.clip(g, 0, ee.size - 2).astype(np.int64)
-    g.flags.writeable = False
-    return g
-
-
 @nb.njit(cache=True, nogil=True)
 def _land_photons(src_idx, bw, block, clamp_w, clamp_h, ux, uy, ul, upsf, uphi, usm, jx, jy,
                   lo, hi, v_scale, ee, vt, guide, v_max, tail, smear_x, smear_y, reflect, wm, hm,
@@ -598,7 +590,6 @@ def _photons(cells: dict[str, np.ndarray], plan: EmulationPlan, target, rng) -> 
     gt = plan.target_gsd_m
     chunk = 1 << 22
     table = plan.psf_table
-    guide = _ee_guide(table["obscuration"], table["v_max"])
     empty = np.empty(0)
     for c, e in cells.items():
         e = np.maximum(e, 0.0)
@@ -627,7 +618,7 @@ def _photons(cells: dict[str, np.ndarray], plan: EmulationPlan, target, rng) -> 
             jy = rng.normal(0.0, plan.jitter_m, n) if plan.jitter_m > 0 else empty
             _land_photons(idx, bw, block, Wm * (1 - 1e-12) if B > 1 else 0.0, Hm * (1 - 1e-12) if B > 1 else 0.0,
                           ux, uy, ul, upsf, uphi, usm, jx, jy, lo, hi,
-                          plan.altitude_m / (math.pi * plan.diameter_m), table["ee"], table["v"], guide,
+                          plan.altitude_m / (math.pi * plan.diameter_m), table["ee"], table["v"], table["guide"],
                           table["v_max"], table["tail"], plan.smear_m * math.cos(plan.smear_angle_rad),
                           plan.smear_m * math.sin(plan.smear_angle_rad), plan.edge == "reflect", Wm, Hm,
                           plan.centre_m[0], plan.centre_m[1], c_r, s_r, gt, wt, ht, det_flat, out)
