@@ -106,21 +106,14 @@ class _Job:
 
 
 def _emulated(job: _Job, n: int, workers: int):
-    """Images 0 .. n-1 in order; ``workers`` > 1 emulates them in forked processes (imap keeps the order)."""
-    if workers <= 1 or n <= 1:
-        for i in range(n):
-            yield job(i)
-        return
-    import multiprocessing as mp
-    import os
-
+    """Images 0 .. n-1 in order; ``workers`` > 1 emulates them in worker processes."""
     from metraw import codec
+    from metraw.parallel import ordered_map
 
-    ctx = mp.get_context("fork" if os.name == "posix" else "spawn")
     threads = codec.THREADS
-    codec.THREADS = 1  # each process decodes its source images on one thread: the processes fill the cores
+    if workers > 1:
+        codec.THREADS = 1  # each process decodes its source images on one thread: the processes fill the cores
     try:
-        with ctx.Pool(min(workers, n)) as pool:
-            yield from pool.imap(job, range(n), chunksize=4)
+        yield from ordered_map(job, range(n), workers, chunksize=4)
     finally:
         codec.THREADS = threads

@@ -9,13 +9,13 @@ so any subset can be regenerated in any order, in any number of processes, bit f
 
 from __future__ import annotations
 
-import os
 from typing import Iterator, Sequence
 
 import numpy as np
 
 from metraw.errors import MetrawError
 from metraw.image import RawImage
+from metraw.parallel import ordered_map
 from metraw.profile import CalibrationProfile
 from metraw.scenes.layout import KINDS, make_scene
 from metraw.scenes.render import RenderSettings, render
@@ -86,12 +86,4 @@ def generate(n: int, seed: int, size_px: int = 1024, camera: CalibrationProfile 
     if not kinds or bad:
         raise MetrawError(f"kinds must be a non-empty subset of {', '.join(KINDS)}; got {', '.join(kinds) or 'none'}")
     jobs = [(start + i, seed, size_px, camera, kinds, settings) for i in range(n)]
-    if workers <= 1 or n <= 1:
-        for job in jobs:
-            yield _worker(job)
-        return
-    import multiprocessing as mp
-
-    ctx = mp.get_context("fork" if os.name == "posix" else "spawn")
-    with ctx.Pool(min(workers, n)) as pool:
-        yield from pool.imap(_worker, jobs, chunksize=1)
+    yield from ordered_map(_worker, jobs, workers)
