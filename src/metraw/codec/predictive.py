@@ -327,20 +327,22 @@ def _normalise(counts):
 def _decode_pixel(p, yy, xx, uv, thr, coef, bias, tab0, pshift, lut, fcum, amax, words, x, pos, pmin, esc, epos, eend):
     """Decode pixel (yy, xx) of the padded buffer ``p`` from one lane; returns (symbol, x, pos, epos, ok)."""
     half = np.int64(1 << 15)
-    r0 = p[yy]
-    r1 = p[yy - 1]
-    r2 = p[yy - 2]
-    w_ = r0[xx - 1]
-    n_ = r1[xx]
-    nw = r1[xx - 1]
-    act = abs(w_ - nw) + abs(n_ - nw) + abs(n_ - r1[xx + 1]) + abs(w_ - r0[xx - 2]) + abs(n_ - r2[xx])
+    # direct 2-D indexing: a row view (p[yy]) would cost a reference-count update per pixel
+    w_ = p[yy, xx - 1]
+    n_ = p[yy - 1, xx]
+    nw = p[yy - 1, xx - 1]
+    ne = p[yy - 1, xx + 1]
+    ww = p[yy, xx - 2]
+    nn = p[yy - 2, xx]
+    act = abs(w_ - nw) + abs(n_ - nw) + abs(n_ - ne) + abs(w_ - ww) + abs(n_ - nn)
     c = ((act > thr[0]) + (act > thr[1]) + (act > thr[2]) + (act > thr[3]) + (act > thr[4]) + (act > thr[5])
          + (act > thr[6]))
     o = c * 12
     # sum_i k_i (n_i - W) = sum_i k_i n_i - W sum_i k_i (exact integers: the encoder's value)
-    acc = (coef[o] * n_ + coef[o + 1] * nw + coef[o + 2] * r1[xx + 1] + coef[o + 3] * r0[xx - 2] + coef[o + 4] * r2[xx]
-           + coef[o + 5] * r1[xx - 2] + coef[o + 6] * r2[xx - 1] + coef[o + 7] * r2[xx + 1] + coef[o + 8] * r1[xx + 2]
-           + coef[o + 9] * r2[xx - 2] + coef[o + 10] * r2[xx + 2] - coef[o + 11] * w_)
+    acc = (coef[o] * n_ + coef[o + 1] * nw + coef[o + 2] * ne + coef[o + 3] * ww + coef[o + 4] * nn
+           + coef[o + 5] * p[yy - 1, xx - 2] + coef[o + 6] * p[yy - 2, xx - 1] + coef[o + 7] * p[yy - 2, xx + 1]
+           + coef[o + 8] * p[yy - 1, xx + 2] + coef[o + 9] * p[yy - 2, xx - 2] + coef[o + 10] * p[yy - 2, xx + 2]
+           - coef[o + 11] * w_)
     mh = w_ + (acc >> 12) + bias[c] + uv + half
     sh = mh >> 16
     fr = mh & 0xFFFF
@@ -355,13 +357,13 @@ def _decode_pixel(p, yy, xx, uv, thr, coef, bias, tab0, pshift, lut, fcum, amax,
     x = (x << (need << np.uint64(4))) | (np.uint64(words[pos]) * need)
     pos -= np.int64(need)
     ok = pos >= pmin
-    if s == 2 * amax + 1:
-        if epos >= eend:
-            return sh, x, pos, epos, False
-        r = np.int64(esc[epos])
-        epos += 1
-    else:
-        r = s - amax
+    # escape: the residual is the lane's next escape value. Branch-free (a branch here makes numba count
+    # references to ``esc`` and ``p`` per pixel): esc[epos] is always readable (``esc`` ends with a pad)
+    is_esc = s == 2 * amax + 1
+    ev = np.int64(esc[epos])
+    r = ev if is_esc else s - amax
+    ok = ok & ((epos < eend) | (not is_esc))
+    epos += np.int64(is_esc)
     v = sh + ((r ^ -f) + f)
     p[yy, xx] = (v << 16) - uv
     return v, x, pos, epos, ok
@@ -831,7 +833,8 @@ def _decode(mv: memoryview, dithers: list[np.ndarray], outs) -> list[np.ndarray]
         words[pmin[j] + 1:pmin[j] + 1 + n] = np.frombuffer(mv, "<u2", n, off)
         off += 2 * n
     nesc = [ln[2] for ln in lanes]
-    esc = np.frombuffer(mv, "<i4", int(sum(nesc)), off).astype(np.int32)
+    esc = np.zeros(int(sum(nesc)) + 1, np.int32)  # + a pad: ``_decode_pixel`` reads esc[epos] unconditionally
+    esc[:-1] = np.frombuffer(mv, "<i4", int(sum(nesc)), off)
     epos = np.concatenate([[0], np.cumsum(nesc)[:-1]]).astype(np.int64)
     eend = epos + np.array(nesc, np.int64)
     xs = np.array([ln[0] for ln in lanes], np.uint64)
