@@ -597,48 +597,132 @@ def _plane_symbol_bits(idx, tab, freq, bounds, esc_i):
     return out
 
 
-def _thresholds(sample: np.ndarray, nact: int) -> np.ndarray:
-    """nact - 1 activity thresholds (multiples of 256, at quantiles of ``sample``), padded with +inf."""
-    if nact == 1:
-        return np.empty(0, np.int64)
-    q = np.quantile(sample, np.linspace(0, 1, nact + 1)[1:-1], method="lower").astype(np.int64)
-    q = np.minimum(q >> 8, 0xFFFFFFFE)
-    thr = np.unique(q) << 8
-    return np.concatenate([thr, np.full(nact - 1 - thr.size, 0xFFFFFFFF << 8, np.int64)])
+@nb.njit(cache=True, nogil=True)
+def _thresholds(sample, nact):
+    """nact - 1 activity thresholds (multiples of 256 at the 'lower' sample quantiles k / nact of
+    ``sample``, duplicates removed), padded with 0xFFFFFFFF 2^8."""
+    thr = np.full(nact - 1, np.int64(0xFFFFFFFF) << 8)
+    n = sample.size
+    if nact == 1 or n == 0:
+        return thr
+    srt = np.sort(sample)
+    q = np.empty(nact - 1, np.int64)
+    for k in range(1, nact):
+        q[k - 1] = min(srt[((n - 1) * k) // nact] >> 8, np.int64(0xFFFFFFFE))
+    uq = np.unique(q)
+    thr[:uq.size] = uq << 8
+    return thr
 
 
-def _fit(ata: np.ndarray, atb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per-context least-squares coefficients (int16, COEF_BITS) and bias (int32, FRAC bits).
+@nb.njit(cache=True, nogil=True)
+def _fit(ata, atb):
+    """Per-context least-squares coefficients (``COEF_BITS`` fixed point, nact x 11 flat) and bias
+    (``FRAC`` bits) from the lower triangles of X^T X and X^T t (``_normal_equations``).
 
     A context with fewer than ``MIN_FIT`` samples, or a solution that is not finite or has a
-    coefficient outside int16 range, gets the default predictor (W + N) / 2."""
+    coefficient of magnitude >= 7.9, gets the default predictor (W + N) / 2."""
     nact = ata.shape[0]
-    reg = ata + 1e-6 * np.eye(NTAP)
-    try:
-        full = np.linalg.solve(reg, atb[..., None])[..., 0]  # all contexts in one call
-    except np.linalg.LinAlgError:  # one singular system: solve them one by one
-        full = np.full((nact, NTAP), np.nan)
-        for c in range(nact):
-            try:
-                full[c] = np.linalg.solve(reg[c], atb[c])
-            except np.linalg.LinAlgError:
-                pass
-    ok = ((ata[:, -1, -1] >= MIN_FIT) & np.all(np.isfinite(full), 1)
-          & np.all(np.abs(np.nan_to_num(full[:, :-1], nan=8.0)) < 7.9, 1))
-    sol = np.zeros((nact, NTAP - 1))
-    sol[:, 0] = 0.5  # (W + N) / 2 when a context has too few samples
-    sol[ok] = full[ok, :-1]
-    b = np.where(ok, np.clip(np.nan_to_num(full[:, -1]), -16000, 16000), 0.0)
-    coef = np.rint(sol * (1 << COEF_BITS)).astype(np.int64)
-    bias = np.array([int(round(v * (1 << FRAC))) for v in b.tolist()], np.int64)
+    coef = np.zeros(nact * (NTAP - 1), np.int64)
+    bias = np.zeros(nact, np.int64)
+    reg = np.empty((NTAP, NTAP))
+    for c in range(nact):
+        for i in range(NTAP):
+            for j in range(i + 1):
+                reg[i, j] = ata[c, i, j]
+                reg[j, i] = ata[c, i, j]
+            reg[i, i] += 1e-6
+        try:
+            sol = np.linalg.solve(reg, atb[c].copy())
+        except Exception:  # singular (cannot happen for a Gram matrix + 1e-6 I, but never fail the encode)
+            sol = np.full(NTAP, np.nan)
+        ok = ata[c, NTAP - 1, NTAP - 1] >= MIN_FIT
+        for i in range(NTAP):
+            ok &= np.isfinite(sol[i])
+        for i in range(NTAP - 1):
+            ok &= abs(sol[i]) < 7.9
+        if ok:
+            for i in range(NTAP - 1):
+                coef[c * (NTAP - 1) + i] = np.int64(np.rint(sol[i] * (1 << COEF_BITS)))
+            bias[c] = np.int64(np.rint(min(max(sol[NTAP - 1], -16000.0), 16000.0) * (1 << FRAC)))
+        else:
+            coef[c * (NTAP - 1)] = 1 << (COEF_BITS - 1)  # (W + N) / 2 when a context has too few samples
     return coef, bias
 
 
-def _quantise_tables(freq: np.ndarray) -> np.ndarray:
-    """8-bit table storage for small tiles: frequencies / 16, rounded, >= 1 where used. Both
-    sides code with ``_normalise`` of these values (the same integer function)."""
-    q8 = np.where(freq > 0, np.clip((freq + 8) >> 4, 1, 255), 0)
-    return q8
+@nb.njit(cache=True, nogil=True)
+def _model_plane(s, u, nact, stride):
+    """One plane's causal buffer and model in one compiled call (no GIL): returns (front, c0, thr,
+    coef, bias). ``stride``: the least-squares sampling lattice (activities on twice that)."""
+    c0 = np.int64(np.rint(_sum(s) / s.size)) if s.size else np.int64(0)
+    front = _front(s, u, c0 << 16)
+    thr = _thresholds(_activity_samples(front, 2 * stride), nact)
+    ata = np.zeros((nact, NTAP, NTAP))
+    atb = np.zeros((nact, NTAP))
+    _normal_equations(front, thr, stride, ata, atb)
+    coef, bias = _fit(ata, atb)
+    return front, c0, thr, coef, bias
+
+
+@nb.njit(cache=True, nogil=True)
+def _code_section(r, t, amax, ntab, shared, hs, ws, nl):
+    """Entropy-code the residuals ``r`` with table indices ``t`` (planes concatenated row-major,
+    shapes ``hs`` x ``ws``) in ``nl`` rANS lanes, in one compiled call. Shared sections code with
+    8-bit tables (frequencies / 16, ``_normalise``d again; both sides use the same integers).
+
+    Returns (idx, coding freq, stored tables, table bytes, bytes per table, lane states, lane word
+    counts, words, word starts per lane, escape values, escapes per lane)."""
+    idx, counts = _index(r, t, amax, ntab)
+    freq = _normalise(counts)
+    stored = freq
+    if shared:
+        stored = np.zeros_like(freq)
+        for i in range(freq.shape[0]):
+            for j in range(freq.shape[1]):
+                if freq[i, j] > 0:
+                    stored[i, j] = min(max((freq[i, j] + 8) >> 4, 1), 255)
+        freq = _normalise(stored)
+    ntab_, alpha = freq.shape
+    cum = np.zeros((ntab_, alpha), np.int64)
+    rcp = np.empty((ntab_, alpha))
+    for i in range(ntab_):
+        acc = np.int64(0)
+        for j in range(alpha):
+            cum[i, j] = acc
+            acc += freq[i, j]
+            rcp[i, j] = 1.0 / max(freq[i, j], 1)
+    rs, rl, lr, starts = _lane_rows(hs, ws, nl)
+    out = np.empty(max(r.size, 1), np.uint16)
+    states, nws = _rans_encode(idx, t, freq, cum, rcp, rs, rl, lr, starts, out)
+    esc_vals, esc_cnt = _lane_escapes(r, idx, rs, rl, lr, 2 * amax + 1)
+    # tables: u16 first, u16 span, then the used range (u8 or u16 little endian); unused: span 0
+    width = 1 if shared else 2
+    tab_bytes = np.zeros(ntab_ * (4 + width * alpha), np.uint8)
+    tab_len = np.zeros(ntab_, np.int64)
+    n = 0
+    for i in range(ntab_):
+        first = 0
+        while first < alpha and stored[i, first] == 0:
+            first += 1
+        last = alpha - 1
+        while last >= first and stored[i, last] == 0:
+            last -= 1
+        span = last - first + 1 if first < alpha else 0
+        start = n
+        if span == 0:
+            first = 0
+        tab_bytes[n] = first & 0xFF
+        tab_bytes[n + 1] = first >> 8
+        tab_bytes[n + 2] = span & 0xFF
+        tab_bytes[n + 3] = span >> 8
+        n += 4
+        for j in range(first, first + span):
+            v = stored[i, j]
+            tab_bytes[n] = v & 0xFF
+            if width == 2:
+                tab_bytes[n + 1] = v >> 8
+            n += width
+        tab_len[i] = n - start
+    return idx, freq, stored, tab_bytes[:n], tab_len, states, nws, out, starts, esc_vals, esc_cnt
 
 
 def encode_planes(planes: list[tuple[np.ndarray, np.ndarray]], account: list | None = None) -> bytes:
@@ -669,92 +753,85 @@ def encode_planes(planes: list[tuple[np.ndarray, np.ndarray]], account: list | N
     return best
 
 
+def _ls_stride(npix: int) -> int:
+    """Least-squares sampling stride for a group of ``npix`` pixels: ~``LS_SAMPLES`` samples for
+    12 x nact unknowns. Odd, so that even and odd rows are sampled (sensors with row-pair offsets,
+    e.g. MicaSense, bias a fit on even rows only)."""
+    return 2 * int(np.sqrt(npix / LS_SAMPLES) / 2) + 1
+
+
 def _encode_planes(planes, shared: bool, nact: int, pshift: int, account: list | None = None) -> bytes:
+    """One section with the given model layout. The numerical work runs in a few compiled calls that
+    release the GIL (per plane ``_model_plane`` and ``_residuals``, then ``_code_section``), so row
+    tiles coded in parallel threads seldom wait for each other."""
     npl = len(planes)
     total = sum(s.size for s, _ in planes)
-    groups = [list(range(npl))] if shared else [[k] for k in range(npl)]
     nph = NPH >> pshift
-    fronts, c0s = [], []
-    for s, u in planes:
-        c0 = int(np.rint(_sum(s) / s.size)) if s.size else 0
-        c0s.append(c0)
-        fronts.append(_front(s, u, np.int64(c0) << 16))
-    ngroup = len(groups)
-    ntab = ngroup * nact * nph
+    ntab = (1 if shared else npl) * nact * nph
     r_all = np.empty(total, np.int32)
     t_all = np.empty(total, np.int32)
-    group_heads = []
-    off = 0
+    c0s, group_heads = [], []
     rmax = 0
-    for gi, g in enumerate(groups):
-        npix = sum(planes[k][0].size for k in g)
-        # ~LS_SAMPLES samples for 12 x nact unknowns; an odd stride samples even and odd rows (sensors
-        # with row-pair offsets, e.g. MicaSense, bias a fit on even rows only)
-        stride = 2 * int(np.sqrt(npix / LS_SAMPLES) / 2) + 1
-        acts = np.concatenate([_activity_samples(fronts[k], 2 * stride) for k in g])
-        thr = _thresholds(acts, nact)
+    if shared:  # one model for all planes: activities and normal equations pooled over the planes
+        stride = _ls_stride(total)
+        fronts = []
+        for s, u in planes:
+            c0 = int(np.rint(_sum(s) / s.size))
+            c0s.append(c0)
+            fronts.append(_front(s, u, np.int64(c0) << 16))
+        thr = _thresholds(np.concatenate([_activity_samples(f, 2 * stride) for f in fronts]), nact)
         ata = np.zeros((nact, NTAP, NTAP))
         atb = np.zeros((nact, NTAP))
-        for k in g:
-            _normal_equations(fronts[k], thr, stride, ata, atb)
-        ata = np.tril(ata) + np.transpose(np.tril(ata, -1), (0, 2, 1))
+        for f in fronts:
+            _normal_equations(f, thr, stride, ata, atb)
         coef, bias = _fit(ata, atb)
-        for k in g:
-            rmax = max(rmax, int(_residuals(planes[k][0], fronts[k], thr, coef.reshape(-1), bias,
-                                            gi * nact * nph, pshift, r_all, t_all, off)))
-            off += planes[k][0].size
+        models = [(f, thr, coef, bias, 0) for f in fronts]
+    else:
+        models = []
+        for k, (s, u) in enumerate(planes):
+            front, c0, thr, coef, bias = _model_plane(s, u, nact, _ls_stride(s.size))
+            c0s.append(int(c0))
+            models.append((front, thr, coef, bias, k * nact * nph))
+    off = 0
+    for (s, _), (front, thr, coef, bias, tab0) in zip(planes, models):
+        rmax = max(rmax, int(_residuals(s, front, thr, coef, bias, tab0, pshift, r_all, t_all, off)))
+        off += s.size
+    for _, thr, coef, bias, _ in models[:1] if shared else models:
         group_heads.append((thr >> 8).astype("<u4").tobytes() + coef.astype("<i2").tobytes()
                            + np.clip(bias, -2**31, 2**31 - 1).astype("<i4").tobytes())
     amax = int(min(MAX_RESID, max(1, rmax)))
-    idx, counts = _index(r_all, t_all, amax, max(ntab, 1))
-    freq = _normalise(counts)
-    tabbits = 8 if shared else 16
-    if shared:
-        q8 = _quantise_tables(freq)
-        freq = _normalise(q8)
-    cum = np.concatenate([np.zeros((freq.shape[0], 1), np.int64), np.cumsum(freq, 1)[:, :-1]], 1)
     nl = 1 if shared else LANES
-    rs, rl, lr, starts = _lane_rows(np.array([s.shape[0] for s, _ in planes], np.int64),
-                                    np.array([s.shape[1] for s, _ in planes], np.int64), nl)
-    out = np.empty(max(total, 1), np.uint16)
-    rcp = 1.0 / np.maximum(freq, 1)
-    states, nws = _rans_encode(idx, t_all, freq, cum, rcp, rs, rl, lr, starts, out)
-    esc_vals, esc_cnt = _lane_escapes(r_all, idx, rs, rl, lr, 2 * amax + 1)
-    used = freq > 0
-    firsts = np.argmax(used, 1).tolist()
-    lasts = (freq.shape[1] - 1 - np.argmax(used[:, ::-1], 1)).tolist()
-    stored = q8.astype("u1") if shared else freq.astype("<u2")
-    tables = []
-    for ti, used_any in enumerate(used.any(1).tolist()):
-        if not used_any:
-            tables.append(b"\0\0\0\0")  # struct.pack("<HH", 0, 0)
-            continue
-        first, last = firsts[ti], lasts[ti]
-        tables.append(struct.pack("<HH", first, last - first + 1) + stored[ti, first:last + 1].tobytes())
-    parts = [_HEAD.pack(npl, nact, pshift, int(shared), nl, tabbits, amax)]
+    (idx, freq, _, tab_bytes, tab_len, states, nws, out, starts, esc_vals,
+     esc_cnt) = _code_section(r_all, t_all, amax, max(ntab, 1), shared, np.array([s.shape[0] for s, _ in planes], np.int64),
+                              np.array([s.shape[1] for s, _ in planes], np.int64), nl)
+    parts = [_HEAD.pack(npl, nact, pshift, int(shared), nl, 8 if shared else 16, amax)]
     for j in range(nl):
         parts.append(struct.pack("<I", int(states[j])))
         put_varint(parts, int(nws[j]))
         put_varint(parts, int(esc_cnt[j]))
     for c0 in c0s:
         put_varint(parts, 2 * c0 if c0 >= 0 else -2 * c0 - 1)
-    parts += group_heads + tables
+    parts += group_heads
+    parts.append(tab_bytes.tobytes())
     parts += [out[starts[j]:starts[j] + nws[j]].astype("<u2").tobytes() for j in range(nl)]
     parts.append(esc_vals.astype("<i4").tobytes())
     blob = b"".join(parts)
     if account is not None:
-        account[:] = _account(planes, groups, idx, t_all, freq, 2 * amax + 1, group_heads, tables, nact * nph, len(blob))
+        groups = [list(range(npl))] if shared else [[k] for k in range(npl)]
+        account[:] = _account(planes, groups, idx, t_all, freq, 2 * amax + 1, group_heads, tab_len.tolist(),
+                              nact * nph, len(blob))
     return blob
 
 
 def _account(planes, groups, idx, t_all, freq, esc_i, group_heads, tables, tabs_per_group, nbytes) -> list[float]:
-    """Per-plane bits of a section (see ``encode_planes``); they sum to 8 ``nbytes``."""
+    """Per-plane bits of a section (see ``encode_planes``); they sum to 8 ``nbytes``. ``tables``: bytes
+    of each coding table as stored."""
     sizes = np.array([s.size for s, _ in planes], np.int64)
     bounds = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
     bits = _plane_symbol_bits(idx, t_all, freq, bounds, esc_i)
     side = np.zeros(len(planes))
     for gi, g in enumerate(groups):
-        gbits = 8.0 * (len(group_heads[gi]) + sum(len(t) for t in tables[gi * tabs_per_group:(gi + 1) * tabs_per_group]))
+        gbits = 8.0 * (len(group_heads[gi]) + sum(tables[gi * tabs_per_group:(gi + 1) * tabs_per_group]))
         gpix = sizes[g].sum()
         for k in g:
             side[k] += gbits * (sizes[k] / gpix if gpix else 1.0 / len(g))
