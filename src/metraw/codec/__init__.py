@@ -23,6 +23,7 @@ import threading
 import warnings
 from concurrent.futures import ThreadPoolExecutor
 
+import numba as nb
 import numpy as np
 
 from metraw.cfa import plane_offsets, cell_size
@@ -33,7 +34,7 @@ from metraw.profile import CalibrationProfile
 
 __all__ = ["encode", "decode", "ProfileMismatchWarning", "measured_noise_sigma", "THREADS"]
 
-#: Worker threads for tile-parallel coding (the numba kernels release the GIL).
+#: Threads for tile-parallel coding, the calling thread included (the numba kernels release the GIL).
 THREADS = 2
 #: Row tiles of frames with >= 256 rows (part of the format: fixed, so the bytes do not depend on THREADS).
 TILES = 2
@@ -46,14 +47,25 @@ _POOL_LOCK = threading.Lock()
 
 
 def _pool() -> ThreadPoolExecutor:
-    """The module's worker threads (``THREADS`` of them), started once per thread count and reused:
+    """The module's helper threads (``THREADS`` - 1 of them), started once per thread count and reused:
     starting a pool per call costs ~0.3 ms of CPU, a few per cent of a small frame's coding time, and
     fresh threads run their first tiles slower. Forgotten after a fork (the child has no threads)."""
     with _POOL_LOCK:
         pool = _POOLS.get(THREADS)
         if pool is None:
-            pool = _POOLS[THREADS] = ThreadPoolExecutor(THREADS, thread_name_prefix=f"metraw-codec{THREADS}")
+            pool = _POOLS[THREADS] = ThreadPoolExecutor(THREADS - 1, thread_name_prefix=f"metraw-codec{THREADS}")
         return pool
+
+
+def _map_tiles(fn, items: list) -> list:
+    """[fn(item) for item in items], on ``THREADS`` threads: the calling thread takes the first item
+    while the pool's helpers take the rest (one thread less to wake than handing every item to the
+    pool: on a small frame the wake-up of an idle core is a sizeable part of the run)."""
+    if THREADS <= 1 or len(items) <= 1:
+        return [fn(item) for item in items]
+    futures = [_pool().submit(fn, item) for item in items[1:]]
+    first = fn(items[0])
+    return [first] + [f.result() for f in futures]
 
 
 def _forget_pool_after_fork() -> None:
@@ -98,34 +110,54 @@ def _decode_tile(blob, u: np.ndarray, pattern: str) -> np.ndarray:
     return out
 
 
+@nb.njit(cache=True, nogil=True)
+def _hh_mean_abs_dev(symbols, cell, dys, dxs):
+    """(mean absolute deviation from the median, count) of the finest diagonal Haar (S-transform HH)
+    coefficients of the central 256 x 256 crop of each CFA plane (plane k: rows dys[k]::cell,
+    columns dxs[k]::cell). Compiled: no GIL, no temporary float copies of the crops."""
+    vals = np.empty(dys.size * 128 * 128, np.float64)
+    n = 0
+    for k in range(dys.size):
+        ph = (symbols.shape[0] - dys[k] + cell - 1) // cell
+        pw = (symbols.shape[1] - dxs[k] + cell - 1) // cell
+        if ph <= 0 or pw <= 0:
+            continue
+        y0, x0 = max(0, ph // 2 - 128), max(0, pw // 2 - 128)
+        h, w = min(256, ph - y0) // 2 * 2, min(256, pw - x0) // 2 * 2
+        if h < 2 or w < 2:
+            continue
+        for i in range(0, h, 2):
+            ra = dys[k] + (y0 + i) * cell
+            rb = ra + cell
+            for j in range(0, w, 2):
+                ca = dxs[k] + (x0 + j) * cell
+                cb = ca + cell
+                vals[n] = (np.float64(symbols[ra, ca]) - symbols[ra, cb]) - (np.float64(symbols[rb, ca]) - symbols[rb, cb])
+                n += 1
+    if n == 0:
+        return 0.0, 0
+    v = vals[:n]
+    med = np.median(v)
+    return np.mean(np.abs(v - med)), n
+
+
 def measured_noise_sigma(symbols: np.ndarray, pattern: str, step: float) -> float | None:
     """Noise sigma measured in the pixels, in units of the profile's sigma (1 = agreement).
 
-    Robust (MAD) estimate from the finest diagonal Haar band of each CFA plane: for white noise
-    of sigma s in transform units, symbols carry variance s^2 / q^2 + 1/6 (dither + rounding,
-    non-subtractive view) and the S-transform HH band has four times the pixel variance.
+    Robust estimate from the finest diagonal Haar band of each CFA plane (central 256 x 256 crop:
+    plenty for a 20 % consistency check): for white noise of sigma s in transform units, symbols
+    carry variance s^2 / q^2 + 1/6 (dither + rounding, non-subtractive view) and the S-transform HH
+    band has four times the pixel variance. The band's scale is its mean absolute deviation from
+    the median times sqrt(pi / 2) (Gaussian; the MAD itself is too coarse on integer data).
     Returns None when too few pixels.
     """
-    vals = []
-    step_c = cell_size(pattern)
-    for _, dy, dx in plane_offsets(pattern):
-        plane = symbols[dy::step_c, dx::step_c]
-        ph, pw = plane.shape  # a central 256 x 256 crop is plenty for a 20 % consistency check
-        y0, x0 = max(0, ph // 2 - 128), max(0, pw // 2 - 128)
-        plane = plane[y0:y0 + 256, x0:x0 + 256]
-        h, w = plane.shape[0] // 2 * 2, plane.shape[1] // 2 * 2
-        if h < 2 or w < 2:
-            continue
-        p = plane[:h, :w].astype(np.float64)
-        hh = (p[0::2, 0::2] - p[0::2, 1::2]) - (p[1::2, 0::2] - p[1::2, 1::2])
-        vals.append(hh.reshape(-1))
-    if not vals:
+    offsets = plane_offsets(pattern)
+    dys = np.array([dy for _, dy, _ in offsets], np.int64)
+    dxs = np.array([dx for _, _, dx in offsets], np.int64)
+    mad, n = _hh_mean_abs_dev(symbols, cell_size(pattern), dys, dxs)
+    if n < 256:
         return None
-    v = np.concatenate(vals)
-    if v.size < 256:
-        return None
-    # MAD of integer-valued data: use the mean absolute deviation of a Gaussian fit instead
-    var_hh = (np.mean(np.abs(v - np.median(v))) * math.sqrt(math.pi / 2)) ** 2
+    var_hh = (mad * math.sqrt(math.pi / 2)) ** 2
     var_pix = var_hh / 4.0 - 1.0 / 6.0
     return math.sqrt(max(var_pix, 0.0)) * step
 
@@ -167,16 +199,13 @@ def encode(image: RawImage, step: float = 1.0, seed: int = 0, check_profile: boo
         r0, r1 = tile
         u = prepare.dither(seed, r0 * w, (r1 - r0) * w).reshape(r1 - r0, w)
         sym = prepare.forward(data[r0:r1], prof, step, u)
+        # the profile check looks at the first row tile only (half the frame at most: plenty)
+        measured = measured_noise_sigma(sym, pattern, step) if check_profile and r0 == 0 else None
         acc = [] if account is not None else None
-        return sym, _encode_tile(sym, u, pattern, acc), acc
+        return _encode_tile(sym, u, pattern, acc), acc, measured
 
-    if len(tiles) == 1:
-        results = [work(tiles[0])]
-        esc = prepare.escape_mask(data, prof)
-    else:
-        futures = [_pool().submit(work, t) for t in tiles]
-        esc = prepare.escape_mask(data, prof)  # meanwhile, in this thread
-        results = [f.result() for f in futures]
+    results = _map_tiles(work, tiles)
+    esc = prepare.escape_mask(data, prof)
     idx = np.flatnonzero(esc)
     if idx.size:
         esc_idx = np.diff(idx, prepend=0).astype(np.int32)
@@ -184,12 +213,11 @@ def encode(image: RawImage, step: float = 1.0, seed: int = 0, check_profile: boo
     else:
         esc_blob = b""
     if check_profile:
-        r1 = tiles[0][1]  # the first row tile (half the frame at most) is enough for the check
-        _check_profile(results[0][0], esc[:r1], pattern, step)
+        _check_profile(results[0][2], esc[:tiles[0][1]])
     meta = ({"profile": prof.to_dict(), "provenance": image.provenance, "meta": image.meta}
             if embed_profile else None)
     header = container.Header((h, w), step, seed, tiles, meta)
-    blob = container.pack(header, [r[1] for r in results] + [esc_blob])
+    blob = container.pack(header, [r[0] for r in results] + [esc_blob])
     if account is not None:
         _account(account, blob, results, tiles, esc, esc_blob, pattern, w)
     return blob
@@ -206,7 +234,7 @@ def _account(account: dict, blob: bytes, results, tiles, esc: np.ndarray, esc_bl
     for c, dy, dx in plane_offsets(pattern):
         pix[c] += int(esc[dy::step_c, dx::step_c].size)
         nesc[c] += int(esc[dy::step_c, dx::step_c].sum())
-    for (r0, r1), (_, sec, acc) in zip(tiles, results):
+    for (r0, r1), (sec, acc, _) in zip(tiles, results):
         for c, b in zip(_plane_colours((r1 - r0, w), pattern), acc):
             bits[c] += b
     total_esc = sum(nesc.values())
@@ -221,10 +249,11 @@ def _account(account: dict, blob: bytes, results, tiles, esc: np.ndarray, esc_bl
     account["pixels"] = pix
 
 
-def _check_profile(sym: np.ndarray, esc: np.ndarray, pattern: str, step: float) -> None:
-    if esc.mean() > 0.5:
+def _check_profile(measured: float | None, esc: np.ndarray) -> None:
+    """Warn when the noise ``measured`` in a tile (``measured_noise_sigma``) contradicts the profile,
+    unless most of the tile's pixels are escapes (``esc``: saturated or below black)."""
+    if 2 * np.count_nonzero(esc) > esc.size:
         return
-    measured = measured_noise_sigma(sym, pattern, step)
     if measured is not None and abs(measured - 1.0) > MISMATCH_TOLERANCE:
         warnings.warn(
             f"profile contradicts the pixels: measured noise {measured:.3f} sigma vs claimed 1.000 sigma "
@@ -264,10 +293,7 @@ def decode(blob: bytes | memoryview, profile: CalibrationProfile | None = None) 
         sym = _decode_tile(sec, u, pattern)
         prepare.inverse_dn(sym, prof, step, u, out[r0:r1])
 
-    if len(tiles) == 1:
-        work((tiles[0], sections[0]))
-    else:
-        list(_pool().map(work, zip(tiles, sections[:-1])))
+    _map_tiles(work, list(zip(tiles, sections[:-1])))
     if len(sections[-1]):
         esc_idx, esc_val = entropy.decode_streams(sections[-1])
         if esc_idx.size != esc_val.size:
