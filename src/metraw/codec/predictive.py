@@ -34,6 +34,10 @@ by row in passes without a sequential dependence; the least squares accumulate X
 per-context sample buffers in vectorised blocks (encoder only: the coefficients are stored);
 the decoder runs the steady part of each 4-row group with the lane states in registers and
 evaluates sum_i k_i (n_i - W) as sum_i k_i n_i - W sum_i k_i (exact integers, the same value).
+The encoder's work is a few compiled calls per section (``_model_plane``, ``_residuals``,
+``_code_section``), each releasing the GIL, so that row tiles in parallel threads rarely wait on
+each other for the interpreter. In the per-pixel decoding step no array is sliced and no branch
+touches an array (numba would count references there, an atomic operation per pixel).
 """
 
 from __future__ import annotations
