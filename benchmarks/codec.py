@@ -174,8 +174,8 @@ def err_stats(img, dec_data, step_for_sigma=None):
 
 SPEED_REPS = 21
 #: Consecutive calls per sample (throughput, as when a store writes a stream of frames). On this VM an idle
-#: core takes milliseconds to wake: a 2-thread call right after ~20 ms of single-threaded JPEG-LS work runs
-#: its second tile late (spacenet_pan, 8 ms: 12.8 ms after a 50 ms pause, 7.9 ms back to back).
+#: core takes milliseconds to wake: the first 2-thread call after a pause runs its second tile late
+#: (spacenet_pan encode: 6.7 ms as the first call after a 50 ms pause, 5.9 ms warm; JPEG-LS 8.4 / 8.2 ms).
 SPEED_BATCH = 5
 
 
