@@ -745,11 +745,12 @@ def encode_planes(planes: list[tuple[np.ndarray, np.ndarray]], account: list | N
         nact = n_activity_contexts(min(s.size for s, _ in planes))
         return _encode_planes(planes, False, nact, 0, account)
     best, best_acc = None, None
+    memo = {}  # the candidates share buffers, activities and (same nact) the whole model
     for nact, pshift in ((1, 2), (1, 0), (2, 0)):
         if nact > 1 and total < 2048:
             continue
         acc = [] if account is not None else None
-        blob = _encode_planes(planes, True, nact, pshift, acc)
+        blob = _encode_planes(planes, True, nact, pshift, acc, memo)
         if best is None or len(blob) < len(best):
             best, best_acc = blob, acc
     if account is not None:
@@ -764,10 +765,35 @@ def _ls_stride(npix: int) -> int:
     return 2 * int(np.sqrt(npix / LS_SAMPLES) / 2) + 1
 
 
-def _encode_planes(planes, shared: bool, nact: int, pshift: int, account: list | None = None) -> bytes:
-    """One section with the given model layout. The numerical work runs in a few compiled calls that
-    release the GIL (per plane ``_model_plane`` and ``_residuals``, then ``_code_section``), so row
-    tiles coded in parallel threads seldom wait for each other."""
+def _shared_model(planes, nact: int, memo: dict):
+    """One model for all ``planes`` (small tiles): (c0 per plane, [(front, thr, coef, bias, tab0)] per
+    plane). ``memo`` keeps the buffers, activity samples and each nact's model for the other candidate
+    layouts of the same planes (``encode_planes`` tries several)."""
+    if "fronts" not in memo:
+        stride = _ls_stride(sum(s.size for s, _ in planes))
+        c0s, fronts = [], []
+        for s, u in planes:
+            c0 = int(np.rint(_sum(s) / s.size))
+            c0s.append(c0)
+            fronts.append(_front(s, u, np.int64(c0) << 16))
+        memo["fronts"] = stride, c0s, fronts, np.concatenate([_activity_samples(f, 2 * stride) for f in fronts])
+    stride, c0s, fronts, acts = memo["fronts"]
+    if nact not in memo:
+        thr = _thresholds(acts, nact)
+        ata = np.zeros((nact, NTAP, NTAP))
+        atb = np.zeros((nact, NTAP))
+        for f in fronts:
+            _normal_equations(f, thr, stride, ata, atb)
+        coef, bias = _fit(ata, atb)
+        memo[nact] = [(f, thr, coef, bias, 0) for f in fronts]
+    return list(c0s), memo[nact]
+
+
+def _encode_planes(planes, shared: bool, nact: int, pshift: int, account: list | None = None,
+                   memo: dict | None = None) -> bytes:
+    """One section with the given model layout (``memo``: see ``_shared_model``). The numerical work
+    runs in a few compiled calls that release the GIL (per plane ``_model_plane`` and ``_residuals``,
+    then ``_code_section``), so row tiles coded in parallel threads seldom wait for each other."""
     npl = len(planes)
     total = sum(s.size for s, _ in planes)
     nph = NPH >> pshift
@@ -777,19 +803,7 @@ def _encode_planes(planes, shared: bool, nact: int, pshift: int, account: list |
     c0s, group_heads = [], []
     rmax = 0
     if shared:  # one model for all planes: activities and normal equations pooled over the planes
-        stride = _ls_stride(total)
-        fronts = []
-        for s, u in planes:
-            c0 = int(np.rint(_sum(s) / s.size))
-            c0s.append(c0)
-            fronts.append(_front(s, u, np.int64(c0) << 16))
-        thr = _thresholds(np.concatenate([_activity_samples(f, 2 * stride) for f in fronts]), nact)
-        ata = np.zeros((nact, NTAP, NTAP))
-        atb = np.zeros((nact, NTAP))
-        for f in fronts:
-            _normal_equations(f, thr, stride, ata, atb)
-        coef, bias = _fit(ata, atb)
-        models = [(f, thr, coef, bias, 0) for f in fronts]
+        c0s, models = _shared_model(planes, nact, {} if memo is None else memo)
     else:
         models = []
         for k, (s, u) in enumerate(planes):
