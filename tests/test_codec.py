@@ -310,6 +310,32 @@ def test_lane_decoder_round_trip_exact(shape):
     assert np.array_equal(predictive.decode_planes(blob, [np.ascontiguousarray(u)])[0], s)
 
 
+@pytest.mark.parametrize("shape, message", [((40, 40), "coded data ran out"), ((259, 257), "corrupt")])
+def test_lane_escape_list_short_by_one_is_an_error(shape, message):
+    """A section whose header promises one escape fewer than lane 0 uses (a wrong stream with a right
+    CRC, as from a buggy writer) fails with a clear error. The decoder reads the escape list without
+    a branch, from a padded copy, and flags the overrun: with one lane it stops there ("ran out");
+    with 4 lanes the next lanes' escapes shift and decoding derails first, caught at the end."""
+    from metraw.codec import predictive
+    from metraw.codec.container import get_varint
+
+    rng = np.random.default_rng(5)
+    h, w = shape
+    u = prepare.dither(3, 0, h * w).reshape(shape)
+    s = np.rint(200 + rng.normal(0, 2, shape) + u).astype(np.int32)
+    s[rng.integers(0, h, 6), rng.integers(0, w, 6)] += 5000  # escaped residuals
+    blob = bytearray(predictive.encode_planes([(s, u)]))
+    assert np.array_equal(predictive.decode_planes(bytes(blob), [u])[0], s)
+    mv = memoryview(bytes(blob))
+    off = predictive._HEAD.size + 4  # lane 0: u32 state, varint words, varint escapes
+    _, off = get_varint(mv, off)
+    nesc, end = get_varint(mv, off)
+    assert 0 < nesc < 128 and end == off + 1  # one varint byte: edit it in place
+    blob[off] = nesc - 1
+    with pytest.raises(MetrawError, match=message):
+        predictive.decode_planes(bytes(blob), [u])
+
+
 def _encode_in_child(args):
     img, step = args
     return codec.encode(img, step, 3, check_profile=False)
@@ -334,7 +360,7 @@ def test_compiled_kernels_release_the_gil():
 
     from metraw.codec import predictive
 
-    kernels = [(m.__name__, k, v) for m in (predictive, prepare) for k, v in vars(m).items()
+    kernels = [(m.__name__, k, v) for m in (codec, predictive, prepare) for k, v in vars(m).items()
                if isinstance(v, numba.core.registry.CPUDispatcher)]
     assert len(kernels) >= 15
     held = [f"{m}.{k}" for m, k, v in kernels if not v.targetoptions.get("nogil")]
