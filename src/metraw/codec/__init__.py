@@ -132,7 +132,8 @@ def _hh_mean_abs_dev(symbols, cell, dys, dxs):
             for j in range(0, w, 2):
                 ca = dxs[k] + (x0 + j) * cell
                 cb = ca + cell
-                vals[n] = (np.float64(symbols[ra, ca]) - symbols[ra, cb]) - (np.float64(symbols[rb, ca]) - symbols[rb, cb])
+                top = np.float64(symbols[ra, ca]) - symbols[ra, cb]
+                vals[n] = top - (np.float64(symbols[rb, ca]) - symbols[rb, cb])
                 n += 1
     if n == 0:
         return 0.0, 0

@@ -673,8 +673,8 @@ def _code_section(r, t, amax, ntab, shared, hs, ws, nl):
     shapes ``hs`` x ``ws``) in ``nl`` rANS lanes, in one compiled call. Shared sections code with
     8-bit tables (frequencies / 16, ``_normalise``d again; both sides use the same integers).
 
-    Returns (idx, coding freq, stored tables, table bytes, bytes per table, lane states, lane word
-    counts, words, word starts per lane, escape values, escapes per lane)."""
+    Returns (idx, coding freq, table bytes, bytes per table, lane states, lane word counts, words,
+    word starts per lane, escape values, escapes per lane)."""
     idx, counts = _index(r, t, amax, ntab)
     freq = _normalise(counts)
     stored = freq
@@ -726,7 +726,7 @@ def _code_section(r, t, amax, ntab, shared, hs, ws, nl):
                 tab_bytes[n + 1] = v >> 8
             n += width
         tab_len[i] = n - start
-    return idx, freq, stored, tab_bytes[:n], tab_len, states, nws, out, starts, esc_vals, esc_cnt
+    return idx, freq, tab_bytes[:n], tab_len, states, nws, out, starts, esc_vals, esc_cnt
 
 
 def encode_planes(planes: list[tuple[np.ndarray, np.ndarray]], account: list | None = None) -> bytes:
@@ -819,8 +819,9 @@ def _encode_planes(planes, shared: bool, nact: int, pshift: int, account: list |
                            + np.clip(bias, -2**31, 2**31 - 1).astype("<i4").tobytes())
     amax = int(min(MAX_RESID, max(1, rmax)))
     nl = 1 if shared else LANES
-    (idx, freq, _, tab_bytes, tab_len, states, nws, out, starts, esc_vals,
-     esc_cnt) = _code_section(r_all, t_all, amax, max(ntab, 1), shared, np.array([s.shape[0] for s, _ in planes], np.int64),
+    (idx, freq, tab_bytes, tab_len, states, nws, out, starts, esc_vals,
+     esc_cnt) = _code_section(r_all, t_all, amax, max(ntab, 1), shared,
+                              np.array([s.shape[0] for s, _ in planes], np.int64),
                               np.array([s.shape[1] for s, _ in planes], np.int64), nl)
     parts = [_HEAD.pack(npl, nact, pshift, int(shared), nl, 8 if shared else 16, amax)]
     for j in range(nl):
