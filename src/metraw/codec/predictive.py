@@ -124,6 +124,14 @@ def _front(s, u, c0):
 
 
 @nb.njit(cache=True, nogil=True)
+def _front_c0(s, u):
+    """The plane's padded buffer (``_front``) with rows above it at c0 = round(mean symbol); returns
+    (front, c0). c0 is stored in the stream: the decoder pads with the same value."""
+    c0 = np.int64(np.rint(_sum(s) / s.size)) if s.size else np.int64(0)
+    return _front(s, u, c0 << 16), c0
+
+
+@nb.njit(cache=True, nogil=True)
 def _activity_samples(p, stride):
     """Activities on the sampling lattice (rows every ``stride``, sheared columns)."""
     h = p.shape[0] - 2
@@ -338,6 +346,7 @@ def _decode_pixel(p, yy, xx, uv, thr, coef, bias, tab0, pshift, lut, fcum, amax,
     ne = p[yy - 1, xx + 1]
     ww = p[yy, xx - 2]
     nn = p[yy - 2, xx]
+    # ``_activity`` from the neighbours already loaded (calling it measured 8 % slower decoding)
     act = abs(w_ - nw) + abs(n_ - nw) + abs(n_ - ne) + abs(w_ - ww) + abs(n_ - nn)
     c = ((act > thr[0]) + (act > thr[1]) + (act > thr[2]) + (act > thr[3]) + (act > thr[4]) + (act > thr[5])
          + (act > thr[6]))
@@ -657,8 +666,7 @@ def _fit(ata, atb):
 def _model_plane(s, u, nact, stride):
     """One plane's causal buffer and model in one compiled call (no GIL): returns (front, c0, thr,
     coef, bias). ``stride``: the least-squares sampling lattice (activities on twice that)."""
-    c0 = np.int64(np.rint(_sum(s) / s.size)) if s.size else np.int64(0)
-    front = _front(s, u, c0 << 16)
+    front, c0 = _front_c0(s, u)
     thr = _thresholds(_activity_samples(front, 2 * stride), nact)
     ata = np.zeros((nact, NTAP, NTAP))
     atb = np.zeros((nact, NTAP))
@@ -771,11 +779,8 @@ def _shared_model(planes, nact: int, memo: dict):
     layouts of the same planes (``encode_planes`` tries several)."""
     if "fronts" not in memo:
         stride = _ls_stride(sum(s.size for s, _ in planes))
-        c0s, fronts = [], []
-        for s, u in planes:
-            c0 = int(np.rint(_sum(s) / s.size))
-            c0s.append(c0)
-            fronts.append(_front(s, u, np.int64(c0) << 16))
+        fronts, c0s = zip(*(_front_c0(s, u) for s, u in planes))
+        c0s = [int(c0) for c0 in c0s]
         memo["fronts"] = stride, c0s, fronts, np.concatenate([_activity_samples(f, 2 * stride) for f in fronts])
     stride, c0s, fronts, acts = memo["fronts"]
     if nact not in memo:
