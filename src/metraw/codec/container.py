@@ -20,7 +20,7 @@ import zlib
 from dataclasses import dataclass, field
 from typing import Any
 
-import crc32c as _crc32c
+import google_crc32c
 
 from metraw.errors import MetrawError
 
@@ -31,7 +31,9 @@ FLAG_META = 1
 
 
 def crc32c(data: bytes | memoryview) -> int:
-    return _crc32c.crc32c(data)
+    """CRC-32C (Castagnoli) of ``data``, via google-crc32c (a zarr dependency; its C extension
+    takes only ``bytes``, so a view is copied once)."""
+    return google_crc32c.value(data if isinstance(data, bytes) else bytes(data))
 
 
 @dataclass
