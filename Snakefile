@@ -4,9 +4,10 @@
 # Report: snakemake --report results/report.html (after a run)
 
 import os
+import sys
 from pathlib import Path
 
-from snakemake.utils import min_version, validate
+from snakemake.utils import min_version
 
 min_version("9.0")
 
@@ -23,7 +24,20 @@ configfile: "params.yaml"
 # checked against params.yaml in workflow/rules/common.smk and are not workflow parameters.
 DVC_CHECK = {key: str(config.pop(key)) for key in ("dvc_point", "dvc_points") if key in config}
 
-validate(config, "workflow/schemas/params.schema.yaml")
+# One clear line and exit status 2 for a bad params.yaml (or --config override), before anything is written.
+from metraw.errors import MetrawError
+from metraw.points import validate_params, write_effective_params
+
+try:
+    validate_params(config, "params.yaml (with --config overrides)")
+except MetrawError as exc:
+    sys.stderr.write(f"metraw workflow: error: {exc}\n")
+    sys.exit(2)
+
+# The configuration the rules run with (params.yaml merged with --config/--configfile), written where
+# every `metraw ... --params` reads it, so an override reaches the commands and not only the DAG.
+# Rewritten only when its content changes; its path never changes, so no command string changes with it.
+PARAMS_FILE = write_effective_params(config, Path(".snakemake") / "metraw" / "params.yaml")
 
 report: "workflow/report/workflow.rst"
 

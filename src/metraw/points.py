@@ -44,6 +44,21 @@ def validate_params(params: dict[str, Any], origin: str | Path = "params") -> No
         raise MetrawError(f"{origin}: {where}: {exc.message}") from None
 
 
+def write_effective_params(params: dict[str, Any], path: str | Path) -> Path:
+    """Write ``params`` as YAML to ``path`` (atomically, and only when the content differs) and return it.
+
+    The workflow's configuration is params.yaml merged with Snakemake's ``--config`` overrides; the
+    rules hand this file to ``metraw ... --params`` so each command sees what the DAG was built from."""
+    from metraw.atomic import atomic_path
+
+    path = Path(path)
+    text = yaml.safe_dump(params, sort_keys=False)
+    if not path.is_file() or path.read_text() != text:
+        with atomic_path(path, overwrite=True) as tmp:
+            tmp.write_text(text)
+    return path
+
+
 def _schema_path() -> Path:
     here = Path(__file__).resolve()
     for candidate in (here.parents[2] / "workflow" / "schemas" / "params.schema.yaml",

@@ -39,7 +39,7 @@ rule aggregate:
     log:
         "logs/aggregate.log",
     shell:
-        "metraw aggregate --params params.yaml --results results --out results"
+        "metraw aggregate --params {PARAMS_FILE} --results results --out results"
         " --metrics-pattern 'results/points/{{point}}/metrics.json'"
         " --compression-pattern 'results/points/{{point}}/compression.json'"
         " --stores-pattern 'results/points/{{point}}/target.zarr' 2> {log}"

@@ -35,6 +35,6 @@ rule emulate:
     log:
         "logs/emulate/{point}.log",
     shell:
-        "metraw emulate {input} {output} --params params.yaml --point '{params.point}'"
+        "metraw emulate {input} {output} --params {PARAMS_FILE} --point '{params.point}'"
         " --mode {params.emulation[mode]} --seed {params.emulation[seed]} --workers {threads}"
         " --codec-step {params.codec[step]} --codec-seed {params.codec[seed]} 2> {log}"

@@ -13,7 +13,7 @@ rule train:
     log:
         "logs/train/{point}.log",
     shell:
-        "metraw train {input} --out {output} --params params.yaml 2> {log}"
+        "metraw train {input} --out {output} --params {PARAMS_FILE} 2> {log}"
 
 
 rule evaluate:
@@ -40,7 +40,7 @@ rule train_source:
     log:
         "logs/train/source.log",
     shell:
-        "metraw train {input} --out {output} --params params.yaml 2> {log}"
+        "metraw train {input} --out {output} --params {PARAMS_FILE} 2> {log}"
 
 
 rule evaluate_source:

@@ -15,7 +15,7 @@ if config["source"]["dataset"] == "synthetic":
             "logs/source_store.log",
         shell:
             "metraw scenes --n {params.synthetic[n_scenes]} --seed {params.synthetic[seed]}"
-            " --size {params.synthetic[size_px]} --camera params.yaml --out {output}"
+            " --size {params.synthetic[size_px]} --camera {PARAMS_FILE} --out {output}"
             " --codec-step {params.codec[step]} --codec-seed {params.codec[seed]} 2> {log}"
 
 else:
@@ -30,7 +30,7 @@ else:
         log:
             "logs/source_store.log",
         shell:
-            "metraw ingest {params.kit[path]} --labels yolo --camera params.yaml --gsd-m {params.kit[gsd_m]}"
+            "metraw ingest {params.kit[path]} --labels yolo --camera {PARAMS_FILE} --gsd-m {params.kit[gsd_m]}"
             " --white-fraction {params.kit[white_fraction]} --seed {params.kit[seed]} --out {output}"
             " --codec-step {params.codec[step]} --codec-seed {params.codec[seed]} 2> {log}"
 
