@@ -9,6 +9,15 @@
   Hann-windowed, radially averaged |FFT|^2, least-squares slope of log P vs log f over a common
   band of physical frequencies ``F_BAND_PER_M`` (cycles per metre), so images of different GSD
   compare over the same ground scales.
+- radiance histogram: quantiles of log2(green / image median) (exposure-free: a scene's dynamic
+  range), and of the chroma log2(R/G), log2(B/G) per CFA cell.
+- car contrast: per car region (connected component of mask >= 0.5), log2 of its mean green over
+  the mean green of a ring ``RING_M`` wide around it; the share of cars darker than their ring.
+- clutter: share of the ground (green plane block-averaged to ``CLUTTER_CELL_M`` cells) whose
+  local log-gradient exceeds ``CLUTTER_THRESHOLD`` (0.3 = a 23 % step from one cell to the next)
+  outside cars -- how many car-sized edges the background offers a detector.
+KIT car regions come from its YOLO boxes (axis-aligned, so a region holds some road too: its car
+contrast is biased towards zero for diagonal cars).
 """
 
 from __future__ import annotations
@@ -19,11 +28,17 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
-from metraw.cfa import plane_offsets
+from metraw.cfa import cell_size, plane_offsets
 from metraw.image import RawImage
 
 #: Frequency band [cycles/m] of the spectral-slope fit (10 m to 0.67 m periods).
 F_BAND_PER_M = (0.1, 1.5)
+#: Width [m] of the ring around a car region whose mean is the car's background.
+RING_M = 1.5
+#: Ground cell [m] of the clutter measure (about a quarter of a car length).
+CLUTTER_CELL_M = 0.5
+#: Log-gradient (natural log per cell) above which a cell edge counts as clutter.
+CLUTTER_THRESHOLD = 0.3
 
 
 def green_plane_e(img: RawImage) -> np.ndarray:
@@ -52,6 +67,80 @@ def psd_slope(plane: np.ndarray, pixel_m: float, band_per_m=F_BAND_PER_M) -> flo
     if sel.sum() < 4:
         return float("nan")
     return float(np.polyfit(np.log(freqs[sel]), np.log(radial[sel]), 1)[0])
+
+
+def cell_planes_e(img: RawImage) -> dict[str, np.ndarray]:
+    """Mean electrons of each colour per CFA cell: {"R", "G", "B"} (float64; mono: {"G"}, per pixel)."""
+    e = img.electrons()
+    k = cell_size(img.cfa_pattern)
+    h, w = (e.shape[0] // k) * k, (e.shape[1] // k) * k
+    sites: dict[str, list[np.ndarray]] = {}
+    for c, dy, dx in plane_offsets(img.cfa_pattern):
+        sites.setdefault("G" if c in ("G", "L") else c, []).append(e[dy:h:k, dx:w:k].astype(np.float64))
+    return {c: sum(v) / len(v) for c, v in sites.items()}
+
+
+def _block_mean(a: np.ndarray, k: int) -> np.ndarray:
+    h, w = (a.shape[0] // k) * k, (a.shape[1] // k) * k
+    return a[:h, :w].reshape(h // k, k, w // k, k).mean(axis=(1, 3))
+
+
+def radiometry(img: RawImage) -> dict[str, list[float]]:
+    """Per-image samples for the histogram, chroma, car-contrast and clutter statistics (module docstring)."""
+    planes = cell_planes_e(img)
+    g = np.maximum(planes["G"], 1.0)
+    step = cell_size(img.cfa_pattern)
+    cell_m = step * img.profile.gsd_m
+    out: dict[str, list[float]] = {"log_rel": list(np.log2(g / np.median(g)).ravel()[::97])}
+    if "R" in planes and "B" in planes:
+        out["log_rg"] = list(np.log2(np.maximum(planes["R"], 1.0) / g).ravel()[::97])
+        out["log_bg"] = list(np.log2(np.maximum(planes["B"], 1.0) / g).ravel()[::97])
+    car = np.zeros(g.shape, bool)
+    contrast = []
+    if img.mask is not None:
+        m = img.mask[: step * g.shape[0], : step * g.shape[1]].astype(np.float64)
+        car = _block_mean(m, step) >= 0.5
+        lab, n = ndimage.label(car)
+        ring_px = max(1, int(round(RING_M / cell_m)))
+        grown = ndimage.grey_dilation(lab, size=(2 * ring_px + 1,) * 2)
+        inside = ndimage.mean(g, lab, np.arange(1, n + 1))
+        ring_sel = (lab == 0) & (grown > 0)
+        around = ndimage.mean(g, np.where(ring_sel, grown, 0), np.arange(1, n + 1))
+        counts = ndimage.sum(np.ones_like(g), lab, np.arange(1, n + 1))
+        contrast = [float(np.log2(a / b)) for a, b, c in zip(np.atleast_1d(inside), np.atleast_1d(around),
+                                                             np.atleast_1d(counts)) if c >= 4 and b > 0]
+    out["car_contrast"] = contrast
+    k = max(1, int(round(CLUTTER_CELL_M / cell_m)))
+    lg = np.log(_block_mean(g, k))
+    not_car = _block_mean(car.astype(np.float64), k) < 0.5
+    grad = np.maximum(np.abs(np.diff(lg, axis=0))[:, :-1], np.abs(np.diff(lg, axis=1))[:-1, :])
+    sel = not_car[:-1, :-1]
+    out["clutter"] = [float(np.mean(grad[sel] > CLUTTER_THRESHOLD))] if sel.any() else []
+    return out
+
+
+def radiometry_row(samples: list[dict[str, list[float]]]) -> dict[str, float]:
+    """Quantiles of the pooled ``radiometry`` samples of a set of images."""
+    pool: dict[str, list[float]] = {}
+    for s in samples:
+        for k, v in s.items():
+            pool.setdefault(k, []).extend(v)
+
+    def q(k, p):
+        v = pool.get(k, [])
+        return float(np.percentile(v, p)) if len(v) else float("nan")
+
+    cc = np.array(pool.get("car_contrast", []))
+    return {
+        "log2_rel_green_p05": q("log_rel", 5), "log2_rel_green_p95": q("log_rel", 95),
+        "log2_R_over_G_median": q("log_rg", 50), "log2_B_over_G_median": q("log_bg", 50),
+        "log2_B_over_G_p10": q("log_bg", 10), "log2_B_over_G_p90": q("log_bg", 90),
+        "car_contrast_log2_p10": q("car_contrast", 10), "car_contrast_log2_median": q("car_contrast", 50),
+        "car_contrast_log2_p90": q("car_contrast", 90),
+        "car_abs_contrast_log2_median": float(np.median(np.abs(cc))) if cc.size else float("nan"),
+        "cars_darker_than_ring_share": float(np.mean(cc < 0)) if cc.size else float("nan"),
+        "clutter_share_median": q("clutter", 50),
+    }
 
 
 def mask_component_sizes_m(mask: np.ndarray, gsd_m: float, min_px: int = 50) -> list[tuple[float, float]]:
@@ -85,22 +174,24 @@ def yolo_sizes_m(label_file: Path, width_px: int, height_px: int, gsd_m: float, 
 def summarise(images, kit_dir: Path | None = None, kit_gsd_m: float = 0.125) -> dict[str, dict[str, float]]:
     """Statistics of synthetic ``images`` (RawImages from metraw.scenes) and of the KIT AIS photos."""
     rows: dict[str, dict[str, float]] = {}
-    gen_l, gen_w, comp, frac, slope = [], [], [], [], []
+    gen_l, gen_w, comp, frac, slope, rad = [], [], [], [], [], []
     for img in images:
+        rad.append(radiometry(img))
         gsd = img.profile.gsd_m
         gen_l += [v["length_m"] for v in img.meta.get("vehicles", []) if v["class"] == "car"]
         gen_w += [v["width_m"] for v in img.meta.get("vehicles", []) if v["class"] == "car"]
         comp += mask_component_sizes_m(img.mask, gsd)
         frac.append(float(img.mask.mean()))
         slope.append(psd_slope(green_plane_e(img), 2 * gsd))
-    rows["synthetic"] = _row(gen_l, gen_w, comp, frac, slope, len(frac))
+    rows["synthetic"] = {**_row(gen_l, gen_w, comp, frac, slope, len(frac)), **radiometry_row(rad)}
     if kit_dir is not None and Path(kit_dir).is_dir():
         from metraw.io import read_raw
 
-        box, frac, slope = [], [], []
+        box, frac, slope, rad = [], [], [], []
         files = sorted(Path(kit_dir).glob("*.png"))
         for f in files:
             img = read_raw(f, gsd_m=kit_gsd_m, seed=0)
+            rad.append(radiometry(img))
             h, w = img.shape
             txt = f.with_suffix(".txt")
             if txt.is_file():
@@ -108,7 +199,8 @@ def summarise(images, kit_dir: Path | None = None, kit_gsd_m: float = 0.125) -> 
             if img.mask is not None:
                 frac.append(float(img.mask.mean()))
             slope.append(psd_slope(green_plane_e(img), 2 * kit_gsd_m))
-        rows["KIT AIS (real)"] = _row([b[0] for b in box], [b[1] for b in box], [], frac, slope, len(files))
+        rows["KIT AIS (real)"] = {**_row([b[0] for b in box], [b[1] for b in box], [], frac, slope, len(files)),
+                                  **radiometry_row(rad)}
     return rows
 
 
