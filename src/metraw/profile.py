@@ -15,6 +15,7 @@ import dataclasses
 import json
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from metraw.cfa import channel_names, validate_pattern
@@ -76,12 +77,16 @@ class CalibrationProfile:
 
     def __post_init__(self) -> None:
         validate_pattern(self.cfa_pattern)
-        self.adc_bits = int(self.adc_bits)
+        self.adc_bits = int(_number("adc_bits", self.adc_bits))
         for name in ("gain_dn_per_e", "black_level_dn", "read_noise_e", "white_level_dn"):
-            value = float(getattr(self, name))
+            value = _number(name, getattr(self, name))
             if not math.isfinite(value):
                 raise MetrawError(f"profile field {name} must be finite, got {value}")
             setattr(self, name, value)
+        for name in ("qe_per_channel", "band_edges_m", "uncertainty"):
+            if not isinstance(getattr(self, name), dict):
+                raise MetrawError(f"profile field {name} must be an object (name -> value), got "
+                                  f"{type(getattr(self, name)).__name__}")
         if self.gain_dn_per_e <= 0:
             raise MetrawError(f"profile gain_dn_per_e must be > 0, got {self.gain_dn_per_e}")
         if self.read_noise_e < 0:
@@ -99,7 +104,11 @@ class CalibrationProfile:
             self.qe_per_channel = {c: 1.0 for c in self.channels}
         if not self.band_edges_m:
             self.band_edges_m = {c: DEFAULT_BANDS_M[c] for c in self.channels}
-        self.band_edges_m = {k: (float(v[0]), float(v[1])) for k, v in self.band_edges_m.items()}
+        try:
+            self.band_edges_m = {k: (float(v[0]), float(v[1])) for k, v in self.band_edges_m.items()}
+        except (TypeError, ValueError, IndexError, KeyError):
+            raise MetrawError(f"profile field band_edges_m must map each colour to [low, high] in m, "
+                              f"got {self.band_edges_m!r}") from None
 
     # ----------------------------------------------------------------- derived values
     @property
@@ -145,20 +154,26 @@ class CalibrationProfile:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "CalibrationProfile":
+        if not isinstance(data, dict):
+            raise MetrawError(f"profile must be an object of fields, got {type(data).__name__}")
         data = dict(data)
         version = data.pop("schema_version", None)
         if version is None:
             raise MetrawError("profile has no schema_version")
         if version != SCHEMA_VERSION:
             raise MetrawError(f"profile schema_version {version} is not supported (this metraw reads {SCHEMA_VERSION})")
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(data) - known)
+        fields = dataclasses.fields(cls)
+        unknown = sorted(set(data) - {f.name for f in fields})
         if unknown:
             raise MetrawError(f"profile has unknown fields: {', '.join(unknown)}")
+        missing = [f.name for f in fields if f.name not in data
+                   and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING]
+        if missing:
+            raise MetrawError(f"profile lacks required field(s): {', '.join(missing)}")
         try:
             return cls(**data)
-        except TypeError as exc:
-            raise MetrawError(f"profile is incomplete: {exc}") from None
+        except (TypeError, ValueError) as exc:
+            raise MetrawError(f"profile has a field of the wrong type: {exc}") from None
 
     def to_json(self, indent: int | None = 2) -> str:
         return json.dumps(self.to_dict(), indent=indent, sort_keys=True)
@@ -176,3 +191,79 @@ class CalibrationProfile:
     def replace(self, **changes: Any) -> "CalibrationProfile":
         """A copy with some fields changed (validated again)."""
         return dataclasses.replace(self, **changes)
+
+
+def _number(name: str, value: Any) -> float:
+    """``value`` as a float, or a ``MetrawError`` naming the field (a string or null is not a number)."""
+    if isinstance(value, bool):
+        raise MetrawError(f"profile field {name} must be a number, got {value!r}")
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise MetrawError(f"profile field {name} must be a number, got {value!r}") from None
+
+
+#: Geometry and sensor fields that, when stated, must be finite and > 0.
+_POSITIVE_WHEN_GIVEN = ("pixel_pitch_m", "focal_length_m", "aperture_diameter_m", "altitude_m", "exposure_s",
+                        "full_well_e")
+
+
+def check_claims(profile: CalibrationProfile) -> CalibrationProfile:
+    """Refuse what no real camera states, for profiles the user supplies (``--profile``, ``--camera``,
+    ``source.camera``); profiles metraw wrote itself (stores, TIFF and codec headers) are not held to this.
+
+    Geometry and full well, when given, must be finite and > 0; dark current, ground speed >= 0;
+    transmission and QE in [0, 1]; a read noise of exactly 0 e- only with an uncertainty saying what it
+    is (finite: measured and not resolved; ``Infinity``: unknown) -- a bare 0 is not a sensor's read noise.
+    """
+    for name in _POSITIVE_WHEN_GIVEN:
+        value = getattr(profile, name)
+        if value is not None and not 0 < _number(name, value) < math.inf:
+            raise MetrawError(f"profile {name} must be > 0 when given, got {value}")
+    for name in ("dark_current_e_per_s", "ground_speed_m_per_s"):
+        value = _number(name, getattr(profile, name))
+        if not 0 <= value < math.inf:
+            raise MetrawError(f"profile {name} must be >= 0, got {value}")
+    fractions = {"optical_transmission": profile.optical_transmission,
+                 **{f"qe_per_channel.{c}": v for c, v in profile.qe_per_channel.items()}}
+    for name, value in fractions.items():
+        if not 0 <= _number(name, value) <= 1:
+            raise MetrawError(f"profile {name} must lie in [0, 1], got {value}")
+    if profile.read_noise_e == 0 and "read_noise_e" not in profile.uncertainty:
+        raise MetrawError("profile read_noise_e is 0 e-, which no sensor has: give the measured read noise, or "
+                          "state its uncertainty (Infinity marks it unknown)")
+    return profile
+
+
+def load_profile(path: str | Path, base: CalibrationProfile | None = None) -> CalibrationProfile:
+    """A calibration profile the user supplies in a JSON file, checked with `check_claims`.
+
+    The file holds a full profile (``CalibrationProfile.to_json``, with ``schema_version``) or, when
+    ``base`` is given, an object of fields replacing base's (e.g. ``{"gain_dn_per_e": 0.5}``): a field
+    stated there loses base's "unknown" mark (infinite uncertainty) unless the file gives its own
+    ``uncertainty``. Every problem is one ``MetrawError`` naming the file.
+    """
+    try:
+        text = Path(path).read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise MetrawError(f"cannot read profile {path}: {getattr(exc, 'strerror', None) or exc}") from None
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise MetrawError(f"profile {path} is not valid JSON: {exc}") from None
+    if not isinstance(data, dict):
+        raise MetrawError(f"profile {path} must hold a JSON object, got {type(data).__name__}")
+    try:
+        if base is None or "schema_version" in data:
+            return check_claims(CalibrationProfile.from_dict(data))
+        unknown = sorted(set(data) - {f.name for f in dataclasses.fields(CalibrationProfile)})
+        if unknown:
+            raise MetrawError(f"profile has unknown fields: {', '.join(unknown)}")
+        try:
+            unc = {k: v for k, v in base.uncertainty.items() if k not in data}
+            unc.update(data.pop("uncertainty", None) or {})
+            return check_claims(base.replace(**data, uncertainty=unc))
+        except (TypeError, ValueError) as exc:
+            raise MetrawError(f"profile has a field of the wrong type: {exc}") from None
+    except MetrawError as exc:
+        raise MetrawError(f"{path}: {exc}") from None

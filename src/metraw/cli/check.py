@@ -10,7 +10,6 @@ functions that brings the image to spec (see `metraw.spec`).
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 from pathlib import Path
@@ -65,32 +64,9 @@ def load_image(args) -> RawImage:
 
         image = read_raw(path)
     if args.profile:
-        from metraw.profile import CalibrationProfile
+        from metraw.profile import load_profile
 
-        try:
-            text = Path(args.profile).read_text()
-        except OSError as exc:
-            raise MetrawError(f"cannot read profile {args.profile}: {exc.strerror or exc}") from None
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise MetrawError(f"profile {args.profile} is not valid JSON: {exc}") from None
-        if isinstance(data, dict) and "schema_version" not in data:
-            # a partial profile: these fields replace the image's own (e.g. {"gain_dn_per_e": 0.5})
-            known = {f.name for f in dataclasses.fields(CalibrationProfile)}
-            unknown = sorted(set(data) - known)
-            if unknown:
-                raise MetrawError(f"profile {args.profile} has unknown fields: {', '.join(unknown)}")
-            # a field the user states is claimed: it loses the profile's "unknown" mark (inf
-            # uncertainty) unless the file gives its own uncertainty
-            unc = {k: v for k, v in image.profile.uncertainty.items() if k not in data}
-            unc.update(data.pop("uncertainty", None) or {})
-            try:
-                profile = image.profile.replace(**data, uncertainty=unc)
-            except (TypeError, ValueError) as exc:
-                raise MetrawError(f"profile {args.profile}: {exc}") from None
-        else:
-            profile = CalibrationProfile.from_json(text)
+        profile = load_profile(args.profile, base=image.profile)
         image = RawImage(image.data, profile, image.mask, image.flags, image.provenance, image.meta)
     return image
 
