@@ -16,13 +16,15 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from metraw import codec
+    from metraw.io import read_mraw
     from metraw.io.tiff import write_tiff
 
     path = Path(args.input)
     if not path.is_file():
         raise MetrawError(f"input {path} does not exist")
-    image = codec.decode(path.read_bytes())
+    if Path(args.output).exists() and not args.overwrite:
+        raise MetrawError(f"output {args.output} already exists (use --overwrite to replace it)")
+    image = read_mraw(path)
     write_tiff(args.output, image, overwrite=args.overwrite)
     print(f"{args.output}: {image.shape[0]} x {image.shape[1]} uint16 DN")
     return 0

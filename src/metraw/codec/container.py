@@ -100,11 +100,15 @@ def pack(header: Header, sections: list[bytes]) -> bytes:
 
 def unpack(blob: bytes | memoryview) -> tuple[Header, list[memoryview]]:
     mv = memoryview(blob if isinstance(blob, (bytes, memoryview)) else bytes(blob))
-    if len(mv) < 10 or bytes(mv[:4]) != MAGIC:
+    if len(mv) == 0:
+        raise MetrawError("metraw raw-codec blob is empty (0 bytes)")
+    if bytes(mv[:4]) != MAGIC[:len(mv)]:
         raise MetrawError("not a metraw raw-codec blob (bad magic)")
+    if len(mv) < _FIXED.size + 4:
+        raise MetrawError(f"metraw raw-codec blob is truncated ({len(mv)} bytes, shorter than its fixed header)")
     (stored,) = struct.unpack_from("<I", mv, len(mv) - 4)
     if crc32c(mv[:-4]) != stored:
-        raise MetrawError("metraw raw-codec blob is corrupt (CRC-32C mismatch)")
+        raise MetrawError("metraw raw-codec blob is corrupt (CRC-32C mismatch: damaged or truncated)")
     if mv[4] != FORMAT_VERSION:
         raise MetrawError(f"metraw raw-codec format version {mv[4]} is not supported (this metraw reads "
                           f"{FORMAT_VERSION}); re-encode the data with this version")

@@ -6,6 +6,7 @@ cannot tell):
 - camera raws (DNG, CR2, NEF, ...) through rawpy/LibRaw            -> ``metraw.io.camera``
 - raw TIFF (MicaSense x16 data, BlackLevel tag), GeoTIFF pan, metraw TIFF -> ``metraw.io.tiff``
 - headerless ``.raw`` / ``.bin`` with explicit metadata              -> ``metraw.io.headerless``
+- metraw codec files (``.mraw``, magic "MRAW")                        -> ``metraw.codec.decode``
 - processed 8-bit RGB (PNG, JPEG) + labels -> approximate raw      -> ``metraw.io.processed``
 
 Every failure caused by the file (corrupt, truncated, unsupported, NaN, wrong dtype, missing
@@ -26,12 +27,12 @@ from metraw.io.headerless import HEADERLESS_SUFFIXES, read_headerless
 from metraw.io.labels import is_label_file
 from metraw.io.processed import PROCESSED_SUFFIXES, approximate_raw, read_processed, srgb_to_linear
 from metraw.io.tiff import is_tiff, read_tiff, tiff_kind, write_tiff
-from metraw.profile import CalibrationProfile
+from metraw.profile import CalibrationProfile, check_claims, load_profile
 
-__all__ = ["read_raw", "write_tiff", "default_camera", "approximate_raw", "srgb_to_linear", "image_files",
+__all__ = ["read_raw", "read_mraw", "write_tiff", "default_camera", "approximate_raw", "srgb_to_linear", "image_files",
            "noise_model_known", "unknown_fields", "SUPPORTED_SUFFIXES"]
 
-SUPPORTED_SUFFIXES = RAW_SUFFIXES | HEADERLESS_SUFFIXES | PROCESSED_SUFFIXES | {".tif", ".tiff"}
+SUPPORTED_SUFFIXES = RAW_SUFFIXES | HEADERLESS_SUFFIXES | PROCESSED_SUFFIXES | {".tif", ".tiff", ".mraw"}
 
 #: Profile fields a stated camera may fill in when a raw file does not give them.
 _FILLABLE = ("gain_dn_per_e", "read_noise_e", "dark_current_e_per_s", "full_well_e", "qe_per_channel",
@@ -64,6 +65,8 @@ def read_raw(path: str | os.PathLike, *, camera: CalibrationProfile | None = Non
         raise MetrawError(f"{path}: empty file")
     with open(path, "rb") as fh:
         head = fh.read(16)
+    if head[:4] == b"MRAW":
+        return _with_camera(read_mraw(path), camera)
     if is_tiff(head):
         kind = "cfa" if suffix in RAW_SUFFIXES else tiff_kind(path)
         if kind == "cfa":
@@ -76,6 +79,21 @@ def read_raw(path: str | os.PathLike, *, camera: CalibrationProfile | None = Non
         return _with_camera(read_camera_raw(path), camera)  # LibRaw sniffs; refuses unknown formats
     return read_processed(path, camera if camera is not None else default_camera(), labels=labels, seed=seed,
                           white_fraction=white_fraction, gsd_m=gsd_m)
+
+
+def read_mraw(path: str | os.PathLike) -> RawImage:
+    """A ``.mraw`` file (a `metraw.codec` blob with its embedded profile); damage is one ``MetrawError``."""
+    from metraw import codec
+
+    path = Path(path)
+    try:
+        blob = path.read_bytes()
+    except OSError as exc:
+        raise MetrawError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    try:
+        return codec.decode(blob)
+    except MetrawError as exc:
+        raise MetrawError(f"{path}: {exc}") from None
 
 
 def image_files(inputs: list[str | os.PathLike]) -> list[Path]:
@@ -110,7 +128,10 @@ def default_camera(params_path: str | os.PathLike | None = None) -> CalibrationP
                 cam = dict(params["source"]["camera"])
             except (yaml.YAMLError, KeyError, TypeError) as exc:
                 raise MetrawError(f"{candidate}: no readable source.camera ({exc})") from None
-            return CalibrationProfile.from_dict({"schema_version": 1, **cam})
+            try:
+                return check_claims(CalibrationProfile.from_dict({"schema_version": 1, **cam}))
+            except MetrawError as exc:
+                raise MetrawError(f"{candidate}: source.camera: {exc}") from None
     raise MetrawError("no camera profile given (--camera) and no params.yaml with source.camera found")
 
 
@@ -121,7 +142,7 @@ def load_camera(path: str | os.PathLike) -> CalibrationProfile:
         raise MetrawError(f"{p}: camera profile not found")
     if p.suffix.lower() in (".yaml", ".yml"):
         return default_camera(p)
-    return CalibrationProfile.from_json(p.read_text())
+    return load_profile(p)
 
 
 def _with_camera(image: RawImage, camera: CalibrationProfile | None) -> RawImage:

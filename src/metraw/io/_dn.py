@@ -32,7 +32,10 @@ def as_dn(array: np.ndarray, what: str) -> np.ndarray:
             raise MetrawError(f"{what}: float data has fractional values; raw DN must be integer counts "
                               "(this looks like processed, not raw, data)")
     lo, hi = a.min(), a.max()
-    if lo < 0 or hi > 65535:
+    if lo < 0:
+        raise MetrawError(f"{what}: {int(np.count_nonzero(a < 0))} negative values (min {lo}); raw DN are "
+                          "counts >= 0 (signed or offset-corrected data is not raw)")
+    if hi > 65535:
         raise MetrawError(f"{what}: values {lo}..{hi} do not fit unsigned 16-bit DN (wrong dtype for raw data?)")
     return a.astype(np.uint16)
 

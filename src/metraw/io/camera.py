@@ -54,6 +54,7 @@ def read_camera_raw(path: Path) -> RawImage:
         raise MetrawError(f"{path}: corrupt or truncated camera raw ({detail})") from None
     if "Stack" in raw_type or data.ndim != 2:
         raise MetrawError(f"{path}: raw type {raw_type} (linear/demosaiced DNG) is not a single-sensor mosaic")
+    _check_tiff_cfa(path)
     pattern = _pattern(colors, desc, n_colors, path)
     data = as_dn(data, str(path))
     meta: dict[str, Any] = {"source_file": str(path), "format": "camera raw (rawpy/LibRaw)",
@@ -84,6 +85,32 @@ def _pattern(colors: np.ndarray, desc: str, n_colors: int, path: Path) -> str:
         raise MetrawError(f"{path}: CFA pattern {letters!r} ({desc!r}) is not supported (need one of "
                           f"{', '.join(BAYER_PATTERNS)})")
     return letters
+
+
+#: Colour codes of the TIFF/EP and DNG CFAPattern tag.
+_CFA_CODES = "RGBCMYW"
+
+
+def _check_tiff_cfa(path: Path) -> None:
+    """Refuse a TIFF-based raw (DNG) whose CFAPattern tag names colours other than R, G, B or a cell
+    other than 2 x 2: LibRaw reads some of these (e.g. a CMY mosaic) as RGGB without a word."""
+    try:
+        import tifffile
+
+        with tifffile.TiffFile(str(path)) as tif:
+            pages = list(tif.pages)
+            pages += [sub for page in pages for sub in (getattr(page, "pages", None) or [])]
+            tags = [page.tags for page in pages if "CFAPattern" in page.tags]
+            if not tags:
+                return
+            dims = tuple(tags[0]["CFARepeatPatternDim"].value) if "CFARepeatPatternDim" in tags[0] else (2, 2)
+            codes = bytes(tags[0]["CFAPattern"].value)
+    except Exception:  # not a TIFF, or tags LibRaw could read but tifffile cannot: LibRaw's word stands
+        return
+    letters = "".join(_CFA_CODES[c] if c < len(_CFA_CODES) else "?" for c in codes)
+    if dims != (2, 2) or set(letters) - set("RGB"):
+        raise MetrawError(f"{path}: CFA pattern {letters!r} ({dims[0]} x {dims[1]} cell, from the file's CFAPattern "
+                          f"tag) is not supported (need a 2 x 2 Bayer cell: {', '.join(BAYER_PATTERNS)})")
 
 
 def _camera_name(path: Path) -> str:

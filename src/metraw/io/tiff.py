@@ -62,7 +62,7 @@ def tiff_kind(path: Path) -> str:
     tif = _open(path)
     with tif:
         page = tif.pages[0]
-        if _metraw_header(page) is not None:
+        if _metraw_header(page, path) is not None:
             return "metraw"
         if "DNGVersion" in page.tags or page.photometric == _PHOTOMETRIC_CFA:
             return "cfa"
@@ -76,7 +76,7 @@ def read_tiff(path: Path) -> RawImage:
     with tif:
         _check_extent(tif, path)
         page = tif.pages[0]
-        header = _metraw_header(page)
+        header = _metraw_header(page, path)
         try:
             arrays = [p.asarray() for p in tif.pages] if header is not None else [page.asarray()]
         except Exception as exc:  # tifffile / imagecodecs raise many types on damaged data
@@ -124,14 +124,14 @@ def _check_extent(tif, path: Path) -> None:
                 raise MetrawError(f"{path}: truncated TIFF (pixel data ends at byte {off + n}, file has {size})")
 
 
-def _metraw_header(page) -> dict[str, Any] | None:
+def _metraw_header(page, path: Path) -> dict[str, Any] | None:
     desc = page.description or ""
     if f"\"{METRAW_TIFF_KEY}\":" not in desc:  # keys are sorted: a long "meta" can come first
         return None
     try:
         header = json.loads(desc)
     except json.JSONDecodeError as exc:
-        raise MetrawError(f"metraw TIFF header is damaged: {exc}") from None
+        raise MetrawError(f"{path}: metraw TIFF header is damaged: {exc}") from None
     return header if isinstance(header, dict) and METRAW_TIFF_KEY in header else None
 
 
@@ -139,14 +139,19 @@ def _from_metraw(path: Path, header: dict[str, Any], arrays: list[np.ndarray]) -
     if header[METRAW_TIFF_KEY] != METRAW_TIFF_VERSION:
         raise MetrawError(f"{path}: metraw TIFF version {header[METRAW_TIFF_KEY]} is not supported")
     pages = header.get("pages", ["raw"])
-    if len(arrays) != len(pages):
+    if not isinstance(pages, list) or "raw" not in pages or len(arrays) != len(pages):
         raise MetrawError(f"{path}: metraw TIFF lists pages {pages} but holds {len(arrays)}")
+    if "profile" not in header:
+        raise MetrawError(f"{path}: metraw TIFF header has no profile")
     parts = dict(zip(pages, arrays))
     if parts["raw"].dtype != np.uint16:
         raise MetrawError(f"{path}: metraw TIFF raw page must be uint16, got {parts['raw'].dtype}")
-    return RawImage(data=parts["raw"], profile=CalibrationProfile.from_dict(header["profile"]),
-                    mask=parts.get("mask"), flags=parts.get("flags"),
-                    provenance=header.get("provenance", []), meta=header.get("meta", {}))
+    try:
+        return RawImage(data=parts["raw"], profile=CalibrationProfile.from_dict(header["profile"]),
+                        mask=parts.get("mask"), flags=parts.get("flags"),
+                        provenance=header.get("provenance", []), meta=header.get("meta", {}))
+    except MetrawError as exc:
+        raise MetrawError(f"{path}: metraw TIFF header: {exc}") from None
 
 
 def _exif(tags) -> dict[str, Any]:
