@@ -29,8 +29,21 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+def check_fittable(image, name, black_level_dn: float | None = None) -> None:
+    """Refuse, saying what is wrong, a frame a single-frame noise fit cannot use at all: every pixel
+    saturated, or no pixel above the black level (``black_level_dn``, default the profile's)."""
+    p = image.profile
+    black = p.black_level_dn if black_level_dn is None else black_level_dn
+    sat = image.saturated()
+    if sat.all():
+        raise MetrawError(f"{name}: all {sat.size} pixels are saturated (>= white level {p.white_level_dn:g} DN): "
+                          "the frame cannot constrain a noise fit")
+    if not (image.data[~sat] > black).any():
+        raise MetrawError(f"{name}: no pixel above the black level {black:g} DN (an all-black frame): "
+                          "the frame cannot constrain a noise fit")
+
+
 def run(args: argparse.Namespace) -> int:
-    from metraw import calibrate
     from metraw.io import read_raw
     from metraw.progress import progress_bar
 
@@ -45,6 +58,8 @@ def run(args: argparse.Namespace) -> int:
                               f"--frames-per-level {n} (>= 2)")
         base = read_raw(args.input).profile if args.input else None
         frames = [read_raw(f) for f in progress_bar(args.flats + args.darks, desc="reading")]
+        from metraw import calibrate  # scipy: imported once the inputs are read
+
         flats, darks = frames[: len(args.flats)], frames[len(args.flats):]
         levels = [flats[i:i + n] for i in range(0, len(flats), n)]
         result = calibrate.from_series(levels, darks, profile=base)
@@ -53,6 +68,9 @@ def run(args: argparse.Namespace) -> int:
         if not args.input:
             raise MetrawError("give an INPUT image, or --flats and --darks")
         image = read_raw(args.input)
+        check_fittable(image, args.input)
+        from metraw import calibrate
+
         result = calibrate.from_image(image)
         print(f"single-frame fit (one image, Poisson-Gaussian on smooth regions): {args.input}")
     for note in result.notes:

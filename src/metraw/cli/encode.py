@@ -23,18 +23,25 @@ def register(sub) -> None:
 
 def load_image(path: str, profile_path: str | None, black: float | None, cfa: str | None):
     """Read a raw image and give it a profile: from ``profile_path``, or calibrated from the image."""
-    from metraw.calibrate import from_image
+    from metraw.cfa import validate_pattern
     from metraw.image import RawImage
     from metraw.io import read_raw
-    from metraw.profile import CalibrationProfile
+    from metraw.profile import load_profile
 
     if not Path(path).is_file():
         raise MetrawError(f"input {path} does not exist")
+    if cfa is not None:
+        validate_pattern(cfa)
+    prof = load_profile(profile_path) if profile_path else None
     image = read_raw(path)
-    if profile_path:
-        prof = CalibrationProfile.from_json(Path(profile_path).read_text())
+    if prof is not None:
         return image.derive(image.data, prof, function="set_profile", params={"profile": str(profile_path)},
                             ), None
+    from metraw.cli.calibrate import check_fittable
+
+    check_fittable(image, path, black)
+    from metraw.calibrate import from_image  # scipy: imported once the input is read
+
     kw = {}
     if black is not None:
         kw["black_level_dn"] = black
@@ -46,10 +53,12 @@ def load_image(path: str, profile_path: str | None, black: float | None, cfa: st
 
 
 def run(args) -> int:
-    from metraw import codec
     from metraw.atomic import atomic_path
 
+    if Path(args.output).exists() and not args.overwrite:
+        raise MetrawError(f"output {args.output} already exists (use --overwrite to replace it)")
     image, res = load_image(args.input, args.profile, args.black, args.cfa)
+    from metraw import codec  # numba: imported once the input is read
     if res is not None:
         p = res.profile
         print(f"metraw encode: no profile given: calibrated from the image (K = {p.gain_dn_per_e:.4g} DN/e-, "
