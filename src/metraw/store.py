@@ -44,9 +44,30 @@ def _zarr():
     return zarr
 
 
+def _zstd():
+    """Lossless zstd with the frame checksum: a damaged chunk is refused, never read as other pixels."""
+    return _zarr().codecs.ZstdCodec(level=3, checksum=True)
+
+
 def _default_raw_codecs(profile: CalibrationProfile) -> dict[str, Any]:
-    zarr = _zarr()
-    return {"compressors": [zarr.codecs.ZstdCodec(level=3)]}
+    return {"compressors": [_zstd()]}
+
+
+#: Shard-index entry of a chunk slot that holds no chunk (offset and length all ones).
+_EMPTY_SLOT = np.uint64(2**64 - 1)
+
+
+def read_shard_index(path: str | os.PathLike, slots: int) -> np.ndarray:
+    """(offset, nbytes) per chunk slot of a zarr shard file whose index is at the end (uint64 pairs
+    + CRC-32C, the layout `RawStore` writes); an empty slot holds ``2**64 - 1`` twice."""
+    index_len = 16 * slots + 4
+    with open(path, "rb") as fh:
+        fh.seek(max(0, os.fstat(fh.fileno()).st_size - index_len))
+        return np.frombuffer(fh.read(index_len)[:-4], "<u8").reshape(-1, 2)
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
 
 
 class RawStore:
@@ -64,12 +85,16 @@ class RawStore:
         self._raw_codecs = raw_codecs or _default_raw_codecs
         self._images_per_shard = images_per_shard
         self._pending: list[RawImage] = []
-        attrs = dict(group.attrs.get("metraw", {}))
+        attrs = group.attrs.get("metraw", {})
+        if not isinstance(attrs, dict):
+            raise MetrawError(f"{root} is not a metraw store (attribute 'metraw' is not an object)")
         if mode == "r" or attrs:
             if attrs.get("store_version") != STORE_VERSION:
                 raise MetrawError(f"{root} is not a metraw store (store_version {attrs.get('store_version')!r})")
         self._records: list[dict[str, Any]] = list(attrs.get("images", []))
         self._attrs_extra: dict[str, Any] = dict(attrs.get("extra", {}))
+        if attrs:
+            self._check_records(attrs.get("count"))
 
     # ----------------------------------------------------------------- construction
     @classmethod
@@ -109,18 +134,26 @@ class RawStore:
             return self._pending[index - len(self._records)]
         rec = self._records[index]
         h, w = rec["shape"]
-        data = np.asarray(self._group["raw"][index, :h, :w])
-        mask = np.asarray(self._group["mask"][index, :h, :w]) if rec["has_mask"] else None
-        flags = np.asarray(self._group["flags"][index, :h, :w]) if rec["has_flags"] else None
-        return RawImage(data=data, profile=CalibrationProfile.from_dict(rec["profile"]), mask=mask, flags=flags,
-                        provenance=rec["provenance"], meta=rec["meta"])
+        data = self._read("raw", index, h, w)
+        if not data.any():
+            self._check_raw_chunks(index, h, w)  # zarr reads a lost chunk as zeros (the fill value)
+        mask = self._read("mask", index, h, w) if rec["has_mask"] else None
+        flags = self._read("flags", index, h, w) if rec["has_flags"] else None
+        try:
+            return RawImage(data=data, profile=self.profile(index), mask=mask, flags=flags,
+                            provenance=rec["provenance"], meta=rec["meta"])
+        except MetrawError as exc:
+            raise MetrawError(f"store {self.path}: image {index}: {exc}") from None
 
     def __iter__(self) -> Iterator[RawImage]:
         for i in range(len(self)):
             yield self[i]
 
     def profile(self, index: int) -> CalibrationProfile:
-        return CalibrationProfile.from_dict(self._records[index]["profile"])
+        try:
+            return CalibrationProfile.from_dict(self._records[index]["profile"])
+        except MetrawError as exc:
+            raise MetrawError(f"store {self.path}: image {index}: {exc}") from None
 
     def meta(self, index: int) -> dict[str, Any]:
         return self._records[index]["meta"]
@@ -180,7 +213,9 @@ class RawStore:
             if img.flags is not None:
                 flags[i, :h, :w] = img.flags
         sl = slice(start, start + len(images))
-        self._group["raw"][sl] = raw
+        with _zarr().config.set({"array.write_empty_chunks": True}):
+            raw_array = self._group["raw"]  # every raw chunk on disk: a missing one is damage (see __getitem__)
+        raw_array[sl] = raw
         self._group["mask"][sl] = mask
         self._group["flags"][sl] = flags
         for img in images:
@@ -200,6 +235,48 @@ class RawStore:
             self.flush()
 
     # ----------------------------------------------------------------- internals
+    def _check_records(self, count: Any) -> None:
+        """The per-image records of the attributes are complete (a damaged zarr.json is one clear error)."""
+        if count != len(self._records):
+            raise MetrawError(f"store {self.path} is damaged: its attributes count {count!r} images but "
+                              f"describe {len(self._records)}")
+        keys = ("shape", "profile", "provenance", "meta", "has_mask", "has_flags")
+        for i, rec in enumerate(self._records):
+            if not isinstance(rec, dict) or any(k not in rec for k in keys):
+                raise MetrawError(f"store {self.path} is damaged: the record of image {i} lacks "
+                                  f"{', '.join(k for k in keys if not isinstance(rec, dict) or k not in rec)}")
+            shape = rec["shape"]
+            if not (isinstance(shape, list) and len(shape) == 2 and all(isinstance(v, int) and v > 0 for v in shape)):
+                raise MetrawError(f"store {self.path} is damaged: image {i} has shape {shape!r}")
+
+    def _read(self, name: str, index: int, h: int, w: int) -> np.ndarray:
+        """Image ``index`` of array ``name``; a damaged chunk or array is one ``MetrawError``."""
+        try:
+            return np.asarray(self._group[name][index, :h, :w])
+        except MetrawError as exc:  # the raw codec's own check (CRC-32C)
+            raise MetrawError(f"store {self.path}: image {index}: {name} chunk is corrupt: {exc}") from None
+        except Exception as exc:  # zarr, numcodecs and the file system raise many types on damaged data
+            raise MetrawError(f"store {self.path}: image {index}: {name} chunk is corrupt or unreadable "
+                              f"({_one_line(exc)})") from None
+
+    def _check_raw_chunks(self, index: int, h: int, w: int) -> None:
+        """Every raw chunk holding image ``index`` is on disk (its shard file exists and indexes it).
+
+        The raw array is written with every chunk stored, even an all-zero one, so a chunk that is
+        not there was lost; zarr itself would read it as the fill value (zeros)."""
+        arr = self._group["raw"]
+        k, sh, sw = arr.shards or arr.chunks
+        for j in range(-(-h // sh)):
+            for m in range(-(-w // sw)):
+                rel = Path("raw", "c", str(index // k), str(j), str(m))
+                f = self.path / rel
+                if not f.is_file():
+                    raise MetrawError(f"store {self.path}: image {index}: raw data missing (shard file {rel} "
+                                      "does not exist)")
+                if arr.shards and read_shard_index(f, k)[index % k, 0] == _EMPTY_SLOT:
+                    raise MetrawError(f"store {self.path}: image {index}: raw data missing (shard file {rel} "
+                                      "holds no chunk for it)")
+
     def _shard_images(self, shape: tuple[int, int]) -> int:
         if self._images_per_shard:
             return self._images_per_shard
@@ -212,11 +289,10 @@ class RawStore:
         w = max(img.shape[1] for img in images)
         k = self._shard_images((h, w))
         self._images_per_shard = k
-        zarr = _zarr()
         common = dict(shape=(0, h, w), chunks=(1, h, w), shards=(k, h, w), fill_value=0)
         self._group.create_array("raw", dtype="uint16", **common, **self._raw_codecs(images[0].profile))
-        self._group.create_array("mask", dtype="float32", compressors=[zarr.codecs.ZstdCodec(level=3)], **common)
-        self._group.create_array("flags", dtype="uint8", compressors=[zarr.codecs.ZstdCodec(level=3)], **common)
+        self._group.create_array("mask", dtype="float32", compressors=[_zstd()], **common)
+        self._group.create_array("flags", dtype="uint8", compressors=[_zstd()], **common)
 
     def _write_attrs(self) -> None:
         self._group.attrs["metraw"] = {

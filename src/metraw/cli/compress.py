@@ -86,19 +86,18 @@ def stored_raw(store, n: int) -> dict[str, Any]:
     all images (images smaller than the array are zero-padded)."""
     import zarr
 
+    from metraw.store import read_shard_index
+
     arr = zarr.open_group(str(store.path), mode="r")["raw"]
     per_shard = int(arr.shards[0]) if arr.shards else 1
-    index_len = 16 * per_shard + 4  # (offset, nbytes) uint64 per chunk + CRC-32C, at the end
     chunk_bytes = index_bytes = 0
     for f in sorted((Path(store.path) / "raw" / "c").rglob("*")):
         if not f.is_file():
             continue
-        with open(f, "rb") as fh:
-            fh.seek(max(0, f.stat().st_size - index_len))
-            idx = np.frombuffer(fh.read(index_len)[:-4], "<u8").reshape(-1, 2)
+        idx = read_shard_index(f, per_shard)
         used = idx[:, 0] != np.uint64(2**64 - 1)
         chunk_bytes += int(idx[used, 1].sum())
-        index_bytes += index_len
+        index_bytes += 16 * per_shard + 4  # (offset, nbytes) uint64 per chunk + CRC-32C, at the end
     pixels = sum(int(np.prod(store.shape(i))) for i in range(len(store)))
     return {"raw_codec": store.attrs.get("raw_codec"), "chunk_bytes": chunk_bytes, "shard_index_bytes": index_bytes,
             "pixels": pixels, "bits_per_pixel": 8 * chunk_bytes / pixels if pixels else None,
