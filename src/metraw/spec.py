@@ -73,12 +73,19 @@ class Limit:
                 **{k: _plain(v) for k, v in self.details.items()}}
 
     @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> "Limit":
-        try:
-            return cls(d["optimal"], d["min"], d["max"], d["unit"],
-                       {k: v for k, v in d.items() if k not in ("optimal", "min", "max", "unit")})
-        except KeyError as exc:
-            raise MetrawError(f"spec entry lacks {exc.args[0]!r}") from None
+    def from_dict(cls, d: Mapping[str, Any], name: str = "entry") -> "Limit":
+        if not isinstance(d, Mapping):
+            raise MetrawError(f"spec {name} must be a mapping of optimal, min, max, unit, got {d!r}")
+        missing = [k for k in ("optimal", "min", "max", "unit") if k not in d]
+        if missing:
+            raise MetrawError(f"spec {name} lacks {', '.join(map(repr, missing))}")
+        for k in ("optimal", "min", "max"):
+            if d[k] is not None and (isinstance(d[k], bool) or not isinstance(d[k], (int, float))):
+                raise MetrawError(f"spec {name}: {k} must be a number or null, got {d[k]!r}")
+        if None not in (d["min"], d["max"]) and d["min"] > d["max"]:
+            raise MetrawError(f"spec {name}: min {d['min']} > max {d['max']}")
+        return cls(d["optimal"], d["min"], d["max"], d["unit"],
+                   {k: v for k, v in d.items() if k not in ("optimal", "min", "max", "unit")})
 
 
 @dataclass
@@ -101,11 +108,27 @@ class Specification:
         if not isinstance(d, Mapping) or d.get("spec_version") != SPEC_VERSION:
             raise MetrawError(f"not a metraw spec (spec_version {d.get('spec_version') if isinstance(d, Mapping) else None!r},"
                               f" this metraw reads {SPEC_VERSION})")
-        try:
-            return cls(float(d["required_iou"]), {k: Limit.from_dict(v) for k, v in d["parameters"].items()},
-                       {k: Limit.from_dict(v) for k, v in d["image_properties"].items()}, dict(d.get("context") or {}))
-        except KeyError as exc:
-            raise MetrawError(f"spec lacks {exc.args[0]!r}") from None
+        missing = [k for k in ("required_iou", "parameters", "image_properties") if k not in d]
+        if missing:
+            raise MetrawError(f"spec lacks {', '.join(map(repr, missing))}")
+        iou = d["required_iou"]
+        if isinstance(iou, bool) or not isinstance(iou, (int, float)) or not 0 < iou < 1:
+            raise MetrawError(f"spec required_iou must be a number in (0, 1), got {iou!r}")
+        sections = {}
+        for section in ("parameters", "image_properties"):
+            if not isinstance(d[section], Mapping):
+                raise MetrawError(f"spec {section} must be a mapping, got {d[section]!r}")
+            sections[section] = {k: Limit.from_dict(v, f"{section}.{k}") for k, v in d[section].items()}
+        for k, lim in sections["image_properties"].items():
+            if None in (lim.optimal, lim.min, lim.max):
+                raise MetrawError(f"spec image_properties.{k}: optimal, min and max must be numbers")
+        unknown = sorted(set(sections["image_properties"]) - set(BETTER))
+        if unknown:
+            raise MetrawError(f"spec image_properties has unknown entries: {', '.join(unknown)} "
+                              f"(known: {', '.join(BETTER)})")
+        if not isinstance(d.get("context") or {}, Mapping):
+            raise MetrawError("spec context must be a mapping")
+        return cls(float(iou), sections["parameters"], sections["image_properties"], dict(d.get("context") or {}))
 
     def save(self, path: str | Path, overwrite: bool = True) -> None:
         with atomic_path(path, overwrite=overwrite) as tmp:
@@ -118,9 +141,14 @@ class Specification:
             data = yaml.safe_load(Path(path).read_text())
         except FileNotFoundError:
             raise MetrawError(f"spec file {path} not found") from None
+        except (OSError, UnicodeDecodeError) as exc:
+            raise MetrawError(f"cannot read spec file {path}: {getattr(exc, 'strerror', None) or exc}") from None
         except yaml.YAMLError as exc:
-            raise MetrawError(f"spec file {path} is not valid YAML: {exc}") from None
-        return cls.from_dict(data)
+            raise MetrawError(f"spec file {path} is not valid YAML: {' '.join(str(exc).split())}") from None
+        try:
+            return cls.from_dict(data)
+        except MetrawError as exc:
+            raise MetrawError(f"spec file {path}: {exc}") from None
 
 
 def _f(v):
