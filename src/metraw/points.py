@@ -17,31 +17,61 @@ from metraw.errors import MetrawError
 NOMINAL = "nominal"
 
 
-def load_params(path: str | Path = "params.yaml") -> dict[str, Any]:
-    """Read params.yaml (validated against the workflow's JSON schema when available)."""
+def load_params(path: str | Path = "params.yaml", complete: bool = True) -> dict[str, Any]:
+    """Read params.yaml, validated against the workflow's JSON schema (``complete=False``: a file may
+    hold only the sections a command reads, e.g. ``training`` for ``metraw train``)."""
     path = Path(path)
     try:
         params = yaml.safe_load(path.read_text())
     except FileNotFoundError:
         raise MetrawError(f"parameter file {path} not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise MetrawError(f"cannot read parameter file {path}: {getattr(exc, 'strerror', None) or exc}") from None
     except yaml.YAMLError as exc:
-        raise MetrawError(f"parameter file {path} is not valid YAML: {exc}") from None
+        raise MetrawError(f"parameter file {path} is not valid YAML: {' '.join(str(exc).split())}") from None
     if not isinstance(params, dict):
         raise MetrawError(f"parameter file {path} must hold a mapping")
-    validate_params(params, path)
+    validate_params(params, path, complete)
     return params
 
 
-def validate_params(params: dict[str, Any], origin: str | Path = "params") -> None:
-    """Validate against workflow/schemas/params.schema.yaml (shipped with the package too)."""
-    import jsonschema
+def validate_params(params: dict[str, Any], origin: str | Path = "params", complete: bool = True) -> None:
+    """Validate against workflow/schemas/params.schema.yaml (shipped with the package too); with
+    ``complete=False`` the top-level sections are optional (those present are validated in full).
+
+    Each sweep value must name a field of ``target.nominal`` and meet that field's constraint: it is
+    checked by validating the parameters with the value in place of the nominal one (a focal-length
+    sweep value of 0 is refused like a nominal focal length of 0)."""
+    import copy
 
     schema = yaml.safe_load(_schema_path().read_text())
-    try:
-        jsonschema.validate(params, schema)
-    except jsonschema.ValidationError as exc:
-        where = "/".join(str(p) for p in exc.absolute_path) or "(top level)"
-        raise MetrawError(f"{origin}: {where}: {exc.message}") from None
+    if not complete:
+        schema["required"] = []
+    error = _first_error(params, schema)
+    if error:
+        raise MetrawError(f"{origin}: {error[0]}: {error[1]}")
+    target = params.get("target") or {"nominal": {}}
+    for parameter, values in (target.get("sweeps") or {}).items():
+        where = f"target/sweeps/{parameter}"
+        if parameter not in target["nominal"]:
+            raise MetrawError(f"{origin}: {where}: {parameter!r} is not a field of target.nominal "
+                              f"(a sweep varies one of: {', '.join(target['nominal'])})")
+        for i, value in enumerate(values):
+            trial = copy.deepcopy(params)
+            trial["target"]["nominal"][parameter] = value
+            error = _first_error(trial, schema)
+            if error:
+                raise MetrawError(f"{origin}: {where}/{i}: {error[1]} (the constraint of target/nominal/{parameter})")
+
+
+def _first_error(params: dict[str, Any], schema: dict[str, Any]) -> tuple[str, str] | None:
+    """(path, message) of the best schema violation of ``params``, or None."""
+    import jsonschema
+
+    error = jsonschema.exceptions.best_match(jsonschema.validators.validator_for(schema)(schema).iter_errors(params))
+    if error is None:
+        return None
+    return "/".join(str(p) for p in error.absolute_path) or "(top level)", error.message
 
 
 def write_effective_params(params: dict[str, Any], path: str | Path) -> Path:

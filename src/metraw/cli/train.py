@@ -21,8 +21,10 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
+    from metraw.points import load_params
     from metraw.segment.train import load_config, train_store
 
+    load_params(args.params, complete=False)  # schema: one line naming a bad or unknown key
     config = load_config(args.params, args.profile)
     if args.epochs is not None:
         config.epochs = args.epochs
