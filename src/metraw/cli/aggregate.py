@@ -100,8 +100,7 @@ def load_point_results(params: dict[str, Any], results: str, metrics_pattern: st
         tp = target_params(params, point)
         row = {"point": point, **{n: float(tp[n]) for n in names}, "iou": iou, "iou_sd": math.sqrt(iou_var),
                "precision": metrics.get("precision"), "recall": metrics.get("recall"),
-               "n_test_images": metrics.get("n_images"),
-               "train_time_s": metrics.get("training_time_s"), "epochs": metrics.get("epochs")}
+               "n_test_images": metrics.get("n_images"), "epochs": metrics.get("epochs")}
         if cpath is not None:
             comp = _read_json(cpath, "compression file")
             ratios = np.array([im["ratio"] for im in comp["images"]], dtype=np.float64)

@@ -100,10 +100,9 @@ def evaluate_store(store_path, model_dir, device: str | None = None, progress: b
     """Score a trained model (``metraw.segment.train.train_store`` output) on a store's test split.
 
     The split is recomputed from the checkpoint's split seed and test fraction and must match
-    the indices stored at training time (same store length and order).
+    the indices stored at training time (same store length and order). No wall-clock timings:
+    the same model and store give the same record (``metraw evaluate`` logs its time on stderr).
     """
-    import time
-
     from metraw.errors import MetrawError
     from metraw.segment.data import prepare_store, split_indices
     from metraw.segment.train import TrainConfig, default_device, flush_denormals, load_model, set_determinism
@@ -118,12 +117,10 @@ def evaluate_store(store_path, model_dir, device: str | None = None, progress: b
     if test_idx.tolist() != list(ckpt["test_indices"]):
         raise MetrawError(f"the test split of {store_path} ({len(store)} images) differs from the one the "
                           f"model in {model_dir} was trained with")
-    t0 = time.perf_counter()
     images = prepare_store(store, test_idx, progress)
     with flush_denormals():
         out = evaluate_images(model, images, device, progress)
-    out.update({"evaluation_time_s": time.perf_counter() - t0, "store": str(store_path), "model": str(model_dir),
-                "training_time_s": record.get("training_time_s"), "epochs": record.get("epochs"),
+    out.update({"store": str(store_path), "model": str(model_dir), "epochs": record.get("epochs"),
                 "upsample": ckpt["upsample"], "pool": ckpt.get("pool", 1), "device": device, "config": ckpt["config"],
                 "packed_shape": list(images[0].packed_shape) if images else None})
     return out

@@ -6,6 +6,12 @@ so points differ only by their data. Deterministic on CPU: same seed and data gi
 weights and the same IoU (seeded torch, deterministic algorithms, fixed thread count, all
 random crops and augmentations drawn from one seeded numpy generator in the main process).
 CUDA is used when present (deterministic algorithms requested, warn-only there).
+
+``model.pt`` and ``train.json`` are a function of the data, the code and the config (seed and
+thread count included): two runs on one machine write the same bytes. Wall-clock timings
+(``TIMINGS``) are returned in the in-memory training record but never written to them: they go to
+the command's log (stderr). Another machine may give other weights: torch's CPU kernels pick
+their instruction set (AVX2, AVX-512, oneDNN) and summation order by processor.
 """
 
 from __future__ import annotations
@@ -28,6 +34,8 @@ from metraw.sensor import rng_from_seed
 
 CHECKPOINT = "model.pt"
 TRAIN_METRICS = "train.json"
+#: Wall-clock fields of the training record: returned by ``fit``/``train_store``, left out of train.json.
+TIMINGS = ("training_time_s", "preprocess_time_s")
 
 
 @dataclass
@@ -42,6 +50,8 @@ class TrainConfig:
     at: finer inputs are average-pooled by floor(grid_gsd_m / packed GSD) and the logits
     upsampled back, so drone images cost what their ground content needs (0: never pool).
     ``crops_per_image``: random crops drawn per training image per epoch.
+    ``threads``: torch CPU threads, fixed here and not taken from the machine or the workflow's
+    ``--cores``: the thread count changes the kernels' summation order, hence the weights' bytes.
     """
 
     epochs: int = 8
@@ -247,7 +257,8 @@ def train_store(store_path: str | os.PathLike, out_dir: str | os.PathLike, confi
 
 def save_model(out_dir, model, config: TrainConfig, record: dict[str, Any], test_indices, overwrite: bool = False
                ) -> None:
-    """Write ``model.pt`` (weights, config, upsampling, test split) and ``train.json`` atomically."""
+    """Write ``model.pt`` (weights, config, upsampling, test split) and ``train.json`` (``record`` without its
+    wall-clock ``TIMINGS``, so that the same training writes the same bytes) atomically."""
     import torch
 
     from metraw.atomic import atomic_path
@@ -258,7 +269,7 @@ def save_model(out_dir, model, config: TrainConfig, record: dict[str, Any], test
                     "config": asdict(config), "upsample": record["upsample"], "pool": record.get("pool", 1),
                     "in_channels": record["in_channels"], "test_indices": [int(i) for i in test_indices]},
                    tmp / CHECKPOINT)
-        (tmp / TRAIN_METRICS).write_text(json.dumps(record, indent=2))
+        (tmp / TRAIN_METRICS).write_text(json.dumps({k: v for k, v in record.items() if k not in TIMINGS}, indent=2))
 
 
 def load_model(model_dir: str | os.PathLike, device: str | None = None):
