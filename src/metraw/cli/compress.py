@@ -111,6 +111,8 @@ def run(args) -> int:
 
     if not (math.isfinite(args.step) and args.step > 0):
         raise MetrawError(f"--step must be a positive number of sigmas, got {args.step}")
+    if args.limit is not None and args.limit < 1:
+        raise MetrawError(f"--limit must be >= 1, got {args.limit}")
     out = Path(args.out)
     if out.exists() and not args.overwrite:
         raise MetrawError(f"output {out} already exists (use --overwrite to replace it)")

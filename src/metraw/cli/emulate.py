@@ -51,6 +51,8 @@ def run(args: argparse.Namespace) -> int:
         raise MetrawError(f"--seed must be >= 0, got {seed}")
     if args.workers < 1:
         raise MetrawError(f"--workers must be >= 1, got {args.workers}")
+    if args.limit is not None and args.limit < 1:
+        raise MetrawError(f"--limit must be >= 1, got {args.limit}")
     target = TargetSystem.from_params(params, parse_point(args.point))
     acc_over = {}
     for item in filter(None, (s.strip() for s in args.accuracy.split(","))):
@@ -58,7 +60,10 @@ def run(args: argparse.Namespace) -> int:
             raise MetrawError(f"--accuracy item {item!r} is not name=value")
         k, v = item.split("=", 1)
         acc_over[k.strip()] = v
-    accuracy = Accuracy.from_dict(acc_over)
+    try:
+        accuracy = Accuracy.from_dict(acc_over)
+    except (TypeError, ValueError) as exc:
+        raise MetrawError(f"--accuracy: {exc}") from None
     if not Path(args.source).exists():
         raise MetrawError(f"source store {args.source} does not exist")
     source = RawStore.open(args.source)

@@ -55,7 +55,12 @@ def read_headerless(path: Path, **metadata: Any) -> RawImage:
     data = as_dn(array, str(path))
     provenance = [{"function": "io.read_headerless", "params": {"path": str(path), "dtype": dtype.str,
                                                                 "offset_bytes": offset}}]
-    shift = int(metadata.get("stored_shift", 0))
+    try:
+        shift = int(metadata.get("stored_shift", 0))
+    except (TypeError, ValueError):
+        raise MetrawError(f"{path}: stored_shift must be an integer, got {metadata['stored_shift']!r}") from None
+    if not 0 <= shift < 16:
+        raise MetrawError(f"{path}: stored_shift must lie in 0..15, got {shift}")
     if shift:
         if np.any(data & np.uint16(2**shift - 1)):
             raise MetrawError(f"{path}: stored_shift={shift} but some pixels use those low bits")
@@ -82,6 +87,8 @@ def read_headerless(path: Path, **metadata: Any) -> RawImage:
             uncertainty=uncertainty)
     except (TypeError, ValueError) as exc:
         raise MetrawError(f"{path}: bad headerless metadata ({exc})") from None
+    except MetrawError as exc:
+        raise MetrawError(f"{path}: headerless metadata: {exc}") from None
     if int(data.max()) > white:
         raise MetrawError(f"{path}: pixel values up to {int(data.max())} exceed the white level {white:g} "
                           "(wrong dtype, byte order or bit depth?)")
