@@ -101,12 +101,26 @@ def test_all_saturated_encode_without_profile(tmp_path):
     refused(["encode", "a.tif", "out.mraw"], "saturated", tmp_path)
 
 
+# ----------------------------------------------------------------------------- headerless metadata
+def _headerless(tmp_path, **changes) -> list[str]:
+    """A 4 x 4 uint16 headerless raw and its ``--meta`` arguments (complete unless changed)."""
+    np.full((4, 4), 300, np.uint16).tofile(tmp_path / "a.raw")
+    meta = {**dict(width=4, height=4, dtype="uint16", cfa_pattern="RGGB", black_level_dn=0, adc_bits=12), **changes}
+    return ["a.raw", *[a for k, v in meta.items() for a in ("--meta", f"{k}={v}")]]
+
+
+def test_text_stored_shift_headerless_ingest(tmp_path):
+    refused(["ingest", *_headerless(tmp_path, stored_shift="four"), "--out", "s.zarr"],
+            "a.raw: stored_shift must be an integer", tmp_path)
+
+
+def test_20_bit_headerless_ingest(tmp_path):
+    refused(["ingest", *_headerless(tmp_path, adc_bits=20), "--out", "s.zarr"], "adc_bits must be in 1..16", tmp_path)
+
+
 # ----------------------------------------------------------------------------- unknown CFA patterns
 def test_unknown_cfa_headerless_ingest(tmp_path):
-    np.full((4, 4), 300, np.uint16).tofile(tmp_path / "a.raw")
-    meta = dict(width=4, height=4, dtype="uint16", cfa_pattern="RGBW", black_level_dn=0, adc_bits=12)
-    refused(["ingest", "a.raw", "--out", "s.zarr", *[a for k, v in meta.items() for a in ("--meta", f"{k}={v}")]],
-            "CFA pattern 'RGBW'", tmp_path)
+    refused(["ingest", *_headerless(tmp_path, cfa_pattern="RGBW"), "--out", "s.zarr"], "CFA pattern 'RGBW'", tmp_path)
 
 
 def test_unknown_cfa_option_encode(tmp_path):
