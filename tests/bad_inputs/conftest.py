@@ -42,6 +42,18 @@ def codec_store(tmp_path, _codec_store_template):
 
 
 @pytest.fixture(scope="session")
+def model(tmp_path_factory, _store_template):
+    """A segmenter trained for one epoch on the store (a narrow, shallow U-Net), for ``metraw evaluate``."""
+    folder = tmp_path_factory.mktemp("model")
+    (folder / "params.yaml").write_text("training: {profile: tiny, profiles: {tiny: {epochs: 1, batch_size: 4, "
+                                        "crop_px: 16, base_channels: 4, depth: 2}}}\n")
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        assert main(["train", str(_store_template), "--out", str(folder / "model"), "--params",
+                     str(folder / "params.yaml")]) == 0
+    return folder / "model"
+
+
+@pytest.fixture(scope="session")
 def mraw_blob() -> bytes:
     """A valid .mraw blob (a 64 x 64 RGGB ramp, profile embedded)."""
     from metraw import codec
