@@ -24,10 +24,8 @@ Never touches the repository's data/ or results/.
 from __future__ import annotations
 
 import collections
-import hashlib
 import importlib.util
 import json
-import os
 import re
 import shutil
 import subprocess
@@ -37,12 +35,10 @@ from pathlib import Path
 import pytest
 import yaml
 
-REPO = Path(__file__).resolve().parents[1]
-SCRIPT = REPO / "workflow" / "scripts" / "dvc_yaml.py"
-PER_POINT_RULES = ("emulate", "train", "evaluate", "compress")
+from workflow_workspace import REPO, SCRIPT, file_digests, make_workspace, needs_tools, tiny_params
+from workflow_workspace import run as _run
 
-needs_tools = pytest.mark.skipif(shutil.which("snakemake") is None or shutil.which("dvc") is None,
-                                 reason="snakemake and dvc executables are needed")
+PER_POINT_RULES = ("emulate", "train", "evaluate", "compress")
 
 
 def _dvc_yaml():
@@ -50,42 +46,6 @@ def _dvc_yaml():
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
-
-
-def tiny_params() -> dict:
-    """The repository's params.yaml shrunk: 4 scenes of 160 px, 1 epoch, 4 points (the GP's leave-one-out needs 4)."""
-    params = yaml.safe_load((REPO / "params.yaml").read_text())
-    params["source"]["dataset"] = "synthetic"
-    params["source"]["synthetic"].update(n_scenes=4, size_px=160, seed=0)
-    params["target"]["sweeps"] = {"focal_length_m": [1.2], "diameter_m": [0.35], "exposure_s": [300.0e-6]}
-    params["training"]["profile"] = "default"
-    params["training"]["profiles"]["default"].update(epochs=1, batch_size=4, crop_px=4, base_channels=4, depth=2,
-                                                     min_grid_px=0, crops_per_image=1)
-    return params
-
-
-def _run(cmd: list[str], cwd: Path, check: bool = True) -> subprocess.CompletedProcess:
-    env = {**os.environ, "PYTHONHASHSEED": "0"}
-    env.pop("SNAKEMAKE_OUTPUT_CACHE", None)  # the workspace's own .snakemake-cache/ (the Snakefile's default)
-    proc = subprocess.run(["nice", "-n", "5", *cmd], cwd=cwd, capture_output=True, text=True, env=env)
-    if check and proc.returncode != 0:
-        raise AssertionError(f"{' '.join(cmd)} failed ({proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
-    return proc
-
-
-def make_workspace(root: Path, params: dict) -> Path:
-    """Workflow files + params + generated dvc.yaml in a fresh git + DVC repository."""
-    for name in ("Snakefile", ".dvcignore"):
-        shutil.copy2(REPO / name, root / name)
-    shutil.copytree(REPO / "workflow", root / "workflow", ignore=shutil.ignore_patterns("__pycache__"))
-    os.symlink(os.readlink(REPO / "profiles"), root / "profiles")  # profiles -> workflow/profiles, as in the repo
-    (root / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
-    (root / ".gitignore").write_text("/data/\n/results/\n/logs/\n.snakemake/\n/.snakemake-cache/\n")
-    _run(["python", str(SCRIPT)], root)
-    _run(["git", "init", "-q"], root)
-    _run(["dvc", "init", "-q"], root)
-    _run(["dvc", "config", "core.autostage", "false"], root)
-    return root
 
 
 def set_sweep(root: Path, parameter: str, values: list) -> None:
@@ -152,9 +112,7 @@ def snakemake_ran(root: Path, text: str) -> tuple[collections.Counter, ...]:
 
 def cache_entries(root: Path) -> dict[str, str]:
     """Files in the workspace's Snakemake output cache and a hash of their content."""
-    cache = root / ".snakemake-cache"
-    return {str(f.relative_to(cache)): hashlib.sha256(f.read_bytes()).hexdigest()
-            for f in sorted(cache.rglob("*")) if f.is_file()}
+    return file_digests(root / ".snakemake-cache")
 
 
 def dvc_repro(root: Path, *targets: str) -> dict[str, list[str]]:
