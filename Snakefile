@@ -11,20 +11,14 @@ from snakemake.utils import min_version
 
 min_version("9.0")
 
-# Between-workflow output cache (--cache, on in profiles/default): the aggregate comes back from it when a sweep
-# value is reverted. Default location .snakemake-cache/ next to this file (ignored by git and DVC); a
-# SNAKEMAKE_OUTPUT_CACHE set by the user wins. Snakemake creates no cache folder itself.
-if workflow.enable_cache:
-    Path(os.environ.setdefault("SNAKEMAKE_OUTPUT_CACHE", str(Path(workflow.basedir) / ".snakemake-cache"))).mkdir(
-        parents=True, exist_ok=True)
-
 configfile: "params.yaml"
 
 # DVC stages pass the point(s) they stand for (--config dvc_point=... / dvc_points=...); they are
 # checked against params.yaml in workflow/rules/common.smk and are not workflow parameters.
 DVC_CHECK = {key: str(config.pop(key)) for key in ("dvc_point", "dvc_points") if key in config}
 
-# One clear line and exit status 2 for a bad params.yaml (or --config override), before anything is written.
+# One clear line and exit status 2 for a bad params.yaml (or --config override), before anything is written
+# (the output cache folder below included).
 from metraw.errors import MetrawError
 from metraw.points import validate_params, write_effective_params
 
@@ -38,6 +32,13 @@ except MetrawError as exc:
 # every `metraw ... --params` reads it, so an override reaches the commands and not only the DAG.
 # Rewritten only when its content changes; its path never changes, so no command string changes with it.
 PARAMS_FILE = write_effective_params(config, Path(".snakemake") / "metraw" / "params.yaml")
+
+# Between-workflow output cache (--cache, on in profiles/default): the aggregate comes back from it when a sweep
+# value is reverted. Default location .snakemake-cache/ next to this file (ignored by git and DVC); a
+# SNAKEMAKE_OUTPUT_CACHE set by the user wins. Snakemake creates no cache folder itself.
+if workflow.enable_cache:
+    Path(os.environ.setdefault("SNAKEMAKE_OUTPUT_CACHE", str(Path(workflow.basedir) / ".snakemake-cache"))).mkdir(
+        parents=True, exist_ok=True)
 
 report: "workflow/report/workflow.rst"
 

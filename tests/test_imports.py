@@ -28,3 +28,13 @@ def test_the_walk_finds_the_package():
 @pytest.mark.parametrize("name", _modules())
 def test_module_imports(name):
     importlib.import_module(name)
+
+
+def test_the_params_schema_ships_inside_the_package():
+    # a non-editable install has no workflow/ beside it: metraw.points falls back to metraw/schemas/,
+    # a link to workflow/schemas/params.schema.yaml that setuptools copies into the wheel
+    from pathlib import Path
+
+    packaged = Path(metraw.__file__).parent / "schemas" / "params.schema.yaml"
+    workflow = Path(__file__).resolve().parents[1] / "workflow" / "schemas" / "params.schema.yaml"
+    assert packaged.read_bytes() == workflow.read_bytes()
