@@ -139,3 +139,24 @@ def test_atomic_path_leaves_nothing_on_failure(tmp_path):
     with pytest.raises(MetrawError, match="already exists"):
         with atomic_path(dest):
             pass
+
+
+def test_atomic_path_removes_the_temporary_of_a_killed_writer_only(tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    from metraw.atomic import _owner
+
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    host = _owner().rsplit("-", 1)[0]
+    dest = tmp_path / "out.zarr"
+    killed = tmp_path / f".out.zarr.{host}-{int(dead.stdout)}.abcd_123.partial"   # its process is gone
+    running = tmp_path / f".out.zarr.{host}-{os.getpid()}.efgh_456.partial"       # a live writer's
+    other_host = tmp_path / ".out.zarr.elsewhere-1.ijkl_789.partial"                # not ours to judge
+    for d in (killed, running, other_host):
+        (d / "out.zarr").mkdir(parents=True)
+    with atomic_path(dest) as tmp:
+        tmp.write_text("done")
+    assert dest.read_text() == "done"
+    assert not killed.exists() and running.exists() and other_host.exists()

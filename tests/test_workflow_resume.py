@@ -13,10 +13,9 @@ runs ``snakemake --unlock``, then the same command again. Finally every file und
 by sha256.
 
 All of them are identical: results are a function of inputs, code, seeds and the configured thread count
-(timings go to logs/, never into results). The one exception is not an output: a SIGKILLed writer cannot remove
-its temporary directory (metraw.atomic's ``.<name>.<random>.partial`` next to the output), and Snakemake does not
-know it, so B keeps exactly the temporaries of the killed writers, unchanged since the kill. The test asserts
-that list and nothing else (an empty one where metraw.atomic removes a dead writer's temporary itself).
+(timings go to logs/, never into results), and B has no file A lacks. A SIGKILLed writer cannot remove its
+temporary directory (metraw.atomic's ``.<name>.<host>-<pid>.<random>.partial`` next to the output), and
+Snakemake does not know it: the next write of the same output removes it (its process is gone), so none is left.
 
 Machine dependence (why the same config elsewhere can give another IoU, e.g. 0.174 vs 0.178): the emulator
 (numpy/numba) is driven by integers and seeded generators and gives the same stores on any machine; torch's CPU
@@ -40,7 +39,6 @@ from pathlib import Path
 
 import pytest
 
-import metraw.atomic
 from workflow_workspace import file_digests, make_workspace, needs_tools, run, tiny_params, workflow_env
 
 psutil = pytest.importorskip("psutil")  # Snakemake's own dependency
@@ -171,6 +169,7 @@ def test_killed_runs_resume_with_identical_results(tmp_path):
     assert not partials(a)
     assert any(k.endswith("/model/model.pt") for k in ref) and any(".zarr/" in k for k in ref)
     assert missing == [] and differ == [], (missing, differ)
-    # the only files B has beyond A's: the temporaries of the killed writers, byte for byte as the kills left
-    # them; none once metraw.atomic removes a dead writer's temporary when the next write of its output starts
-    assert extra == ({} if hasattr(metraw.atomic, "_remove_orphans") else left), (sorted(extra), sorted(left))
+    # the killed writers did leave temporaries (`left`), and B has no file beyond A's: metraw.atomic removes a
+    # dead writer's temporary when the next write of the same output starts
+    assert left, "no killed writer left a temporary: the kills landed outside the writes"
+    assert extra == {}, (sorted(extra), sorted(left))

@@ -7,7 +7,9 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import shutil
+import socket
 import tempfile
 from pathlib import Path
 from typing import Iterator
@@ -26,7 +28,8 @@ def atomic_path(destination: str | os.PathLike, overwrite: bool = False) -> Iter
     if dest.exists() and not overwrite:
         raise MetrawError(f"output {dest} already exists (use --overwrite to replace it)")
     dest.parent.mkdir(parents=True, exist_ok=True)
-    tmp_dir = Path(tempfile.mkdtemp(prefix=f".{dest.name}.", suffix=".partial", dir=dest.parent))
+    _remove_orphans(dest)
+    tmp_dir = Path(tempfile.mkdtemp(prefix=f".{dest.name}.{_owner()}.", suffix=".partial", dir=dest.parent))
     tmp = tmp_dir / dest.name
     try:
         yield tmp
@@ -44,3 +47,32 @@ def _remove(path: Path) -> None:
         shutil.rmtree(path)
     else:
         path.unlink()
+
+
+def _owner() -> str:
+    """Host and process writing a temporary (``host-pid``; dots and dashes in the host name become ``_``)."""
+    return f"{re.sub(r'[^A-Za-z0-9_]', '_', socket.gethostname())}-{os.getpid()}"
+
+
+def _remove_orphans(dest: Path) -> None:
+    """Remove the temporaries of earlier writes of ``dest`` whose process is gone (SIGKILL, power loss).
+
+    Such a write can never complete and nobody else knows its directory. Only temporaries of this host
+    whose process no longer exists are removed: a live writer's (or another host's) are left alone.
+    """
+    host, _ = _owner().rsplit("-", 1)
+    pattern = re.compile(rf"\.{re.escape(dest.name)}\.{re.escape(host)}-(\d+)\.[a-z0-9_]{{8}}\.partial")
+    for tmp in dest.parent.iterdir():
+        m = pattern.fullmatch(tmp.name)
+        if m and not _alive(int(m.group(1))):
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        return True
+    return True
