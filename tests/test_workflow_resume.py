@@ -113,8 +113,11 @@ def kill_during(root: Path, rule: str, ready) -> dict:
 
 
 def emulation_writing(root: Path, running) -> bool:
-    """An emulation has started writing its store (the temporary sibling of a target.zarr exists)."""
-    return any(root.glob("results/points/*/.target.zarr.*.partial"))
+    """An emulation has written a first file into its store's temporary sibling (``.target.zarr.*.partial``).
+
+    The directory alone is not enough: it exists empty for a moment before zarr writes its metadata, and a
+    kill then leaves no file to find."""
+    return any(p.is_file() for p in root.glob("results/points/*/.target.zarr.*.partial/**/*"))
 
 
 def training_for(seconds: float):
