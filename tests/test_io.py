@@ -14,6 +14,7 @@ from metraw.image import FLAG_SATURATED
 from metraw.io import default_camera, noise_model_known, read_raw, srgb_to_linear, write_tiff
 from metraw.io._dn import unused_low_bits
 from metraw.io.labels import box_area_fraction, boxes_to_pixels, read_yolo
+from metraw.daylight import neutral_response
 from metraw.io.processed import approximate_raw
 from metraw.sensor import rng_from_seed
 
@@ -152,8 +153,9 @@ def test_approximate_raw_mean_and_variance_follow_the_camera_model():
     rgb = np.full((256, 256, 3), v, np.uint8)
     img = approximate_raw(rgb, cam, rng_from_seed(5))
     lin = srgb_to_linear(v / 255.0)
-    qe = np.array([0.4, 0.6, 0.3])
-    scale = cam.saturation_e * qe / qe.max()
+    neutral = neutral_response(cam, 45.0)  # white balance undone for daylight
+    scale = cam.saturation_e * np.array([neutral[c] for c in "RGB"])
+    assert scale[1] == cam.saturation_e and scale[2] < scale[0] < scale[1]
     for (c, dy, dx) in [("R", 0, 0), ("G", 0, 1), ("G", 1, 0), ("B", 1, 1)]:
         x = img.data[dy::2, dx::2].astype(float)
         mu_e = lin * scale["RGB".index(c)]

@@ -11,7 +11,8 @@ import pytest
 from metraw.cli import main
 from metraw.scenes import default_camera, generate, generate_one
 from metraw.scenes.layout import Scene, add_vehicle, make_scene, rect
-from metraw.scenes.radiance import electrons_per_reflectance, solar_toa_irradiance_w_m2_m
+from metraw.daylight import neutral_response, solar_toa_irradiance_w_m2_m
+from metraw.scenes.radiance import electrons_per_reflectance
 from metraw.scenes.render import RenderSettings, render
 from metraw.sensor import rng_from_seed
 from metraw.store import RawStore
@@ -120,6 +121,22 @@ def test_daylight_photon_counts_are_physical():
     assert math.isclose(k2["G"][0], 8 * k["G"][0], rel_tol=1e-12)
     img = generate_one(0, 0, size_px=256)
     assert 1000 < float(np.median(img.electrons())) < cam.full_well_e
+
+
+def test_neutral_response_matches_the_rendered_grey_surface():
+    """The channel ratios of a grey surface in daylight equal those of the absolute radiometry, and the
+    blue channel of the default camera gets about half the green one (a bluish sun is still redder than
+    the QE ratio alone suggests: 0.40 / 0.55 = 0.73)."""
+    cam = default_camera()
+    for elevation in (20.0, 45.0, 70.0):
+        k = electrons_per_reflectance(cam, elevation, 1e-3)
+        grey = {c: kd * math.sin(math.radians(elevation)) + ks for c, (kd, ks) in k.items()}
+        ratios = neutral_response(cam, elevation)
+        assert max(ratios.values()) == 1.0
+        for c in grey:
+            assert math.isclose(ratios[c], grey[c] / max(grey.values()), rel_tol=1e-12)
+    ratios = neutral_response(cam, 45.0)
+    assert 0.45 < ratios["B"] / ratios["G"] < 0.60 and 0.85 < ratios["R"] / ratios["G"] < 0.95
 
 
 def test_car_geometry_is_realistic():

@@ -5,8 +5,12 @@ noise is no longer the sensor's. It can still feed the raw workflow as an approx
 
 1. invert the sRGB transfer curve (IEC 61966-2-1) -> linear relative intensity in [0, 1];
 2. remosaic: keep, at each pixel, the colour the stated CFA has there;
-3. scale to the photoelectrons of a stated camera: linear 1.0 of channel c ->
-   ``white_fraction * saturation_e * qe_c / max(qe)`` (white balance undone by the camera's QE);
+3. undo the white balance and scale to the photoelectrons of a stated camera: the photo shows a neutral
+   (grey) surface as R = G = B, while the camera's raw records it in the ratios of daylight seen through
+   the camera's bands and QE (``metraw.daylight.neutral_response``, sun at ``sun_elevation_deg``); so
+   linear 1.0 of channel c -> ``white_fraction * saturation_e * neutral_c`` (the largest channel reaches
+   ``white_fraction`` of saturation). For the default camera at 45 degrees B/G = 0.51, where the QE ratio
+   alone (0.73) would leave raws too blue compared with rendered daylight scenes;
 4. apply the camera's sensor model (``metraw.sensor.expose``: Poisson shot noise, dark current,
    read noise, gain, black level, ADC) with a seeded generator.
 
@@ -23,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from metraw.cfa import color_index
+from metraw.daylight import neutral_response
 from metraw.errors import MetrawError
 from metraw.image import RawImage
 from metraw.profile import CalibrationProfile
@@ -65,11 +70,13 @@ def seed_for(path: Path, seed: int) -> np.random.Generator:
 
 
 def approximate_raw(rgb8: np.ndarray, camera: CalibrationProfile, rng: np.random.Generator, *,
-                    white_fraction: float = 1.0, gsd_m: float | None = None, source: str = "") -> RawImage:
+                    white_fraction: float = 1.0, gsd_m: float | None = None, source: str = "",
+                    sun_elevation_deg: float = 45.0) -> RawImage:
     """Approximate raw image from an 8-bit sRGB array (H, W, 3) using ``camera``'s sensor model.
 
     ``white_fraction``: fraction of the camera's saturation (photoelectrons) that sRGB white maps to
-    for the channel with the highest QE. ``gsd_m``: ground sample distance of the photo [m]; the
+    for the channel with the largest daylight response. ``sun_elevation_deg``: the sun of the daylight the
+    photo's white balance is undone for (5-90 degrees; the channel ratios change by < 5 % over 20-70). ``gsd_m``: ground sample distance of the photo [m]; the
     profile's altitude is set so that ``profile.gsd_m == gsd_m`` (unknown geometry when None).
     """
     a = np.asarray(rgb8)
@@ -89,8 +96,8 @@ def approximate_raw(rgb8: np.ndarray, camera: CalibrationProfile, rng: np.random
     idx = color_index(pattern, (h, w))  # index into ("R", "G", "B")
     mosaic8 = np.take_along_axis(a, idx[..., None].astype(np.intp), axis=2)[..., 0]
     lut = srgb_to_linear(np.arange(256) / 255.0)
-    qe = np.array([camera.qe_per_channel[c] for c in channels])
-    scale_e = white_fraction * camera.saturation_e * qe / qe.max()
+    neutral = neutral_response(camera, sun_elevation_deg)
+    scale_e = white_fraction * camera.saturation_e * np.array([neutral[c] for c in channels])
     mean_e = lut[mosaic8] * scale_e[idx]
     data = expose(mean_e, camera, rng)
     changes: dict[str, Any] = {"approximate": True, "approximate_reason": APPROXIMATE_REASON}
@@ -102,7 +109,8 @@ def approximate_raw(rgb8: np.ndarray, camera: CalibrationProfile, rng: np.random
         changes["altitude_m"] = None
     profile = camera.replace(**changes)
     params = {"source": source, "transfer": "sRGB (IEC 61966-2-1) inverted", "cfa_pattern": pattern,
-              "white_fraction": white_fraction, "electrons_at_white": dict(zip(channels, scale_e.tolist())),
+              "white_fraction": white_fraction, "white_balance": f"daylight, sun at {sun_elevation_deg} deg",
+              "electrons_at_white": dict(zip(channels, scale_e.tolist())),
               "camera": camera.camera, "gsd_m": gsd_m}
     return RawImage(data=data, profile=profile, provenance=[{"function": "io.approximate_raw", "params": params}],
                     meta={"source_file": source, "format": "processed 8-bit RGB -> approximate raw",

@@ -1,17 +1,7 @@
-"""Daylight irradiance at the ground and its conversion to expected photoelectrons per pixel.
+"""Conversion of daylight (``metraw.daylight``) to expected photoelectrons per pixel of a camera.
 
-Model (documented approximations, all scalar, float64):
-
-- Sun above the atmosphere: a 5778 K black body scaled by (R_sun / 1 AU)^2, so the total is
-  about 1361 W m^-2 (the solar constant).
-- Atmosphere (sea level): Rayleigh optical depth tau_R = 0.0088 * lambda_um^-4.05 and an
-  aerosol depth tau_a = 0.12 * (lambda / 550 nm)^-1.3 (clear, moderately clean continental
-  air); air mass m = 1 / sin(elevation) (fine above ~15 degrees).
-- Direct beam on a surface with normal n: E0 * exp(-(tau_R + tau_a) m) * max(0, n . s).
-- Diffuse sky on a horizontal surface (single-scattering partition in the spirit of
-  Bird & Riordan 1986): E0 sin(e) [0.5 (1 - T_R) T_a + 0.75 T_R (1 - T_a) + 0.6 (1 - T_R)(1 - T_a)].
-- Lambertian surfaces: radiance L = rho * E / pi. The 250 m air path between ground and
-  drone is neglected (transmission > 0.99 at these wavelengths).
+Lambertian surfaces: radiance L = rho * E / pi. The 250 m air path between ground and drone is
+neglected (transmission > 0.99 at these wavelengths).
 
 Camera (pinhole geometry, small angles): a pixel sees the solid angle Omega = (pitch / f)^2,
 the aperture has area A = pi D^2 / 4 (1 - obscuration^2); over an exposure t with optics
@@ -29,44 +19,9 @@ import math
 
 import numpy as np
 
+from metraw.daylight import C_LIGHT_M_PER_S, H_PLANCK_J_S, ground_irradiance_w_m2_m
 from metraw.errors import MetrawError
 from metraw.profile import CalibrationProfile
-
-H_PLANCK_J_S = 6.62607015e-34
-C_LIGHT_M_PER_S = 299792458.0
-K_BOLTZMANN_J_PER_K = 1.380649e-23
-T_SUN_K = 5778.0
-R_SUN_M = 6.957e8
-AU_M = 1.495978707e11
-
-
-def solar_toa_irradiance_w_m2_m(wavelength_m: np.ndarray) -> np.ndarray:
-    """Spectral solar irradiance above the atmosphere [W m^-2 m^-1] (black body 5778 K)."""
-    lam = np.asarray(wavelength_m, dtype=np.float64)
-    planck = 2 * H_PLANCK_J_S * C_LIGHT_M_PER_S**2 / lam**5 / np.expm1(
-        H_PLANCK_J_S * C_LIGHT_M_PER_S / (lam * K_BOLTZMANN_J_PER_K * T_SUN_K))
-    return math.pi * planck * (R_SUN_M / AU_M) ** 2
-
-
-def optical_depths(wavelength_m: np.ndarray, aerosol_depth_550: float = 0.12) -> tuple[np.ndarray, np.ndarray]:
-    """(Rayleigh, aerosol) vertical optical depths at sea level (dimensionless)."""
-    lam_um = np.asarray(wavelength_m, dtype=np.float64) * 1e6
-    return 0.0088 * lam_um ** -4.05, aerosol_depth_550 * (lam_um / 0.55) ** -1.3
-
-
-def ground_irradiance_w_m2_m(wavelength_m: np.ndarray, sun_elevation_deg: float,
-                             aerosol_depth_550: float = 0.12) -> tuple[np.ndarray, np.ndarray]:
-    """(direct normal, diffuse horizontal) spectral irradiance at the ground [W m^-2 m^-1]."""
-    if not 5.0 <= sun_elevation_deg <= 90.0:
-        raise MetrawError(f"sun elevation must be in [5, 90] degrees, got {sun_elevation_deg}")
-    e0 = solar_toa_irradiance_w_m2_m(wavelength_m)
-    sin_e = math.sin(math.radians(sun_elevation_deg))
-    airmass = 1.0 / sin_e
-    tau_r, tau_a = optical_depths(wavelength_m, aerosol_depth_550)
-    t_r, t_a = np.exp(-tau_r * airmass), np.exp(-tau_a * airmass)
-    direct_normal = e0 * t_r * t_a
-    diffuse = e0 * sin_e * (0.5 * (1 - t_r) * t_a + 0.75 * t_r * (1 - t_a) + 0.6 * (1 - t_r) * (1 - t_a))
-    return direct_normal, diffuse
 
 
 def pixel_etendue_m2_sr(camera: CalibrationProfile) -> float:
