@@ -48,13 +48,11 @@ import numba as nb
 import numpy as np
 
 from metraw.codec.container import get_varint, put_varint
+from metraw.codec.decode_kernel import PROB_BITS, PROB_SCALE, RANS_L, decode_plane
 from metraw.errors import MetrawError
 
 FRAC = 16                      # fixed-point bits of reconstructed values
 COEF_BITS = 12                 # fractional bits of the predictor coefficients (int16 storage)
-PROB_BITS = 12                 # rANS probability resolution
-PROB_SCALE = 1 << PROB_BITS
-RANS_L = 1 << 16
 NPH = 4                        # folded dither-phase bins per activity context
 MAX_NACT = 8                   # activity contexts per group, at most
 MIN_FIT = 64                   # fewer samples in a context: use the default predictor
@@ -221,7 +219,7 @@ def _residuals(s, p, thr, coef, bias, tab0, pshift, r_out, t_out, off):
     """Residuals r (phase folded) and table indices of one plane into flat outputs at ``off``.
 
     Row by row in passes without a sequential dependence (every neighbour is known to the
-    encoder), so they vectorise; the integer arithmetic is that of ``_decode_pixel``.
+    encoder), so they vectorise; the integer arithmetic is that of ``decode_kernel.decode_pixel``.
     Returns max |r|."""
     h, w = s.shape
     half = np.int64(1 << 15)
@@ -258,7 +256,7 @@ def _residuals(s, p, thr, coef, bias, tab0, pshift, r_out, t_out, off):
         for x in range(w):
             xx = x + 2
             o = ctx[x] * 13
-            # sum_i k_i (n_i - W) = sum_i k_i n_i - W sum_i k_i (exact integers, as in ``_decode_pixel``)
+            # sum_i k_i (n_i - W) = sum_i k_i n_i - W sum_i k_i (exact integers, as in ``decode_kernel.decode_pixel``)
             acc[x] = (coef12[o] * r1[xx] + coef12[o + 1] * r1[xx - 1] + coef12[o + 2] * r1[xx + 1]
                       + coef12[o + 3] * r0[xx - 2] + coef12[o + 4] * r2[xx] + coef12[o + 5] * r1[xx - 2]
                       + coef12[o + 6] * r2[xx - 1] + coef12[o + 7] * r2[xx + 1] + coef12[o + 8] * r1[xx + 2]
@@ -333,129 +331,6 @@ def _normalise(counts):
                 freq[t, best] -= take
                 diff += take
     return freq
-
-
-@nb.njit(cache=True, nogil=True, inline="always")
-def _decode_pixel(p, yy, xx, uv, thr, coef, bias, tab0, pshift, lut, fcum, amax, words, x, pos, pmin, esc, epos, eend):
-    """Decode pixel (yy, xx) of the padded buffer ``p`` from one lane; returns (symbol, x, pos, epos, ok)."""
-    half = np.int64(1 << 15)
-    # direct 2-D indexing: a row view (p[yy]) would cost a reference-count update per pixel
-    w_ = p[yy, xx - 1]
-    n_ = p[yy - 1, xx]
-    nw = p[yy - 1, xx - 1]
-    ne = p[yy - 1, xx + 1]
-    ww = p[yy, xx - 2]
-    nn = p[yy - 2, xx]
-    # ``_activity`` from the neighbours already loaded (calling it measured 8 % slower decoding)
-    act = abs(w_ - nw) + abs(n_ - nw) + abs(n_ - ne) + abs(w_ - ww) + abs(n_ - nn)
-    c = ((act > thr[0]) + (act > thr[1]) + (act > thr[2]) + (act > thr[3]) + (act > thr[4]) + (act > thr[5])
-         + (act > thr[6]))
-    o = c * 12
-    # sum_i k_i (n_i - W) = sum_i k_i n_i - W sum_i k_i (exact integers: the encoder's value)
-    acc = (coef[o] * n_ + coef[o + 1] * nw + coef[o + 2] * ne + coef[o + 3] * ww + coef[o + 4] * nn
-           + coef[o + 5] * p[yy - 1, xx - 2] + coef[o + 6] * p[yy - 2, xx - 1] + coef[o + 7] * p[yy - 2, xx + 1]
-           + coef[o + 8] * p[yy - 1, xx + 2] + coef[o + 9] * p[yy - 2, xx - 2] + coef[o + 10] * p[yy - 2, xx + 2]
-           - coef[o + 11] * w_)
-    mh = w_ + (acc >> 12) + bias[c] + uv + half
-    sh = mh >> 16
-    fr = mh & 0xFFFF
-    f = 1 - (fr >> 15)
-    t = tab0 + c * (4 >> pshift) + ((((fr ^ (-f & 0xFFFF)) >> 13) & 3) >> pshift)
-    slot = x & np.uint64(PROB_SCALE - 1)
-    s = np.int64(lut[t, slot])
-    fc = fcum[t, s]
-    x = np.uint64(fc >> 16) * (x >> np.uint64(PROB_BITS)) + slot - np.uint64(fc & 0xFFFF)
-    # renormalise without a data-dependent branch: words[pos] is the next word (words[pmin] a pad)
-    need = np.uint64(x < np.uint64(RANS_L))
-    x = (x << (need << np.uint64(4))) | (np.uint64(words[pos]) * need)
-    pos -= np.int64(need)
-    ok = pos >= pmin
-    # escape: the residual is the lane's next escape value. Branch-free (a branch here makes numba count
-    # references to ``esc`` and ``p`` per pixel): esc[epos] is always readable (``esc`` ends with a pad)
-    is_esc = s == 2 * amax + 1
-    ev = np.int64(esc[epos])
-    r = ev if is_esc else s - amax
-    ok = ok & ((epos < eend) | (not is_esc))
-    epos += np.int64(is_esc)
-    v = sh + ((r ^ -f) + f)
-    p[yy, xx] = (v << 16) - uv
-    return v, x, pos, epos, ok
-
-
-@nb.njit(cache=True, nogil=True)
-def _decode_plane(p, u, sym, thr, coef, bias, tab0, pshift, lut, fcum, amax, words, xs, pos, pmin, esc, epos, eend):
-    """Decode one plane into the padded buffer ``p`` and the symbols ``sym`` (the plane's view of the
-    tile); ``u`` is the plane's dither. Lane j holds rows j, j + L, ... (L = xs.size) and runs 3
-    pixels behind lane j - 1, so its causal neighbours are ready and the L dependency chains
-    overlap. Updates the per-lane state ``xs``, word positions ``pos`` (lower limits ``pmin``) and
-    escape positions ``epos`` (limits ``eend``) in place; returns ok.
-
-    Groups of 4 full rows run their steady part (every lane inside the row, no padding to write)
-    with the lane states in local variables; edges and other groups take the general path."""
-    h = p.shape[0] - 2
-    w = p.shape[1] - 4
-    nl = xs.size
-    for y0 in range(0, h, nl):
-        nr = min(nl, h - y0)
-        fast = nr == 4 and w >= 12
-        # general path: all of the schedule, or its edges (xsw < 10 and xsw > w - 2) in fast groups
-        for xsw in range(w + 3 * (nr - 1)):
-            if fast and xsw == 10:
-                # steady part: xsw = 10 .. w - 2, lanes at x = xsw, xsw - 3, xsw - 6, xsw - 9
-                a0, a1, a2, a3 = xs[0], xs[1], xs[2], xs[3]
-                q0, q1, q2, q3 = pos[0], pos[1], pos[2], pos[3]
-                e0, e1, e2, e3 = epos[0], epos[1], epos[2], epos[3]
-                good = True
-                for xs_ in range(10, w - 1):
-                    yy = y0 + 2
-                    xx = xs_ + 2
-                    v, a0, q0, e0, ok = _decode_pixel(p, yy, xx, np.int64(np.floor(u[y0, xs_] * 65536.0)), thr, coef, bias,
-                                                      tab0, pshift, lut, fcum, amax, words, a0, q0, pmin[0], esc, e0, eend[0])
-                    sym[y0, xs_] = v
-                    good &= ok
-                    v, a1, q1, e1, ok = _decode_pixel(p, yy + 1, xx - 3, np.int64(np.floor(u[y0 + 1, xs_ - 3] * 65536.0)), thr,
-                                                      coef, bias, tab0, pshift, lut, fcum, amax, words, a1, q1, pmin[1], esc,
-                                                      e1, eend[1])
-                    sym[y0 + 1, xs_ - 3] = v
-                    good &= ok
-                    v, a2, q2, e2, ok = _decode_pixel(p, yy + 2, xx - 6, np.int64(np.floor(u[y0 + 2, xs_ - 6] * 65536.0)), thr,
-                                                      coef, bias, tab0, pshift, lut, fcum, amax, words, a2, q2, pmin[2], esc,
-                                                      e2, eend[2])
-                    sym[y0 + 2, xs_ - 6] = v
-                    good &= ok
-                    v, a3, q3, e3, ok = _decode_pixel(p, yy + 3, xx - 9, np.int64(np.floor(u[y0 + 3, xs_ - 9] * 65536.0)), thr,
-                                                      coef, bias, tab0, pshift, lut, fcum, amax, words, a3, q3, pmin[3], esc,
-                                                      e3, eend[3])
-                    sym[y0 + 3, xs_ - 9] = v
-                    good &= ok
-                    if not good:
-                        return False
-                xs[0], xs[1], xs[2], xs[3] = a0, a1, a2, a3
-                pos[0], pos[1], pos[2], pos[3] = q0, q1, q2, q3
-                epos[0], epos[1], epos[2], epos[3] = e0, e1, e2, e3
-            if fast and 10 <= xsw <= w - 2:
-                continue
-            for j in range(nr):
-                x0 = xsw - 3 * j
-                if x0 < 0 or x0 >= w:
-                    continue
-                y = y0 + j
-                yy = y + 2
-                if x0 == 0 and y > 0:
-                    p[yy, 0] = p[yy - 1, 2]
-                    p[yy, 1] = p[yy - 1, 2]
-                v, x, ps, ep, ok = _decode_pixel(p, yy, x0 + 2, np.int64(np.floor(u[y, x0] * 65536.0)), thr, coef, bias, tab0,
-                                                 pshift, lut, fcum, amax, words, xs[j], pos[j], pmin[j], esc, epos[j], eend[j])
-                if not ok:
-                    return False
-                xs[j] = x
-                pos[j] = ps
-                epos[j] = ep
-                sym[y, x0] = v
-                if x0 == w - 1:
-                    p[yy, w + 2] = p[yy, w + 1]
-                    p[yy, w + 3] = p[yy, w + 1]
-    return True
 
 
 @nb.njit(cache=True, nogil=True)
@@ -934,7 +809,7 @@ def _decode(mv: memoryview, dithers: list[np.ndarray], outs) -> list[np.ndarray]
         words[pmin[j] + 1:pmin[j] + 1 + n] = np.frombuffer(mv, "<u2", n, off)
         off += 2 * n
     nesc = [ln[2] for ln in lanes]
-    esc = np.zeros(int(sum(nesc)) + 1, np.int32)  # + a pad: ``_decode_pixel`` reads esc[epos] unconditionally
+    esc = np.zeros(int(sum(nesc)) + 1, np.int32)  # + a pad: ``decode_kernel.decode_pixel`` reads esc[epos] unconditionally
     esc[:-1] = np.frombuffer(mv, "<i4", int(sum(nesc)), off)
     epos = np.concatenate([[0], np.cumsum(nesc)[:-1]]).astype(np.int64)
     eend = epos + np.array(nesc, np.int64)
@@ -950,7 +825,7 @@ def _decode(mv: memoryview, dithers: list[np.ndarray], outs) -> list[np.ndarray]
         coef12 = np.concatenate([c11, c11.sum(1, keepdims=True)], 1).reshape(-1)
         h, w = u.shape
         p = np.full((h + 2, w + 4), np.int64(c0s[k]) << 16, np.int64)
-        if not _decode_plane(p, np.asarray(u, np.float64), outs[k], thr7, coef12, bias, g * nact * nph, pshift, lut, fcum,
+        if not decode_plane(p, np.asarray(u, np.float64), outs[k], thr7, coef12, bias, g * nact * nph, pshift, lut, fcum,
                              amax, words, xs, pos, pmin, esc, epos, eend):
             raise ValueError("coded data ran out")
     if np.any(pos != pmin) or np.any(xs != RANS_L) or np.any(epos != eend):

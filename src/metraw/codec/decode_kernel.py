@@ -1,0 +1,159 @@
+"""The decoder's per-pixel loop of ``metraw.codec.predictive`` (compiled, ``nogil``).
+
+Lane j of a section holds rows j, j + L, ... of a plane (L = 4 lanes for large tiles) and runs
+3 pixels behind lane j - 1, so its causal neighbours are ready and the L dependency chains
+overlap. The arithmetic is the encoder's (``predictive._residuals``) to the bit.
+
+Speed: every array access uses an unsigned index (a cast of the signed one: free) so numba emits
+no negative-index wrap-around (a compare and a select per index, ~30 indexings per pixel); the
+padded buffer, tables and lookup are read through flat 1-D views with precomputed offsets. In the
+per-pixel step no array is sliced and no branch touches an array (numba would count references
+there, an atomic operation per pixel).
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+PROB_BITS = 12                 # rANS probability resolution
+PROB_SCALE = 1 << PROB_BITS
+RANS_L = 1 << 16
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _u(i):
+    return np.uint64(i)
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def decode_pixel(pf, b, ws, uv, thr, coef, bias, tab0, pshift, lut, fcum, alpha, amax, words, x, pos, pmin,
+                 esc, epos, eend):
+    """Decode the pixel at flat index ``b`` of the padded buffer ``pf`` (row stride ``ws``) from one
+    lane; returns (symbol, x, pos, epos, ok)."""
+    half = np.int64(1 << 15)
+    w_ = pf[_u(b - 1)]
+    n_ = pf[_u(b - ws)]
+    nw = pf[_u(b - ws - 1)]
+    ne = pf[_u(b - ws + 1)]
+    ww = pf[_u(b - 2)]
+    nn = pf[_u(b - 2 * ws)]
+    act = abs(w_ - nw) + abs(n_ - nw) + abs(n_ - ne) + abs(w_ - ww) + abs(n_ - nn)
+    c = ((act > thr[0]) + (act > thr[1]) + (act > thr[2]) + (act > thr[3]) + (act > thr[4]) + (act > thr[5])
+         + (act > thr[6]))
+    o = c * 12
+    # sum_i k_i (n_i - W) = sum_i k_i n_i - W sum_i k_i (exact integers: the encoder's value)
+    acc = (coef[_u(o)] * n_ + coef[_u(o + 1)] * nw + coef[_u(o + 2)] * ne + coef[_u(o + 3)] * ww
+           + coef[_u(o + 4)] * nn + coef[_u(o + 5)] * pf[_u(b - ws - 2)] + coef[_u(o + 6)] * pf[_u(b - 2 * ws - 1)]
+           + coef[_u(o + 7)] * pf[_u(b - 2 * ws + 1)] + coef[_u(o + 8)] * pf[_u(b - ws + 2)]
+           + coef[_u(o + 9)] * pf[_u(b - 2 * ws - 2)] + coef[_u(o + 10)] * pf[_u(b - 2 * ws + 2)]
+           - coef[_u(o + 11)] * w_)
+    mh = w_ + (acc >> 12) + bias[_u(c)] + uv + half
+    sh = mh >> 16
+    fr = mh & 0xFFFF
+    f = 1 - (fr >> 15)
+    t = tab0 + c * (4 >> pshift) + ((((fr ^ (-f & 0xFFFF)) >> 13) & 3) >> pshift)
+    slot = np.int64(x & np.uint64(PROB_SCALE - 1))
+    s = np.int64(lut[_u((t << PROB_BITS) + slot)])
+    fc = fcum[_u(t * alpha + s)]
+    x = np.uint64(fc >> 16) * (x >> np.uint64(PROB_BITS)) + np.uint64(slot - (fc & 0xFFFF))
+    # renormalise without a data-dependent branch: words[pos] is the next word (words[pmin] a pad)
+    need = np.uint64(x < np.uint64(RANS_L))
+    x = (x << (need << np.uint64(4))) | (np.uint64(words[_u(pos)]) * need)
+    pos -= np.int64(need)
+    ok = pos >= pmin
+    # escape: the residual is the lane's next escape value, branch-free: esc[epos] is always readable
+    is_esc = s == 2 * amax + 1
+    ev = np.int64(esc[_u(epos)])
+    r = ev if is_esc else s - amax
+    ok = ok & ((epos < eend) | (not is_esc))
+    epos += np.int64(is_esc)
+    v = sh + ((r ^ -f) + f)
+    pf[_u(b)] = (v << 16) - uv
+    return v, x, pos, epos, ok
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _u16(u, y, x):
+    """floor(u 2^16) of the dither at (y, x)."""
+    return np.int64(np.floor(u[_u(y), _u(x)] * 65536.0))
+
+
+@nb.njit(cache=True, nogil=True)
+def decode_plane(p, u, sym, thr, coef, bias, tab0, pshift, lut, fcum, amax, words, xs, pos, pmin, esc, epos, eend):
+    """Decode one plane into the padded buffer ``p`` (h + 2, w + 4) and the symbols ``sym`` (the
+    plane's view of the tile); ``u`` is the plane's dither, ``lut`` (tables x 2^PROB_BITS) and
+    ``fcum`` (tables x alphabet) C-contiguous. Updates the per-lane state ``xs``, word positions
+    ``pos`` (lower limits ``pmin``) and escape positions ``epos`` (limits ``eend``) in place;
+    returns ok.
+
+    Groups of 4 full rows run their steady part (every lane inside the row, no padding to write)
+    with the lane states in local variables; edges and other groups take the general path."""
+    h = p.shape[0] - 2
+    w = p.shape[1] - 4
+    ws = np.int64(w + 4)
+    pf = p.reshape(-1)
+    lutf = lut.reshape(-1)
+    fcf = fcum.reshape(-1)
+    alpha = np.int64(fcum.shape[1])
+    nl = xs.size
+    for y0 in range(0, h, nl):
+        nr = min(nl, h - y0)
+        fast = nr == 4 and w >= 12
+        for xsw in range(w + 3 * (nr - 1)):
+            if fast and xsw == 10:
+                # steady part: xsw = 10 .. w - 2, lanes at x = xsw, xsw - 3, xsw - 6, xsw - 9
+                a0, a1, a2, a3 = xs[0], xs[1], xs[2], xs[3]
+                q0, q1, q2, q3 = pos[0], pos[1], pos[2], pos[3]
+                e0, e1, e2, e3 = epos[0], epos[1], epos[2], epos[3]
+                m0, m1, m2, m3 = pmin[0], pmin[1], pmin[2], pmin[3]
+                n0, n1, n2, n3 = eend[0], eend[1], eend[2], eend[3]
+                good = True
+                b0 = (y0 + 2) * ws + 2
+                for xs_ in range(10, w - 1):
+                    b = b0 + xs_
+                    v, a0, q0, e0, ok = decode_pixel(pf, b, ws, _u16(u, y0, xs_), thr, coef, bias, tab0, pshift, lutf,
+                                                     fcf, alpha, amax, words, a0, q0, m0, esc, e0, n0)
+                    sym[_u(y0), _u(xs_)] = v
+                    good &= ok
+                    v, a1, q1, e1, ok = decode_pixel(pf, b + ws - 3, ws, _u16(u, y0 + 1, xs_ - 3), thr, coef, bias, tab0,
+                                                     pshift, lutf, fcf, alpha, amax, words, a1, q1, m1, esc, e1, n1)
+                    sym[_u(y0 + 1), _u(xs_ - 3)] = v
+                    good &= ok
+                    v, a2, q2, e2, ok = decode_pixel(pf, b + 2 * ws - 6, ws, _u16(u, y0 + 2, xs_ - 6), thr, coef, bias,
+                                                     tab0, pshift, lutf, fcf, alpha, amax, words, a2, q2, m2, esc, e2, n2)
+                    sym[_u(y0 + 2), _u(xs_ - 6)] = v
+                    good &= ok
+                    v, a3, q3, e3, ok = decode_pixel(pf, b + 3 * ws - 9, ws, _u16(u, y0 + 3, xs_ - 9), thr, coef, bias,
+                                                     tab0, pshift, lutf, fcf, alpha, amax, words, a3, q3, m3, esc, e3, n3)
+                    sym[_u(y0 + 3), _u(xs_ - 9)] = v
+                    good &= ok
+                    if not good:
+                        return False
+                xs[0], xs[1], xs[2], xs[3] = a0, a1, a2, a3
+                pos[0], pos[1], pos[2], pos[3] = q0, q1, q2, q3
+                epos[0], epos[1], epos[2], epos[3] = e0, e1, e2, e3
+            if fast and 10 <= xsw <= w - 2:
+                continue
+            for j in range(nr):
+                x0 = xsw - 3 * j
+                if x0 < 0 or x0 >= w:
+                    continue
+                y = y0 + j
+                yy = y + 2
+                if x0 == 0 and y > 0:
+                    p[yy, 0] = p[yy - 1, 2]
+                    p[yy, 1] = p[yy - 1, 2]
+                v, x, ps, ep, ok = decode_pixel(pf, yy * ws + x0 + 2, ws, _u16(u, y, x0), thr, coef, bias, tab0, pshift,
+                                                lutf, fcf, alpha, amax, words, xs[j], pos[j], pmin[j], esc, epos[j],
+                                                eend[j])
+                if not ok:
+                    return False
+                xs[j] = x
+                pos[j] = ps
+                epos[j] = ep
+                sym[y, x0] = v
+                if x0 == w - 1:
+                    p[yy, w + 2] = p[yy, w + 1]
+                    p[yy, w + 3] = p[yy, w + 1]
+    return True
