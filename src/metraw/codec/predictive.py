@@ -237,44 +237,46 @@ def _residuals(s, p, thr, coef, bias, tab0, pshift, r_out, t_out, off):
             tot += coef[c * 11 + i]
         coef12[c * 13 + 11] = tot
         coef12[c * 13 + 12] = bias[c]
+    ws = np.int64(w + 4)
+    pf = p.reshape(-1)
+    U = np.uint64
     for y in range(h):
-        yy = y + 2
-        r0 = p[yy, :]
-        r1 = p[yy - 1, :]
-        r2 = p[yy - 2, :]
+        b0 = (y + 2) * ws + 2  # flat index of the row's first pixel; unsigned indices: no wrap-around code
         for x in range(w):
-            xx = x + 2
-            w_ = r0[xx - 1]
-            n_ = r1[xx]
-            nw = r1[xx - 1]
-            act[x] = abs(w_ - nw) + abs(n_ - nw) + abs(n_ - r1[xx + 1]) + abs(w_ - r0[xx - 2]) + abs(n_ - r2[xx])
-            ctx[x] = 0
+            b = b0 + x
+            w_ = pf[U(b - 1)]
+            n_ = pf[U(b - ws)]
+            nw = pf[U(b - ws - 1)]
+            act[U(x)] = (abs(w_ - nw) + abs(n_ - nw) + abs(n_ - pf[U(b - ws + 1)]) + abs(w_ - pf[U(b - 2)])
+                         + abs(n_ - pf[U(b - 2 * ws)]))
+            ctx[U(x)] = 0
         for i in range(nthr):
             ti = thr[i]
             for x in range(w):
-                ctx[x] += act[x] > ti
+                ctx[U(x)] += act[U(x)] > ti
         for x in range(w):
-            xx = x + 2
-            o = ctx[x] * 13
+            b = b0 + x
+            o = ctx[U(x)] * 13
             # sum_i k_i (n_i - W) = sum_i k_i n_i - W sum_i k_i (exact integers, as in ``decode_kernel.decode_pixel``)
-            acc[x] = (coef12[o] * r1[xx] + coef12[o + 1] * r1[xx - 1] + coef12[o + 2] * r1[xx + 1]
-                      + coef12[o + 3] * r0[xx - 2] + coef12[o + 4] * r2[xx] + coef12[o + 5] * r1[xx - 2]
-                      + coef12[o + 6] * r2[xx - 1] + coef12[o + 7] * r2[xx + 1] + coef12[o + 8] * r1[xx + 2]
-                      + coef12[o + 9] * r2[xx - 2] + coef12[o + 10] * r2[xx + 2] - coef12[o + 11] * r0[xx - 1])
-            acc[x] = r0[xx - 1] + (acc[x] >> 12) + coef12[o + 12]
-        sr = s[y]
+            a = (coef12[U(o)] * pf[U(b - ws)] + coef12[U(o + 1)] * pf[U(b - ws - 1)]
+                 + coef12[U(o + 2)] * pf[U(b - ws + 1)] + coef12[U(o + 3)] * pf[U(b - 2)]
+                 + coef12[U(o + 4)] * pf[U(b - 2 * ws)] + coef12[U(o + 5)] * pf[U(b - ws - 2)]
+                 + coef12[U(o + 6)] * pf[U(b - 2 * ws - 1)] + coef12[U(o + 7)] * pf[U(b - 2 * ws + 1)]
+                 + coef12[U(o + 8)] * pf[U(b - ws + 2)] + coef12[U(o + 9)] * pf[U(b - 2 * ws - 2)]
+                 + coef12[U(o + 10)] * pf[U(b - 2 * ws + 2)] - coef12[U(o + 11)] * pf[U(b - 1)])
+            acc[U(x)] = pf[U(b - 1)] + (a >> 12) + coef12[U(o + 12)]
         k = off + y * w
         for x in range(w):
-            c = ctx[x]
-            sv = np.int64(sr[x])
-            mh = acc[x] + ((sv << 16) - r0[x + 2]) + half   # p = s 2^16 - floor(u 2^16): the dither term
+            c = ctx[U(x)]
+            sv = np.int64(s[U(y), U(x)])
+            mh = acc[U(x)] + ((sv << 16) - pf[U(b0 + x)]) + half   # p = s 2^16 - floor(u 2^16): the dither term
             r = sv - (mh >> 16)
             fr = mh & 0xFFFF
             f = 1 - (fr >> 15)              # 1 when t < 0: fold (r, t) -> (-r, -t)
             fr ^= -f & 0xFFFF
             r = (r ^ -f) + f
-            r_out[k + x] = r
-            t_out[k + x] = tab0 + c * (4 >> pshift) + (((fr >> 13) & 3) >> pshift)
+            r_out[U(k + x)] = r
+            t_out[U(k + x)] = tab0 + c * (4 >> pshift) + (((fr >> 13) & 3) >> pshift)
             rmax = max(rmax, abs(r))
     return rmax
 
@@ -384,17 +386,19 @@ def _lane_escapes(r, idx, rs, rl, lr, esc_i):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _enc_symbol(idx, tab, freq, cum, rcp, out, o, nw, x, i):
-    """Push symbol ``i`` onto a lane's rANS state ``x`` (words at ``out[o:]``, ``nw`` so far)."""
-    t = tab[i]
-    sy = idx[i]
-    f = np.uint64(freq[t, sy])
-    emit = np.uint64(x >= (f << np.uint64(32 - PROB_BITS)))
-    out[o + nw] = np.uint16(x & np.uint64(0xFFFF))
+def _enc_symbol(idx, tab, alpha, freq, cum, rcp, out, o, nw, x, i):
+    """Push symbol ``i`` onto a lane's rANS state ``x`` (words at ``out[o:]``, ``nw`` so far). ``freq``,
+    ``cum``, ``rcp``: flat (table, symbol) arrays, ``alpha`` symbols per table; unsigned indices (no
+    wrap-around code)."""
+    U = np.uint64
+    j = U(np.int64(tab[U(i)]) * alpha + idx[U(i)])
+    f = U(freq[j])
+    emit = U(x >= (f << U(32 - PROB_BITS)))
+    out[U(o + nw)] = np.uint16(x & U(0xFFFF))
     nw += np.int64(emit)
-    x >>= emit << np.uint64(4)
-    q = np.uint64(np.float64(x) * rcp[t, sy] + 1.52587890625e-05)
-    return (q << np.uint64(PROB_BITS)) + (x - q * f) + np.uint64(cum[t, sy]), nw
+    x >>= emit << U(4)
+    q = U(np.float64(x) * rcp[j] + 1.52587890625e-05)
+    return (q << U(PROB_BITS)) + (x - q * f) + U(cum[j]), nw
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -418,6 +422,8 @@ def _rans_encode(idx, tab, freq, cum, rcp, rs, rl, lr, ls, out):
     x // f via the float64 reciprocal ``rcp`` = 1 / freq: exact for x < 2^32 and f <= 2^12
     (rounding error < 2^-19, the fraction of x / f is 0 or >= 2^-12)."""
     nl = lr.size - 1
+    alpha = np.int64(freq.shape[1])
+    freqf, cumf, rcpf = freq.reshape(-1), cum.reshape(-1), rcp.reshape(-1)
     xs = np.full(nl, RANS_L, np.uint64)
     nws = np.zeros(nl, np.int64)
     cq = np.empty(nl, np.int64)   # current row of each lane (walking backwards)
@@ -440,7 +446,7 @@ def _rans_encode(idx, tab, freq, cum, rcp, rs, rl, lr, ls, out):
             if k >= ls[j + 1] - ls[j]:
                 continue
             i = ci[j]
-            x, nw = _enc_symbol(idx, tab, freq, cum, rcp, out, ls[j], nws[j], xs[j], i)
+            x, nw = _enc_symbol(idx, tab, alpha, freqf, cumf, rcpf, out, ls[j], nws[j], xs[j], i)
             xs[j] = x
             nws[j] = nw
             ci[j], ce[j], cq[j] = _enc_cursor(i, ce[j], cq[j], rs, rl, k > 0)
@@ -454,10 +460,10 @@ def _rans_encode(idx, tab, freq, cum, rcp, rs, rl, lr, ls, out):
         o0, o1, o2, o3 = ls[0], ls[1], ls[2], ls[3]
         for k in range(lo - 1, -1, -1):
             more = k > 0
-            x0, n0 = _enc_symbol(idx, tab, freq, cum, rcp, out, o0, n0, x0, i0)
-            x1, n1 = _enc_symbol(idx, tab, freq, cum, rcp, out, o1, n1, x1, i1)
-            x2, n2 = _enc_symbol(idx, tab, freq, cum, rcp, out, o2, n2, x2, i2)
-            x3, n3 = _enc_symbol(idx, tab, freq, cum, rcp, out, o3, n3, x3, i3)
+            x0, n0 = _enc_symbol(idx, tab, alpha, freqf, cumf, rcpf, out, o0, n0, x0, i0)
+            x1, n1 = _enc_symbol(idx, tab, alpha, freqf, cumf, rcpf, out, o1, n1, x1, i1)
+            x2, n2 = _enc_symbol(idx, tab, alpha, freqf, cumf, rcpf, out, o2, n2, x2, i2)
+            x3, n3 = _enc_symbol(idx, tab, alpha, freqf, cumf, rcpf, out, o3, n3, x3, i3)
             i0, e0, q0 = _enc_cursor(i0, e0, q0, rs, rl, more)
             i1, e1, q1 = _enc_cursor(i1, e1, q1, rs, rl, more)
             i2, e2, q2 = _enc_cursor(i2, e2, q2, rs, rl, more)
