@@ -44,18 +44,32 @@ MATERIALS: dict[str, tuple[float, float, float]] = {
     "glass": (0.04, 0.05, 0.06),
 }
 
-# Car paint: (probability, reflectance) — white/black/grey/silver dominate real fleets.
+# Car paint: (probability, reflectance). Shares close to German registrations (KBA 2023: grey 31 %, black 23 %,
+# white 18 %, blue 10 %, silver 6 %, red 6 %): most cars are darker than a sunlit road.
 CAR_COLOURS: list[tuple[float, tuple[float, float, float]]] = [
-    (0.22, (0.62, 0.62, 0.60)),   # white
-    (0.20, (0.035, 0.035, 0.04)),  # black
-    (0.17, (0.13, 0.13, 0.14)),   # dark grey
-    (0.13, (0.32, 0.33, 0.34)),   # silver
-    (0.09, (0.04, 0.07, 0.20)),   # blue
-    (0.08, (0.36, 0.05, 0.04)),   # red
-    (0.04, (0.06, 0.12, 0.07)),   # green
-    (0.04, (0.22, 0.17, 0.12)),   # beige/brown
-    (0.03, (0.50, 0.40, 0.05)),   # yellow
+    (0.18, (0.62, 0.62, 0.60)),   # white
+    (0.23, (0.035, 0.035, 0.04)),  # black
+    (0.19, (0.11, 0.11, 0.12)),   # dark grey
+    (0.12, (0.22, 0.22, 0.23)),   # mid grey
+    (0.07, (0.32, 0.33, 0.34)),   # silver
+    (0.10, (0.04, 0.07, 0.20)),   # blue
+    (0.06, (0.36, 0.05, 0.04)),   # red
+    (0.02, (0.06, 0.12, 0.07)),   # green
+    (0.02, (0.22, 0.17, 0.12)),   # beige/brown
+    (0.01, (0.50, 0.40, 0.05)),   # yellow
 ]
+
+# Per-scene conditions the real data does not pin down (domain randomisation), drawn by ``draw_conditions``:
+# aerosol optical depth at 550 nm, log-uniform (clean to hazy continental summer air; AERONET sites span
+# 0.05-0.5); the sky view left to a surface in a cast shadow; the direct sunlight reflected onto shadowed
+# surfaces by sunlit walls and ground (albedo 0.1-0.3 x view factor of the lit surroundings 0.2-0.5), in
+# units of the direct beam; and the drone lens blur sigma [source pixels].
+CONDITION_RANGES: dict[str, tuple[float, float]] = {
+    "aerosol_depth_550": (0.05, 0.4),
+    "shadow_sky_view": (0.6, 0.95),
+    "bounce": (0.02, 0.15),
+    "blur_px": (0.4, 1.2),
+}
 
 # Vehicle classes: (probability, length range [m], width range [m], height [m]).
 VEHICLES = {
@@ -84,6 +98,8 @@ class Scene:
     shapes: list[tuple] = field(default_factory=list)
     casters: list[tuple[np.ndarray, float]] = field(default_factory=list)
     vehicles: list[dict] = field(default_factory=list)    # class, length_m, width_m, angle_deg, object
+    # lighting and optics of this scene (keys of CONDITION_RANGES); a missing key: the renderer's setting
+    conditions: dict[str, float] = field(default_factory=dict)
 
     # ------------------------------------------------------------------ building blocks
     @property
@@ -187,7 +203,8 @@ def add_vehicle(scene: Scene, rng: np.random.Generator, cx: float, cy: float, an
     scene.cast(body, height)
     obj_body = scene.new_object(paint, height, texture=(0.02, 0.02), vehicle=True)
     scene.poly(body, obj_body)
-    glass = _jitter(rng, MATERIALS["glass"], 0.2)
+    # glass mirrors the sky: from nearly black to a pale grey depending on the viewing geometry
+    glass = _jitter(rng, tuple(g * rng.uniform(1.0, 4.0) for g in MATERIALS["glass"]), 0.2)
     if vclass == "car":
         # bonnet | windscreen | roof | rear window, along the body axis (front at +length)
         f_ws, r_ws = hl - 0.32 * length, hl - 0.48 * length
@@ -196,6 +213,12 @@ def add_vehicle(scene: Scene, rng: np.random.Generator, cx: float, cy: float, an
         obj_g = scene.new_object(glass, height, texture=(0.02, 0.02), vehicle=True)
         scene.poly(local(cx, cy, angle_rad, [(r_ws, -iw), (f_ws, -iw + 0.12), (f_ws, iw - 0.12), (r_ws, iw)]), obj_g)
         scene.poly(local(cx, cy, angle_rad, [(r_rw, -iw + 0.1), (f_rw, -iw), (f_rw, iw), (r_rw, iw - 0.1)]), obj_g)
+        # glossy roof: the paint plus the sky's specular reflection (what makes dark roofs grey from above)
+        spec = rng.uniform(0.0, 0.08)
+        roof = tuple(min(0.95, p * rng.normal(1.0, 0.05) + spec) for p in paint)
+        obj_roof = scene.new_object(roof, height, texture=(0.02, 0.02), vehicle=True)
+        scene.poly(local(cx, cy, angle_rad, [(f_rw + 0.05, -iw + 0.05), (r_ws - 0.05, -iw + 0.05),
+                                             (r_ws - 0.05, iw - 0.05), (f_rw + 0.05, iw - 0.05)]), obj_roof)
         if rng.random() < 0.1:  # sunroof / panorama roof
             scene.poly(local(cx, cy, angle_rad, [(r_ws - 0.1, -0.4), (f_rw + 0.3, -0.4), (f_rw + 0.3, 0.4),
                                                  (r_ws - 0.1, 0.4)]), obj_g)
@@ -384,6 +407,15 @@ def _ground(scene: Scene, rng, materials: list[str], tiles: int) -> None:
 
 
 # ---------------------------------------------------------------------- scene types
+def draw_conditions(rng: np.random.Generator) -> dict[str, float]:
+    """Lighting and optics of one scene, drawn from ``CONDITION_RANGES`` (aerosol depth log-uniform)."""
+    out = {}
+    for name, (lo, hi) in CONDITION_RANGES.items():
+        v = math.exp(rng.uniform(math.log(lo), math.log(hi))) if name == "aerosol_depth_550" else rng.uniform(lo, hi)
+        out[name] = round(float(v), 4)
+    return out
+
+
 def make_scene(kind: str, rng: np.random.Generator, size_m: float) -> Scene:
     """Draw the geometry of one scene of ``kind`` ("urban", "suburban", "rural")."""
     if kind not in KINDS:
@@ -391,6 +423,7 @@ def make_scene(kind: str, rng: np.random.Generator, size_m: float) -> Scene:
 
         raise MetrawError(f"unknown scene kind {kind!r}; expected one of {', '.join(KINDS)}")
     scene = Scene(kind, float(size_m), float(rng.uniform(0, 360)), float(rng.uniform(22, 65)))
+    scene.conditions = draw_conditions(rng)
     {"urban": _urban, "suburban": _suburban, "rural": _rural}[kind](scene, rng)
     return scene
 
@@ -401,7 +434,8 @@ def _urban(scene: Scene, rng) -> None:
     _ground(scene, rng, ["concrete", "sidewalk", "grass"], 2)
     c = np.array([s / 2, s / 2]) + rng.uniform(-0.25, 0.25, 2) * s
     # main road and maybe a cross street
-    add_road(scene, rng, c, theta, 3 * s, lanes=int(rng.choice([2, 3, 4])), traffic=0.35, parked=rng.uniform(0.4, 0.9))
+    add_road(scene, rng, c, theta, 3 * s, lanes=int(rng.choice([2, 3, 4])), traffic=0.35, parked=rng.uniform(0.4, 0.9),
+             material=str(rng.choice(["asphalt", "asphalt_old"])))
     u, v = np.array([math.cos(theta), math.sin(theta)]), np.array([-math.sin(theta), math.cos(theta)])
     if rng.random() < 0.5:
         add_road(scene, rng, c + u * rng.uniform(-0.3, 0.3) * s, theta + math.pi / 2, 3 * s, lanes=2,

@@ -8,12 +8,16 @@ Steps (per scene):
    painted by increasing height, so a tree crown hides the car below it) and the height of the
    tallest shadow caster covering it.
 2. Per sample and band: reflectance x irradiance, with irradiance = direct beam x (n . s) when the
-   sample's surface is not below a taller caster's shadow, plus diffuse sky (reduced by
-   ``SHADOW_SKY_VIEW`` in shadow: the sky seen from a street next to a tall building is partly
-   blocked). Tree crowns get hemispherical shading (normal of a half sphere) instead of a flat
+   sample's surface is not below a taller caster's shadow, plus diffuse sky (reduced to the
+   shadow sky view in shadow: the sky seen from a street next to a tall building is partly
+   blocked); a shadowed sample also gets ``bounce`` x the direct beam, the sunlight reflected onto
+   it by sunlit walls and ground. Tree crowns get hemispherical shading (normal of a half sphere) instead of a flat
    n . s. Texture: multiplicative 1/f-like value noise (smooth, several octaves) plus fine grain,
    amplitudes per object.
 3. Integrate over each pixel: mean of its samples (box pixel, 100 % fill factor).
+   Aerosol depth, shadow sky view, bounce and lens blur come from the scene's ``conditions``
+   (drawn per scene by ``layout.draw_conditions``: domain randomisation) or, when a scene has
+   none, from ``RenderSettings``.
 4. Optics: Gaussian blur of sigma ``blur_px`` source pixels on each band's radiance (diffraction at
    f/2.8 has sigma ~0.42 lambda N = 0.27 px at 550 nm; the rest stands for lens aberration and
    defocus, typical of a 1" drone camera). The label is not blurred: it is geometry.
@@ -59,6 +63,9 @@ class RenderSettings:
     ``white_reflectance``) fills ``target_fill`` of the full well, capped at the camera's
     ``exposure_s`` (what a drone's auto-exposure does); otherwise use ``camera.exposure_s``.
     ``aerosol_depth_550``: aerosol optical depth at 550 nm (clear day).
+    ``shadow_sky_view``: fraction of the diffuse sky a surface in a cast shadow still sees.
+    ``bounce``: direct sunlight reflected onto shadowed surfaces by their sunlit surroundings, as a
+    fraction of the direct beam on a horizontal surface.
     """
 
     supersample: int = 2
@@ -67,6 +74,14 @@ class RenderSettings:
     white_reflectance: float = 0.8
     target_fill: float = 0.9
     aerosol_depth_550: float = 0.12
+    shadow_sky_view: float = SHADOW_SKY_VIEW
+    bounce: float = 0.0
+
+    def for_scene(self, scene: Scene) -> "RenderSettings":
+        """These settings with the scene's own ``conditions`` (aerosol, shadow sky view, bounce, blur)."""
+        from dataclasses import replace
+
+        return replace(self, **scene.conditions)
 
 
 # ---------------------------------------------------------------------- rasterisation
@@ -218,6 +233,7 @@ def render(scene: Scene, camera: CalibrationProfile, size_px: int, rng: np.rando
            settings: RenderSettings = RenderSettings()) -> tuple[RawImage, np.ndarray]:
     """Render ``scene`` to a ``RawImage`` (with mask, flags, meta) and return it with the
     noiseless expected photoelectrons per pixel (float64, for tests and statistics)."""
+    settings = settings.for_scene(scene)
     ss = settings.supersample
     gsd = camera.gsd_m
     obj, caster_h, crowns = rasterise(scene, size_px, gsd, ss)
@@ -263,7 +279,9 @@ def render(scene: Scene, camera: CalibrationProfile, size_px: int, rng: np.rando
     if crown_cos is not None:
         special |= np.take(is_crown, obj0)
     d_mean = np.take(sun_cos, obj0) * lit_mean
-    s_mean = np.take(sky_view, obj0) * (np.float32(SHADOW_SKY_VIEW) + np.float32(1 - SHADOW_SKY_VIEW) * lit_mean)
+    v_shadow, bounce = np.float32(settings.shadow_sky_view), np.float32(settings.bounce * scene.sun_vector[2])
+    d_mean += bounce * (1 - lit_mean)
+    s_mean = np.take(sky_view, obj0) * (v_shadow + (1 - v_shadow) * lit_mean)
     mixed = np.flatnonzero(special)
     my, mx = np.divmod(mixed, size_px)
     m_obj = ob[my, :, mx, :].reshape(len(mixed), ss * ss).astype(np.intp)
@@ -272,8 +290,8 @@ def render(scene: Scene, camera: CalibrationProfile, size_px: int, rng: np.rando
     if crown_cos is not None:
         m_crown = crown_cos.reshape(size_px, ss, size_px, ss)[my, :, mx, :].reshape(len(mixed), ss * ss)
         m_dir = np.where(is_crown[m_obj], m_crown, m_dir)
-    m_dir = m_dir * m_lit
-    m_sky = sky_view[m_obj] * np.where(m_lit, np.float32(1.0), np.float32(SHADOW_SKY_VIEW))
+    m_dir = np.where(m_lit, m_dir, bounce)
+    m_sky = sky_view[m_obj] * np.where(m_lit, np.float32(1.0), v_shadow)
     tc, tf = coarse.ravel()[mixed][:, None], fine.ravel()[mixed][:, None]
     m_tex = np.maximum(1 + tex_amp[m_obj, 0] * tc + tex_amp[m_obj, 1] * tf, np.float32(0.05))
     tex0 = np.maximum(1 + np.take(tex_amp[:, 0], obj0) * coarse + np.take(tex_amp[:, 1], obj0) * fine,
@@ -303,6 +321,7 @@ def render(scene: Scene, camera: CalibrationProfile, size_px: int, rng: np.rando
         "scene_type": scene.kind,
         "sun_azimuth_deg": round(scene.sun_azimuth_deg, 3),
         "sun_elevation_deg": round(scene.sun_elevation_deg, 3),
+        "conditions": dict(scene.conditions),
         "gsd_m": gsd,
         "car_count": int(sum(1 for v in scene.vehicles if v["object"] in visible_ids)),
         "car_pixel_fraction": float(mask.mean()),
@@ -313,5 +332,6 @@ def render(scene: Scene, camera: CalibrationProfile, size_px: int, rng: np.rando
                    provenance=[{"function": "metraw.scenes.render",
                                 "params": {"supersample": ss, "blur_px": settings.blur_px,
                                            "auto_exposure": settings.auto_exposure,
-                                           "aerosol_depth_550": settings.aerosol_depth_550}}])
+                                           "aerosol_depth_550": settings.aerosol_depth_550,
+                                           "shadow_sky_view": settings.shadow_sky_view, "bounce": settings.bounce}}])
     return img, mean_e
