@@ -27,10 +27,9 @@ def _u(i):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def decode_pixel(pf, b, ws, uv, thr, coef, bias, tab0, pshift, lut, fcum, alpha, amax, words, x, pos, pmin,
-                 esc, epos, eend):
+def _pixel(pf, b, ws, uv, thr, coef, bias, tab0, pshift, lut, fcum, alpha, amax, words, x, pos, esc, epos):
     """Decode the pixel at flat index ``b`` of the padded buffer ``pf`` (row stride ``ws``) from one
-    lane; returns (symbol, x, pos, epos, ok)."""
+    lane, without checking the lane's word and escape positions; returns (symbol, x, pos, epos)."""
     half = np.int64(1 << 15)
     w_ = pf[_u(b - 1)]
     n_ = pf[_u(b - ws)]
@@ -57,20 +56,28 @@ def decode_pixel(pf, b, ws, uv, thr, coef, bias, tab0, pshift, lut, fcum, alpha,
     s = np.int64(lut[_u((t << PROB_BITS) + slot)])
     fc = fcum[_u(t * alpha + s)]
     x = np.uint64(fc >> 16) * (x >> np.uint64(PROB_BITS)) + np.uint64(slot - (fc & 0xFFFF))
-    # renormalise without a data-dependent branch: words[pos] is the next word (words[pmin] a pad)
+    # renormalise without a data-dependent branch: words[pos] is the next word (or a pad)
     need = np.uint64(x < np.uint64(RANS_L))
     x = (x << (need << np.uint64(4))) | (np.uint64(words[_u(pos)]) * need)
     pos -= np.int64(need)
-    ok = pos >= pmin
     # escape: the residual is the lane's next escape value, branch-free: esc[epos] is always readable
     is_esc = s == 2 * amax + 1
     ev = np.int64(esc[_u(epos)])
     r = ev if is_esc else s - amax
-    ok = ok & ((epos < eend) | (not is_esc))
     epos += np.int64(is_esc)
     v = sh + ((r ^ -f) + f)
     pf[_u(b)] = (v << 16) - uv
-    return v, x, pos, epos, ok
+    return v, x, pos, epos
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def decode_pixel(pf, b, ws, uv, thr, coef, bias, tab0, pshift, lut, fcum, alpha, amax, words, x, pos, pmin,
+                 esc, epos, eend):
+    """``_pixel`` with the lane's limits checked: returns (symbol, x, pos, epos, ok), ok false once the
+    lane has used a word below ``pmin`` (its pad) or an escape at or past ``eend``."""
+    v, x, pos, epos = _pixel(pf, b, ws, uv, thr, coef, bias, tab0, pshift, lut, fcum, alpha, amax, words, x, pos,
+                             esc, epos)
+    return v, x, pos, epos, (pos >= pmin) & (epos <= eend)
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -85,7 +92,9 @@ def decode_plane(p, u, sym, thr, coef, bias, tab0, pshift, lut, fcum, amax, word
     plane's view of the tile); ``u`` is the plane's dither, ``lut`` (tables x 2^PROB_BITS) and
     ``fcum`` (tables x alphabet) C-contiguous. Updates the per-lane state ``xs``, word positions
     ``pos`` (lower limits ``pmin``) and escape positions ``epos`` (limits ``eend``) in place;
-    returns ok.
+    returns ok. ``words`` must hold at least w readable pad words below each lane's ``pmin`` and
+    ``esc`` at least w + 1 pad values after the last lane's escapes (the steady part checks the
+    limits once per group of rows).
 
     Groups of 4 full rows run their steady part (every lane inside the row, no padding to write)
     with the lane states in local variables; edges and other groups take the general path."""
@@ -106,30 +115,26 @@ def decode_plane(p, u, sym, thr, coef, bias, tab0, pshift, lut, fcum, amax, word
                 a0, a1, a2, a3 = xs[0], xs[1], xs[2], xs[3]
                 q0, q1, q2, q3 = pos[0], pos[1], pos[2], pos[3]
                 e0, e1, e2, e3 = epos[0], epos[1], epos[2], epos[3]
-                m0, m1, m2, m3 = pmin[0], pmin[1], pmin[2], pmin[3]
-                n0, n1, n2, n3 = eend[0], eend[1], eend[2], eend[3]
-                good = True
                 b0 = (y0 + 2) * ws + 2
                 for xs_ in range(10, w - 1):
                     b = b0 + xs_
-                    v, a0, q0, e0, ok = decode_pixel(pf, b, ws, _u16(u, y0, xs_), thr, coef, bias, tab0, pshift, lutf,
-                                                     fcf, alpha, amax, words, a0, q0, m0, esc, e0, n0)
+                    v, a0, q0, e0 = _pixel(pf, b, ws, _u16(u, y0, xs_), thr, coef, bias, tab0, pshift, lutf, fcf,
+                                              alpha, amax, words, a0, q0, esc, e0)
                     sym[_u(y0), _u(xs_)] = v
-                    good &= ok
-                    v, a1, q1, e1, ok = decode_pixel(pf, b + ws - 3, ws, _u16(u, y0 + 1, xs_ - 3), thr, coef, bias, tab0,
-                                                     pshift, lutf, fcf, alpha, amax, words, a1, q1, m1, esc, e1, n1)
+                    v, a1, q1, e1 = _pixel(pf, b + ws - 3, ws, _u16(u, y0 + 1, xs_ - 3), thr, coef, bias, tab0, pshift, lutf, fcf,
+                                              alpha, amax, words, a1, q1, esc, e1)
                     sym[_u(y0 + 1), _u(xs_ - 3)] = v
-                    good &= ok
-                    v, a2, q2, e2, ok = decode_pixel(pf, b + 2 * ws - 6, ws, _u16(u, y0 + 2, xs_ - 6), thr, coef, bias,
-                                                     tab0, pshift, lutf, fcf, alpha, amax, words, a2, q2, m2, esc, e2, n2)
+                    v, a2, q2, e2 = _pixel(pf, b + 2 * ws - 6, ws, _u16(u, y0 + 2, xs_ - 6), thr, coef, bias, tab0, pshift, lutf, fcf,
+                                              alpha, amax, words, a2, q2, esc, e2)
                     sym[_u(y0 + 2), _u(xs_ - 6)] = v
-                    good &= ok
-                    v, a3, q3, e3, ok = decode_pixel(pf, b + 3 * ws - 9, ws, _u16(u, y0 + 3, xs_ - 9), thr, coef, bias,
-                                                     tab0, pshift, lutf, fcf, alpha, amax, words, a3, q3, m3, esc, e3, n3)
+                    v, a3, q3, e3 = _pixel(pf, b + 3 * ws - 9, ws, _u16(u, y0 + 3, xs_ - 9), thr, coef, bias, tab0, pshift, lutf, fcf,
+                                              alpha, amax, words, a3, q3, esc, e3)
                     sym[_u(y0 + 3), _u(xs_ - 9)] = v
-                    good &= ok
-                    if not good:
-                        return False
+                # limits checked once per group: a lane uses at most one word and one escape per pixel, and
+                # the caller pads the words before each lane and the escapes after the last (``decode_plane``)
+                if not ((q0 >= pmin[0]) & (q1 >= pmin[1]) & (q2 >= pmin[2]) & (q3 >= pmin[3]) & (e0 <= eend[0])
+                        & (e1 <= eend[1]) & (e2 <= eend[2]) & (e3 <= eend[3])):
+                    return False
                 xs[0], xs[1], xs[2], xs[3] = a0, a1, a2, a3
                 pos[0], pos[1], pos[2], pos[3] = q0, q1, q2, q3
                 epos[0], epos[1], epos[2], epos[3] = e0, e1, e2, e3

@@ -809,14 +809,18 @@ def _decode(mv: memoryview, dithers: list[np.ndarray], outs) -> list[np.ndarray]
     fcum = (freq << 16) | cum
     # words of lane j at [pmin_j + 1, pmin_j + n_j], with a pad word at pmin_j (branch-free renormalisation)
     nwords = [ln[1] for ln in lanes]
-    pmin = np.concatenate([[0], np.cumsum(np.array(nwords, np.int64) + 1)[:-1]]).astype(np.int64)
-    words = np.zeros(int(sum(nwords)) + nl, np.uint16)
+    # words of lane j at [pmin_j + 1, pmin_j + n_j], after ``pad`` zero words (words[pmin_j] the last of
+    # them: branch-free renormalisation); escapes followed by ``pad`` zeros. The decoder's steady part
+    # checks a lane's limits once per group of rows and reads at most a row's width past them.
+    pad = max([u.shape[1] for u in dithers] + [0]) + 16
+    pmin = (np.cumsum(np.array(nwords, np.int64) + pad) - np.array(nwords, np.int64) - 1).astype(np.int64)
+    words = np.zeros(int(sum(nwords)) + nl * pad, np.uint16)
     for j, n in enumerate(nwords):
         words[pmin[j] + 1:pmin[j] + 1 + n] = np.frombuffer(mv, "<u2", n, off)
         off += 2 * n
     nesc = [ln[2] for ln in lanes]
-    esc = np.zeros(int(sum(nesc)) + 1, np.int32)  # + a pad: ``decode_kernel.decode_pixel`` reads esc[epos] unconditionally
-    esc[:-1] = np.frombuffer(mv, "<i4", int(sum(nesc)), off)
+    esc = np.zeros(int(sum(nesc)) + pad, np.int32)
+    esc[:int(sum(nesc))] = np.frombuffer(mv, "<i4", int(sum(nesc)), off)
     epos = np.concatenate([[0], np.cumsum(nesc)[:-1]]).astype(np.int64)
     eend = epos + np.array(nesc, np.int64)
     xs = np.array([ln[0] for ln in lanes], np.uint64)
