@@ -80,6 +80,12 @@ def test_corrupt_chunks_evaluate(tmp_path, store, model):
             inprocess=True)  # torch is imported here already (the model fixture)
 
 
+def test_corrupt_chunks_predict(tmp_path, store, model):
+    _flip(store / SHARD, 0.1, 0.3, 0.5, 0.7, 0.9)  # every image's chunk: predict reads them all
+    refused(["predict", "s.zarr", "--model", str(model), "--out", "p.zarr", "--overlay", "o.png"], "chunk is corrupt",
+            tmp_path, inprocess=True)  # torch is imported here already (the model fixture)
+
+
 def test_damaged_zarr_json_info(tmp_path, store):
     (store / "zarr.json").write_text('{"zarr_format": 3, "node_type": "gro')
     refused(["info", "s.zarr"], "cannot open store", tmp_path)

@@ -1,7 +1,8 @@
 """IoU, precision and recall of car segmentation, per image and pooled over a test set.
 
 Prediction and target live on the image's own mosaic grid (one value per CFA site): the
-prediction is probability > 0.5 (logit > 0) per pixel; the target is the car *area fraction*
+prediction is probability > 0.5 per pixel (the float32 sigmoid of the logit, ``car_probability``:
+the same rule as the masks of ``metraw predict``); the target is the car *area fraction*
 f of each pixel (the label geometry carried through the emulation). Scores are in ground area,
 counting a predicted pixel as wholly car: TP = sum(b f), FP = sum(b (1 - f)), FN = sum((1 - b) f)
 in pixel areas. For 0/1 masks these are the usual pixel counts; for coarse satellite pixels
@@ -10,8 +11,22 @@ the same (overlap of car areas on the ground) at every parameter point.
 
 Per image: IoU = TP / (TP + FP + FN), precision = TP / (TP + FP), recall = TP / (TP + FN);
 undefined ratios (empty denominators) are reported as None and left out of means.
-Overall: the same ratios from the counts pooled over all test images ("iou"), plus the mean of
+Overall: the same ratios from the counts pooled over all scored images ("iou"), plus the mean of
 the defined per-image IoUs with its standard error ("mean_image_iou", "mean_image_iou_se").
+
+Which images (``evaluate_store``): on the store the model was trained on (recognised by the
+content digest recorded in train.json, or by its path for models trained before the digest was
+recorded) its test split; on any other ("foreign") store all its images; ``split`` overrides.
+
+Ground sampling: the model learnt cars at the packed GSD of its training images
+(``train_packed_gsd_m`` in the checkpoint). An image whose packed GSD differs from it by more than
+``GSD_TOLERANCE`` is resampled to it before the network and the logits back to the image's grid
+(``resample_to_gsd``); the factor is recorded per image ("gsd_scale"). Checkpoints without the
+field, or images without a known GSD, are not resampled ("gsd_matched": false and the reason).
+
+Labels: masks made from YOLO boxes (image meta ``mask_kind`` "box-approximate: ...") overstate the
+car area (a box is not an outline): each image and the pooled record say "box-approximate",
+"exact" or (pooled) "mixed".
 """
 
 from __future__ import annotations
@@ -21,7 +36,13 @@ from typing import Any
 
 import numpy as np
 
+from metraw.errors import MetrawError
 from metraw.segment.data import PreparedImage
+
+#: Relative difference of packed GSDs [-] above which an image is resampled to the training GSD.
+GSD_TOLERANCE = 0.02
+#: ``split`` values of ``evaluate_store``.
+SPLITS = ("auto", "test", "all")
 
 
 def confusion(pred: np.ndarray, target: np.ndarray) -> tuple[float, float, float]:
@@ -70,57 +91,220 @@ def summarise(per_image: list[dict[str, Any]]) -> dict[str, Any]:
             "mean_image_iou": mean, "mean_image_iou_se": se}
 
 
-def predict_logits(model, planes: np.ndarray, device: str = "cpu") -> np.ndarray:
-    """Logits (S, h, w), one per CFA site, of one packed image (S, h, w) on its own grid."""
+
+
+# ----------------------------------------------------------------- ground sampling
+def gsd_scale(image_packed_gsd_m: float | None, train_packed_gsd_m: float | None, recorded: bool = True,
+              tolerance: float = GSD_TOLERANCE) -> tuple[float, bool, str | None]:
+    """(scale [-], matched, reason) for an image: scale = image packed GSD / training packed GSD.
+
+    1.0 when the two agree within ``tolerance`` (relative) or when either is unknown; ``matched``
+    is False only in the latter case, ``reason`` then says which is unknown (``recorded`` False:
+    a checkpoint from before the training GSD was recorded).
+    """
+    if not recorded:
+        return 1.0, False, ("the checkpoint records no training GSD (a model trained before train_packed_gsd_m "
+                            "was recorded): images not resampled")
+    if not train_packed_gsd_m:
+        return 1.0, False, "training GSD unknown (training images without geometry): images not resampled"
+    if not image_packed_gsd_m:
+        return 1.0, False, "image GSD unknown (profile without geometry, no meta gsd_m): not resampled"
+    scale = float(f"{float(image_packed_gsd_m) / float(train_packed_gsd_m):.9g}")  # no float noise in records
+    return (1.0 if abs(scale - 1.0) <= tolerance else scale), True, None
+
+
+def image_packed_gsd_m(image) -> float | None:
+    """Packed GSD of a RawImage [m per packed pixel]: the profile's geometry, else its meta ``gsd_m``
+    (processed photos ingested with ``--gsd-m``), times the CFA cell side; None when unknown."""
+    from metraw.cfa import cell_size
+
+    gsd = image.profile.gsd_m
+    if not gsd:
+        meta_gsd = image.meta.get("gsd_m") if isinstance(image.meta, dict) else None
+        gsd = float(meta_gsd) if isinstance(meta_gsd, (int, float)) and meta_gsd > 0 else None
+    return gsd * cell_size(image.cfa_pattern) if gsd else None
+
+
+def resample_to_gsd(x, scale: float, size: tuple[int, int] | None = None):
+    """Resample planes or logits (B, C, h, w) by ``scale`` [-] (new side = round(side * scale)), or to
+    ``size`` when given: bilinear, antialiased along a shrinking axis (an area average, no aliasing)."""
+    import torch.nn.functional as F
+
+    h, w = x.shape[-2:]
+    if size is None:
+        size = (max(1, int(round(h * scale))), max(1, int(round(w * scale))))
+    if tuple(size) == (h, w):
+        return x
+    return F.interpolate(x, size=tuple(size), mode="bilinear", align_corners=False,
+                         antialias=size[0] < h or size[1] < w)
+
+
+def predict_logits(model, planes: np.ndarray, device: str = "cpu", scale: float = 1.0) -> np.ndarray:
+    """Logits (S, h, w), one per CFA site, of one packed image (S, h, w) on its own grid.
+
+    ``scale`` != 1 (image packed GSD / training packed GSD): the planes are resampled to the
+    training GSD for the network and its logits back to (h, w) (``resample_to_gsd``).
+    """
     import torch
 
     model.eval()
     with torch.no_grad():
         x = torch.from_numpy(np.ascontiguousarray(planes))[None].to(device)
-        return model(x)[0].float().cpu().numpy()
+        y = model(resample_to_gsd(x, scale)) if scale != 1.0 else model(x)
+        if scale != 1.0:
+            y = resample_to_gsd(y, scale, size=tuple(planes.shape[-2:]))
+        return y[0].float().cpu().numpy()
+
+
+def car_probability(logits: np.ndarray) -> np.ndarray:
+    """Car probability (float32 sigmoid of the logits); a pixel is predicted car where it is > 0.5."""
+    import torch
+
+    return torch.sigmoid(torch.from_numpy(np.ascontiguousarray(logits, dtype=np.float32))).numpy()
+
+
+# ----------------------------------------------------------------- scoring
+def label_kind(meta: dict[str, Any] | None) -> str:
+    """"box-approximate" for masks made from boxes (meta ``mask_kind``), else "exact"."""
+    kind = (meta or {}).get("mask_kind", "") if isinstance(meta, dict) else ""
+    return "box-approximate" if str(kind).startswith("box-approximate") else "exact"
+
+
+def pooled_label_kind(kinds: list[str]) -> str | None:
+    """One kind when all images agree, "mixed" otherwise (None without images)."""
+    distinct = sorted(set(kinds))
+    return None if not distinct else distinct[0] if len(distinct) == 1 else "mixed"
+
+
+def score_image(model, img: PreparedImage, device: str = "cpu", scale: float = 1.0) -> dict[str, Any]:
+    """Segment one whole image and score it: index, shape, tp, fp, fn, iou, precision, recall."""
+    planes, frac = img.full()
+    pred = car_probability(predict_logits(model, planes, device, scale)) > 0.5
+    tp, fp, fn = confusion(pred, frac)
+    return {"index": img.index, "shape": list(frac.shape), "tp": tp, "fp": fp, "fn": fn, **scores(tp, fp, fn)}
 
 
 def evaluate_images(model, images: list[PreparedImage], device: str = "cpu", progress: bool | None = None
                     ) -> dict[str, Any]:
-    """Segment whole images and score them: {"per_image": [...], plus ``summarise`` keys}."""
+    """Segment whole images (no resampling) and score them: {"per_image": [...], plus ``summarise`` keys}."""
     from metraw.progress import progress_bar
 
-    records = []
-    for img in progress_bar(images, desc="evaluate", disable=None if progress is None else not progress):
-        planes, frac = img.full()
-        pred = predict_logits(model, planes, device) > 0.0
-        tp, fp, fn = confusion(pred, frac)
-        records.append({"index": img.index, "shape": list(frac.shape), "tp": tp, "fp": fp, "fn": fn,
-                        **scores(tp, fp, fn)})
+    records = [score_image(model, img, device)
+               for img in progress_bar(images, desc="evaluate", disable=None if progress is None else not progress)]
     return {**summarise(records), "per_image": records}
 
 
-def evaluate_store(store_path, model_dir, device: str | None = None, progress: bool | None = None
-                   ) -> dict[str, Any]:
-    """Score a trained model (``metraw.segment.train.train_store`` output) on a store's test split.
+# ----------------------------------------------------------------- models and stores
+def open_model(model_dir, device: str):
+    """``load_model`` with one-line errors: a missing directory, an unreadable checkpoint."""
+    from pathlib import Path
 
-    The split is recomputed from the checkpoint's split seed and test fraction and must match
-    the indices stored at training time (same store length and order). No wall-clock timings:
-    the same model and store give the same record (``metraw evaluate`` logs its time on stderr).
+    from metraw.segment.train import load_model
+
+    if not Path(model_dir).is_dir():
+        raise MetrawError(f"model directory {model_dir} does not exist (train one with `metraw train`)")
+    try:
+        return load_model(model_dir, device)
+    except MetrawError:
+        raise
+    except Exception as exc:  # torch raises many types on a damaged checkpoint
+        raise MetrawError(f"cannot read the model in {model_dir}: {' '.join(str(exc).split())[:200]}") from None
+
+
+def check_channels(in_channels: int, pattern: str, where: str, model_dir) -> None:
+    """The model's input planes (1 mono, 4 Bayer) match the image's CFA, else a one-line error."""
+    planes = 1 if pattern == "mono" else 4
+    if planes != in_channels:
+        kind = "mono" if in_channels == 1 else "Bayer CFA"
+        raise MetrawError(f"the model in {model_dir} takes {in_channels} packed plane(s) ({kind} images) but "
+                          f"{where} is {pattern} ({planes} plane(s)): channel mismatch")
+
+
+def training_store(store, store_path, record: dict[str, Any]) -> tuple[bool, str]:
+    """(whether ``store`` is the one the model was trained on, how that was decided).
+
+    By the content digest of train.json ("store_digest") when recorded; else (older models) by the
+    resolved path of its "store" record and the image count.
     """
-    from metraw.errors import MetrawError
-    from metraw.segment.data import prepare_store, split_indices
-    from metraw.segment.train import TrainConfig, default_device, flush_denormals, load_model, set_determinism
+    from pathlib import Path
+
+    from metraw.segment.train import store_digest
+
+    if record.get("store_digest"):
+        same = len(store) == record.get("n_images") and store_digest(store) == record["store_digest"]
+        return same, "store_digest"
+    recorded = record.get("store")
+    same = bool(recorded) and Path(recorded).resolve() == Path(store_path).resolve() \
+        and len(store) == record.get("n_images")
+    return same, "path"
+
+
+def select_images(store, store_path, model_dir, ckpt: dict[str, Any], config, split: str, is_training: bool
+                  ) -> tuple[list[int], str]:
+    """(image indices, split name) to score: the checkpoint's test split ("test") or every image."""
+    from metraw.segment.data import split_indices
+
+    if split not in SPLITS:
+        raise MetrawError(f"split must be one of {', '.join(SPLITS)}, got {split!r}")
+    if len(store) == 0:
+        raise MetrawError(f"store {store_path} holds no images")
+    if split == "test" or (split == "auto" and is_training):
+        if len(store) < 2:
+            raise MetrawError(f"store {store_path} has {len(store)} image: no test split to score")
+        _, test_idx = split_indices(len(store), config.test_fraction, config.split_seed)
+        if test_idx.tolist() != [int(i) for i in ckpt["test_indices"]]:
+            raise MetrawError(f"the test split of {store_path} ({len(store)} images) differs from the one the "
+                              f"model in {model_dir} was trained with (use --split all)")
+        return test_idx.tolist(), "test"
+    return list(range(len(store))), "all (training store)" if is_training else "all (foreign store)"
+
+
+def evaluate_store(store_path, model_dir, device: str | None = None, progress: bool | None = None,
+                   split: str = "auto") -> dict[str, Any]:
+    """Score a trained model (``metraw.segment.train.train_store`` output) on a store.
+
+    ``split``: "auto" scores the test split of the training store and every image of a foreign
+    one; "test" the checkpoint's test split (recomputed from its split seed and test fraction: the
+    store must have as many images as the training store, e.g. another parameter point); "all"
+    every image. Images are read, segmented and scored one at a time. No wall-clock timings: the
+    same model and store give the same record (``metraw evaluate`` logs its time on stderr).
+    """
+    from metraw.progress import progress_bar
+    from metraw.segment.data import prepare
+    from metraw.segment.train import TrainConfig, default_device, flush_denormals, set_determinism
     from metraw.store import RawStore
 
     device = device or default_device()
-    model, ckpt, record = load_model(model_dir, device)
+    model, ckpt, record = open_model(model_dir, device)
     config = TrainConfig.from_dict(ckpt["config"])
     set_determinism(config.seed, config.threads, device)
     store = RawStore.open(store_path)
-    _, test_idx = split_indices(len(store), config.test_fraction, config.split_seed)
-    if test_idx.tolist() != list(ckpt["test_indices"]):
-        raise MetrawError(f"the test split of {store_path} ({len(store)} images) differs from the one the "
-                          f"model in {model_dir} was trained with")
-    images = prepare_store(store, test_idx, progress)
+    is_training, identified_by = training_store(store, store_path, record)
+    indices, split_name = select_images(store, store_path, model_dir, ckpt, config, split, is_training)
+    train_gsd = ckpt.get("train_packed_gsd_m")
+    records, notes, packed_shape = [], [], None
     with flush_denormals():
-        out = evaluate_images(model, images, device, progress)
-    out.update({"store": str(store_path), "model": str(model_dir), "epochs": record.get("epochs"),
+        for i in progress_bar(indices, desc="evaluate", disable=None if progress is None else not progress):
+            image = store[i]
+            if image.mask is None:
+                raise MetrawError(f"image {i} of {store_path} has no label mask: `metraw evaluate` needs labelled "
+                                  "images (`metraw predict` segments unlabelled ones)")
+            check_channels(ckpt["in_channels"], image.cfa_pattern, f"image {i} of {store_path}", model_dir)
+            gsd = image_packed_gsd_m(image)
+            scale, matched, note = gsd_scale(gsd, train_gsd, "train_packed_gsd_m" in ckpt)
+            img = prepare(image, i)
+            packed_shape = packed_shape or list(img.packed_shape)
+            rec = score_image(model, img, device, scale)
+            rec.update({"labels": label_kind(image.meta), "packed_gsd_m": gsd, "gsd_scale": scale,
+                        "gsd_matched": matched})
+            records.append(rec)
+            if note and note not in notes:
+                notes.append(note)
+    out = {**summarise(records), "per_image": records}
+    out.update({"split": split_name, "training_store": is_training, "training_store_by": identified_by,
+                "labels": pooled_label_kind([r["labels"] for r in records]), "train_packed_gsd_m": train_gsd,
+                "gsd_matched": not notes, "gsd_note": "; ".join(notes) or None,
+                "store": str(store_path), "model": str(model_dir), "epochs": record.get("epochs"),
                 "upsample": ckpt["upsample"], "pool": ckpt.get("pool", 1), "device": device, "config": ckpt["config"],
-                "packed_shape": list(images[0].packed_shape) if images else None})
+                "packed_shape": packed_shape})
     return out

@@ -139,6 +139,31 @@ def pool_factor(images: list[PreparedImage], grid_gsd_m: float) -> int:
     return max(1, int(math.floor(grid_gsd_m / min(gsds) + 1e-9)))
 
 
+def training_packed_gsd_m(images: list[PreparedImage]) -> float | None:
+    """Median ground sample distance of the training images' packed grid [m per packed pixel]
+    (mosaic GSD x CFA cell side); None when any image's profile lacks the geometry. Recorded in the
+    checkpoint so that ``metraw evaluate`` / ``predict`` can resample images of another GSD to it."""
+    gsds = [img.gsd_m * cell_size(img.pattern) for img in images if img.gsd_m]
+    if not gsds or len(gsds) < len(images):
+        return None
+    return float(np.median(gsds))
+
+
+def store_digest(store) -> str:
+    """Content identity of a RawStore (hex sha256): its image count, every image's shape, profile and
+    meta, and the raw bytes of its first, middle and last images. Recorded in train.json so that
+    ``metraw evaluate`` recognises the training store wherever it lies (a copy included)."""
+    import hashlib
+
+    n = len(store)
+    h = hashlib.sha256()
+    h.update(json.dumps({"n_images": n, "images": [[list(store.shape(i)), store.profile(i).to_dict(), store.meta(i)]
+                                                    for i in range(n)]}, sort_keys=True, default=str).encode())
+    for i in sorted({0, n // 2, n - 1}) if n else ():
+        h.update(np.ascontiguousarray(store[i].data).tobytes())
+    return h.hexdigest()
+
+
 def segmentation_loss(logits, target):
     """Binary cross-entropy against the car area fraction of each mosaic pixel plus soft Dice (1 - Dice)."""
     import torch.nn.functional as F
@@ -233,7 +258,8 @@ def fit(images: list[PreparedImage], config: TrainConfig, device: str | None = N
     losses = train_loop(model, epoch_batches, steps_per_epoch, config, device, progress)
     record = {"epochs": config.epochs, "steps": steps_per_epoch * config.epochs, "loss_per_epoch": losses,
               "training_time_s": time.perf_counter() - t0, "device": device, "upsample": f,
-              "pool": pool, "in_channels": in_ch, "n_train": len(images)}
+              "pool": pool, "in_channels": in_ch, "n_train": len(images),
+              "train_packed_gsd_m": training_packed_gsd_m(images)}
     return model, record
 
 
@@ -245,20 +271,22 @@ def train_store(store_path: str | os.PathLike, out_dir: str | os.PathLike, confi
 
     store = RawStore.open(store_path)
     train_idx, test_idx = split_indices(len(store), config.test_fraction, config.split_seed)
+    digest = store_digest(store)
     t0 = time.perf_counter()
     images = prepare_store(store, train_idx, progress)
     prep_s = time.perf_counter() - t0
     model, record = fit(images, config, device, progress)
-    record.update({"store": str(store_path), "n_images": len(store), "train_indices": train_idx.tolist(),
-                   "test_indices": test_idx.tolist(), "preprocess_time_s": prep_s, "config": asdict(config)})
+    record.update({"store": str(store_path), "store_digest": digest, "n_images": len(store),
+                   "train_indices": train_idx.tolist(), "test_indices": test_idx.tolist(),
+                   "preprocess_time_s": prep_s, "config": asdict(config)})
     save_model(out_dir, model, config, record, test_idx, overwrite)
     return record
 
 
 def save_model(out_dir, model, config: TrainConfig, record: dict[str, Any], test_indices, overwrite: bool = False
                ) -> None:
-    """Write ``model.pt`` (weights, config, upsampling, test split) and ``train.json`` (``record`` without its
-    wall-clock ``TIMINGS``, so that the same training writes the same bytes) atomically."""
+    """Write ``model.pt`` (weights, config, upsampling, test split, training packed GSD) and ``train.json``
+    (``record`` without its wall-clock ``TIMINGS``, so that the same training writes the same bytes) atomically."""
     import torch
 
     from metraw.atomic import atomic_path
@@ -267,7 +295,8 @@ def save_model(out_dir, model, config: TrainConfig, record: dict[str, Any], test
         tmp.mkdir(parents=True)
         torch.save({"state_dict": {k: v.cpu() for k, v in model.state_dict().items()},
                     "config": asdict(config), "upsample": record["upsample"], "pool": record.get("pool", 1),
-                    "in_channels": record["in_channels"], "test_indices": [int(i) for i in test_indices]},
+                    "in_channels": record["in_channels"], "test_indices": [int(i) for i in test_indices],
+                    "train_packed_gsd_m": record.get("train_packed_gsd_m")},
                    tmp / CHECKPOINT)
         (tmp / TRAIN_METRICS).write_text(json.dumps({k: v for k, v in record.items() if k not in TIMINGS}, indent=2))
 
