@@ -3,7 +3,9 @@
 - ``data``: preprocessing (VST, canonical CFA packing, car fraction per pixel), split, crops;
 - ``model``: the U-Net (plain torch) and its resampling wrapper (upsample / pool);
 - ``train``: training one model per parameter point (``train_store``), checkpoints;
-- ``evaluate``: IoU / precision / recall per image and pooled (``evaluate_store``);
+- ``evaluate``: IoU / precision / recall per image and pooled (``evaluate_store``): a store's test split,
+  or every image of a foreign store, resampled to the model's training ground sampling;
+- ``predict``: car probability and mask per image of any store (``metraw predict``), overlay figures;
 - ``emulated``: ``EmulatedDataset``, on-the-fly emulation as augmentation.
 """
 
