@@ -15,15 +15,25 @@ configfile: "params.yaml"
 
 # DVC stages pass the point(s) they stand for (--config dvc_point=... / dvc_points=...); they are
 # checked against params.yaml in workflow/rules/common.smk and are not workflow parameters.
-DVC_CHECK = {key: str(config.pop(key)) for key in ("dvc_point", "dvc_points") if key in config}
+DVC_CHECK = {key: str(config.pop(key)) for key in ("dvc_point", "dvc_points", "dvc_real") if key in config}
 
 # One clear line and exit status 2 for a bad params.yaml (or --config override), before anything is written
 # (the output cache folder below included).
 from metraw.errors import MetrawError
 from metraw.points import validate_params, write_effective_params
+from metraw.sim_to_real import resolve_enabled
 
 try:
     validate_params(config, "params.yaml (with --config overrides)")
+    # Sim-to-real benchmark (workflow/rules/sim_to_real.smk): on when params.yaml sim_to_real.enabled is true
+    # (its real image folder then required) or auto and the folder exists; off when false or absent.
+    SIM_TO_REAL = resolve_enabled(config, "params.yaml (with --config overrides)")
+    if DVC_CHECK.get("dvc_real") and not SIM_TO_REAL:
+        missing = (config.get("sim_to_real") or {}).get("path")
+        raise MetrawError(
+            f"dvc.yaml's sim-to-real stage needs the real image folder {missing!r}, which does not exist (or "
+            "sim_to_real is off): set sim_to_real.enabled to false and regenerate dvc.yaml with "
+            "`python workflow/scripts/dvc_yaml.py`")
 except MetrawError as exc:
     sys.stderr.write(f"metraw workflow: error: {exc}\n")
     sys.exit(2)
@@ -48,6 +58,8 @@ include: "workflow/rules/source.smk"
 include: "workflow/rules/emulate.smk"
 include: "workflow/rules/segment.smk"
 include: "workflow/rules/aggregate.smk"
+if SIM_TO_REAL:
+    include: "workflow/rules/sim_to_real.smk"
 
 
 rule all:
@@ -56,3 +68,4 @@ rule all:
         "results/source/metrics.json",
         "results/spec.yaml",
         "results/aggregate.json",
+        SIM_TO_REAL_METRICS,

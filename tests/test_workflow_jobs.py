@@ -161,12 +161,17 @@ def test_dvc_stage_outputs_are_the_snakemake_point_paths(tmp_path, which):
     points = list(parameter_points(yaml.safe_load((root / "params.yaml").read_text())))
     proc = _run(["dvc", "stage", "list"], root)
     stages = dict(line.split(None, 1) for line in proc.stdout.splitlines() if line.strip())
-    for rule in PER_POINT_RULES:
-        mine = {s: desc for s, desc in stages.items() if s == f"{rule}_nominal" or s.startswith(f"{rule}_") and "@" in s}
+    sweeps = params["target"]["sweeps"]
+    real = _dvc_yaml().sim_to_real_stages(params)  # the repo's params: sim_to_real auto, so its stages are there
+    assert real == (which == "repo")
+    for rule in PER_POINT_RULES + (("emulate_real", "evaluate_real") if real else ()):
+        # <rule>_nominal and <rule>_<parameter>@<value> (emulate_real_... is not an emulate stage)
+        mine = {s: desc for s, desc in stages.items()
+                if s == f"{rule}_nominal" or any(s.startswith(f"{rule}_{p}@") for p in sweeps)}
         outs = sorted(re.search(r"results/points/([^/]+)/", desc).group(1) for desc in mine.values())
         assert outs == sorted(points), (rule, outs, points)
         # stage names carry the same value text: <rule>_<parameter>@<value>
-        assert sorted(s.split("_", 1)[1].replace("@", "-") for s in mine) == sorted(points)
+        assert sorted(s[len(rule) + 1:].replace("@", "-") for s in mine) == sorted(points)
     assert "aggregate" in stages
 
 

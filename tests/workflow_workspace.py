@@ -32,7 +32,40 @@ def tiny_params() -> dict:
     params["training"]["profile"] = "default"
     params["training"]["profiles"]["default"].update(epochs=1, batch_size=4, crop_px=4, base_channels=4, depth=2,
                                                      min_grid_px=0, crops_per_image=1)
+    # the sim-to-real benchmark off (a test turns it on with a fake_real_folder): job counts stay those of the chain
+    params["sim_to_real"] = {"enabled": False}
     return params
+
+
+def sim_to_real_params(params: dict, path: str, enabled: bool | str = True) -> dict:
+    """``params`` with the sim-to-real benchmark on ``path`` (relative to the workspace), as params.yaml has it."""
+    return {**params, "sim_to_real": {"enabled": enabled, "path": path, "gsd_m": 0.135, "white_fraction": 1.0,
+                                      "seed": 0}}
+
+
+def fake_real_folder(folder: Path, n: int = 3, size: tuple[int, int] = (150, 200), seed: int = 0) -> Path:
+    """A stand-in for the KIT AIS folder (not in CI): ``n`` small 8-bit sRGB PNGs of grey streets with a few
+    coloured cars (axis-aligned rectangles), a YOLO .txt of their boxes each (class 0, normalised cx cy w h)
+    and an aerial.names listing the classes."""
+    import numpy as np
+    from PIL import Image
+
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "aerial.names").write_text("car\ntruck\nbus\nminibus\ncyclist\n")
+    rng = np.random.default_rng(seed)
+    h, w = size
+    for i in range(n):
+        img = np.clip(rng.normal(110, 12, (h, w, 3)), 0, 255)
+        img[:, w // 3: w // 3 + 8] = 200  # a road marking
+        lines = []
+        for _ in range(6):
+            bh, bw = (int(v) for v in rng.integers(12, 34, 2))
+            y, x = int(rng.integers(0, h - bh)), int(rng.integers(0, w - bw))
+            img[y:y + bh, x:x + bw] = rng.integers(20, 240, 3)
+            lines.append(f"0 {(x + bw / 2) / w:.6f} {(y + bh / 2) / h:.6f} {bw / w:.6f} {bh / h:.6f}")
+        Image.fromarray(img.astype(np.uint8)).save(folder / f"MOS{i}.png")
+        (folder / f"MOS{i}.txt").write_text("\n".join(lines) + "\n")
+    return folder
 
 
 def workflow_env() -> dict[str, str]:

@@ -3,7 +3,9 @@
 - ``response_map``: Fig. 7b, GP mean of IoU over focal length x diameter (others nominal),
   with the contour where the lower 2-sigma bound meets the required IoU;
 - ``response_line``: Fig. 7c-e / 8a-c, GP mean and 2-sigma band against one parameter with the
-  measured points (error bars: the per-point measurement sd) and optional tolerance interval;
+  measured points (error bars: the per-point measurement sd) and optional tolerance interval, and
+  optionally a second measured series (the sim-to-real benchmark's IoU on emulated real images,
+  joined by a line, with its own error bars; not part of the GP);
 - ``example_images``: Fig. 6, the same scene at several parameter points.
 Each function writes one PNG atomically and returns nothing; ``line_table`` gives the numbers
 behind a line plot (for CSV / ``dvc plots``).
@@ -52,8 +54,11 @@ def line_table(model: ResponseGP, name: str, at: Mapping[str, float], n: int = 2
 
 def response_line(model: ResponseGP, name: str, at: Mapping[str, float], path: str | Path, *, ylabel: str,
                   points: Sequence[tuple[float, float, float]] = (), required: float | None = None,
-                  tolerance: Tolerance | None = None, title: str = "") -> None:
-    """GP mean with 2-sigma band along ``name``; ``points``: (x, y, sd) measured on that line."""
+                  tolerance: Tolerance | None = None, title: str = "",
+                  real_points: Sequence[tuple[float, float, float]] = (), real_label: str = "real images (2 sd)"
+                  ) -> None:
+    """GP mean with 2-sigma band along ``name``; ``points``: (x, y, sd) measured on that line;
+    ``real_points``: a second measured series (x, y, sd), drawn as a curve through its points."""
     plt = _plt()
     t = line_table(model, name, at)
     fig, ax = plt.subplots(figsize=(4.8, 3.4))
@@ -62,7 +67,11 @@ def response_line(model: ResponseGP, name: str, at: Mapping[str, float], path: s
     ax.plot(x, t["mean"], color="tab:blue", lw=1.6, label="GP mean")
     if points:
         px, py, ps = (np.array(v, dtype=float) for v in zip(*points))
-        ax.errorbar(px, py, yerr=2 * ps, fmt="o", color="k", ms=4, capsize=2, label="measured (2 sd)")
+        ax.errorbar(px, py, yerr=2 * ps, fmt="o", color="k", ms=4, capsize=2,
+                    label="synthetic test (2 sd)" if real_points else "measured (2 sd)")
+    if real_points:
+        rx, ry, rs = (np.array(v, dtype=float) for v in zip(*sorted(real_points)))
+        ax.errorbar(rx, ry, yerr=2 * rs, fmt="s-", color="tab:orange", ms=4, lw=1.2, capsize=2, label=real_label)
     if required is not None:
         ax.axhline(required, color="tab:red", ls="--", lw=1, label=f"required {required:g}")
     if tolerance is not None and tolerance.meets_requirement:

@@ -29,6 +29,11 @@ VIOLATIONS = {
     "focal_sweep_value_zero": (("target.sweeps.focal_length_m", [0]), "target/sweeps/focal_length_m/0"),
     "exposure_sweep_value_zero": (("target.sweeps.exposure_s", [100e-6, 0.0]), "target/sweeps/exposure_s/1"),
     "sweep_of_unknown_field": (("target.sweeps.haze", [1.0]), "'haze' is not a field of target.nominal"),
+    "sim_to_real_enabled_not_a_choice": (("sim_to_real.enabled", "yes"), "sim_to_real/enabled"),
+    "sim_to_real_key_unknown": (("sim_to_real.gsd", 0.1), "'gsd' was unexpected"),
+    # not a schema violation but the same refusal: the benchmark required and its real image folder missing
+    "sim_to_real_required_folder_missing": (("sim_to_real", {"enabled": True, "path": "no_such_folder", "gsd_m": 0.135}),
+                                            "'no_such_folder' does not exist"),
 }
 
 

@@ -21,6 +21,9 @@ rule aggregate:
         metrics=expand("results/points/{point}/metrics.json", point=POINTS),
         compression=expand("results/points/{point}/compression.json", point=POINTS),
         stores=expand("results/points/{point}/target.zarr", point=POINTS),
+        # sim-to-real benchmark (when on): each point's model on its emulated real images, the source model's pair
+        real=expand(REAL_POINT_METRICS, point=POINTS) if SIM_TO_REAL else [],
+        source_real=[SOURCE_REAL_METRICS, "results/source/metrics.json"] if SIM_TO_REAL else [],
     output:
         spec=report("results/spec.yaml", caption="../report/spec.rst", category="Specification"),
         table=report("results/aggregate.json", caption="../report/aggregate.rst", category="Specification"),
@@ -30,6 +33,11 @@ rule aggregate:
     params:
         points=POINTS,
         spec=config["spec"],
+        # extra aggregate arguments of the sim-to-real benchmark (a function: a params string would be formatted
+        # with the job's wildcards, and {point} is the aggregate's own pattern)
+        real=lambda wildcards: (" --real-metrics-pattern '" + REAL_POINT_METRICS + "' --source-real-metrics "
+                                + SOURCE_REAL_METRICS + " --source-metrics results/source/metrics.json"
+                                ) if SIM_TO_REAL else "",
     # Between-workflow output cache (active with --cache, which profiles/default sets; location from the Snakefile):
     # keyed by Snakemake's provenance hash (this command, these params, and the same hash of every upstream job,
     # down to the checksums of files no rule makes). A job whose key is in the cache is not run: its outputs are
@@ -42,4 +50,4 @@ rule aggregate:
         "metraw aggregate --params {PARAMS_FILE} --results results --out results"
         " --metrics-pattern 'results/points/{{point}}/metrics.json'"
         " --compression-pattern 'results/points/{{point}}/compression.json'"
-        " --stores-pattern 'results/points/{{point}}/target.zarr' 2> {log}"
+        " --stores-pattern 'results/points/{{point}}/target.zarr'{params.real} 2> {log}"

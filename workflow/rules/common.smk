@@ -10,6 +10,13 @@ from metraw.points import parameter_points, target_params
 POINTS = list(parameter_points(config))
 SOURCE_STORE = "data/source.zarr"
 
+# Sim-to-real benchmark (workflow/rules/sim_to_real.smk, when SIM_TO_REAL): the real photos as a store, emulated
+# per point, scored by each point's model; the drone-resolution model scored on the un-emulated store.
+REAL_STORE = "data/real.zarr"
+REAL_POINT_METRICS = "results/points/{point}/real_metrics.json"
+SOURCE_REAL_METRICS = "results/source/real_metrics.json"
+SIM_TO_REAL_METRICS = (expand(REAL_POINT_METRICS, point=POINTS) + [SOURCE_REAL_METRICS]) if SIM_TO_REAL else []
+
 
 def point_target(wildcards):
     """Full target parameters of a point (tracked by Snakemake as a rule param)."""

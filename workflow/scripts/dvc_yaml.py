@@ -18,6 +18,13 @@ What is generated and what is templated:
   message naming this script (its command passes its point list to Snakemake, which compares it
   with params.yaml; see workflow/rules/common.smk).
 
+The sim-to-real benchmark (params.yaml ``sim_to_real``, workflow/rules/sim_to_real.smk) adds
+``real_store``, ``evaluate_source_real`` and per point ``emulate_real`` / ``evaluate_real``, and the
+aggregate's deps get their metrics, whenever ``sim_to_real.enabled`` is not false. dvc.yaml cannot
+look for the real folder as Snakemake's ``auto`` does (it must be the same file on every clone), so
+without the folder those stages stop with one line (their commands pass ``dvc_real=1``; see the
+Snakefile): set ``sim_to_real.enabled: false`` there and regenerate.
+
 Each stage's ``cmd`` runs Snakemake for that one rule and output (``--allowed-rules R --forcerun R``),
 so Snakemake stays the single definition of the work and never reruns an upstream rule because DVC
 restored files with fresh modification times. ``params`` list what the rule reads from params.yaml;
@@ -49,15 +56,23 @@ HEADER = """\
 # and a --forcerun job would otherwise be fetched from Snakemake's cache instead of run
 SNAKEMAKE = "snakemake --workflow-profile none --cores all"
 POINT_DIR = "results/points/{point}"
+SOURCE_STORE = "data/source.zarr"
+REAL_STORE = "data/real.zarr"
 # Snakemake outputs of the per-point rules, relative to the point's folder
+# (inputs with a "/" are repository paths, the others are in the point's folder)
 PER_POINT = {
-    "emulate": {"in": [], "out": "target.zarr", "rules": "workflow/rules/emulate.smk"},
+    "emulate": {"in": [SOURCE_STORE], "out": "target.zarr", "rules": "workflow/rules/emulate.smk"},
     "train": {"in": ["target.zarr"], "out": "model", "rules": "workflow/rules/segment.smk"},
     "evaluate": {"in": ["target.zarr", "model"], "out": "metrics.json", "rules": "workflow/rules/segment.smk"},
     "compress": {"in": ["target.zarr"], "out": "compression.json", "rules": "workflow/rules/aggregate.smk"},
 }
+# the sim-to-real benchmark's per-point rules (when params.yaml sim_to_real.enabled is not false)
+REAL_PER_POINT = {
+    "emulate_real": {"in": [REAL_STORE], "out": "real.zarr", "rules": "workflow/rules/sim_to_real.smk"},
+    "evaluate_real": {"in": ["real.zarr", "model"], "out": "real_metrics.json",
+                      "rules": "workflow/rules/sim_to_real.smk"},
+}
 AGGREGATE_IN = ["metrics.json", "compression.json", "target.zarr"]
-SOURCE_STORE = "data/source.zarr"
 
 
 def _cmd(rule: str, targets: list[str], config: str = "") -> str:
@@ -68,8 +83,11 @@ def _cmd(rule: str, targets: list[str], config: str = "") -> str:
 def _params_for(rule: str, params: dict[str, Any]) -> list[str]:
     """Keys of params.yaml that the rule reads (only those present: DVC refuses missing keys)."""
     target = params.get("target", {})
+    emulate = ["target.nominal"] + (["target.emulation"] if "emulation" in target else []) + ["codec"]
     keys = {
-        "emulate": ["target.nominal"] + (["target.emulation"] if "emulation" in target else []) + ["codec"],
+        "emulate": emulate,
+        "emulate_real": emulate,
+        "evaluate_real": [],
         "train": ["training"],
         "evaluate": [],  # the split and architecture travel inside the model folder (a dep)
         "compress": ["codec"],
@@ -77,15 +95,21 @@ def _params_for(rule: str, params: dict[str, Any]) -> list[str]:
     return keys
 
 
+def sim_to_real_stages(params: dict[str, Any]) -> bool:
+    """Whether dvc.yaml holds the sim-to-real stages: ``sim_to_real.enabled`` given and not false."""
+    return (params.get("sim_to_real") or {}).get("enabled", False) is not False
+
+
 def _point_stage(rule: str, point: str, params: dict[str, Any]) -> dict[str, Any]:
-    spec = PER_POINT[rule]
+    spec = {**PER_POINT, **REAL_PER_POINT}[rule]
     folder = POINT_DIR.format(point=point)
     out = f"{folder}/{spec['out']}"
-    stage: dict[str, Any] = {"cmd": _cmd(rule, [out], f"dvc_point={point}")}
+    real = " dvc_real=1" if rule in REAL_PER_POINT else ""
+    stage: dict[str, Any] = {"cmd": _cmd(rule, [out], f"dvc_point={point}{real}")}
     keys = _params_for(rule, params)
     if keys:
         stage["params"] = keys
-    ins = [SOURCE_STORE] if rule == "emulate" else [f"{folder}/{name}" for name in spec["in"]]
+    ins = [name if "/" in name else f"{folder}/{name}" for name in spec["in"]]
     stage["deps"] = ins + [spec["rules"]]
     stage["outs"] = [out]
     return stage
@@ -116,7 +140,16 @@ def build(params: dict[str, Any]) -> dict[str, Any]:
                             "deps": [SOURCE_STORE, "results/source/model", "workflow/rules/segment.smk"],
                             "outs": ["results/source/metrics.json"]},
     }
-    for rule in PER_POINT:
+    real = sim_to_real_stages(params)
+    if real:
+        rules = "workflow/rules/sim_to_real.smk"
+        stages["real_store"] = {"cmd": _cmd("real_store", [REAL_STORE], "dvc_real=1"),
+                                "params": ["sim_to_real", "source.camera", "codec"], "deps": [rules],
+                                "outs": [REAL_STORE]}
+        stages["evaluate_source_real"] = {
+            "cmd": _cmd("evaluate_source_real", ["results/source/real_metrics.json"], "dvc_real=1"),
+            "deps": [REAL_STORE, "results/source/model", rules], "outs": ["results/source/real_metrics.json"]}
+    for rule in [*PER_POINT, *(REAL_PER_POINT if real else ())]:
         stages[f"{rule}_{NOMINAL}"] = _point_stage(rule, NOMINAL, params)
         for parameter in sweeps:
             stages[f"{rule}_{parameter}"] = {
@@ -128,10 +161,12 @@ def build(params: dict[str, Any]) -> dict[str, Any]:
     points = [NOMINAL] + [f"{p}-${{target.sweeps.{p}[{i}]}}" for p, values in sweeps.items()
                           for i in range(len(values))]
     outs = ["results/spec.yaml", "results/aggregate.json", "results/figures", "results/plots"]
+    agg_in = AGGREGATE_IN + (["real_metrics.json"] if real else [])
     stages["aggregate"] = {
         "cmd": _cmd("aggregate", outs[:2], f"dvc_points={','.join(points)}"),
         "params": ["target", "spec"],
-        "deps": [f"{POINT_DIR.format(point=p)}/{name}" for name in AGGREGATE_IN for p in points]
+        "deps": [f"{POINT_DIR.format(point=p)}/{name}" for name in agg_in for p in points]
+        + (["results/source/real_metrics.json", "results/source/metrics.json"] if real else [])
         + ["workflow/rules/aggregate.smk"],
         "outs": outs,
     }

@@ -3,6 +3,14 @@
 The point list comes from params.yaml (`metraw.points.parameter_points`), never from a glob;
 every point's metrics (and compression) file must exist. Outputs under ``--out``:
 ``spec.yaml``, ``aggregate.json``, ``figures/*.png`` and ``plots/*.csv`` (for ``dvc plots``).
+
+Sim-to-real (``--real-metrics-pattern``, issue #16): each point's synthetic-trained model scored on the
+real images emulated through the same point. aggregate.json then holds per point ``real_iou`` (+ sd),
+``real_precision``, ``real_recall``, ``real_labels``, ``sim_to_real_gap`` (synthetic test IoU - real IoU,
+with its sd) and ``sim_to_real_note``, plus a top-level ``sim_to_real`` summary (nominal gap, whether it
+is within ``--gap-tolerance``; ``--source-real-metrics``: the drone-resolution reference); the IoU
+figures draw the real points beside the synthetic ones. The GP, tolerances and spec.yaml are fitted
+to the synthetic test IoU only: the real images are a check of transfer, not the basis of the spec.
 """
 
 from __future__ import annotations
@@ -25,6 +33,8 @@ DEFAULT_COMPRESSION = "{results}/{point}/compression.json"
 #: Figure file names (seed study numbering) per swept parameter.
 IOU_FIGS = {"focal_length_m": "fig7c_iou_focal_length.png", "diameter_m": "fig7d_iou_diameter.png",
             "exposure_s": "fig7e_iou_exposure.png"}
+#: Legend label of the real-image series in the IoU figures.
+REAL_LABEL = "emulated real images (2 sd)"
 RATIO_FIGS = {"focal_length_m": "fig8a_ratio_focal_length.png", "exposure_s": "fig8b_ratio_exposure.png",
               "diameter_m": "fig8c_ratio_diameter.png"}
 
@@ -41,6 +51,15 @@ def register(sub) -> None:
                    help="path of a point's compression.json ({results}, {point}); '' to leave compression out")
     p.add_argument("--stores-pattern", default="",
                    help="path of a point's emulated store (e.g. 'data/targets/{point}.zarr') for Fig. 6 examples")
+    p.add_argument("--real-metrics-pattern", default="",
+                   help="path of a point's metrics on its emulated real images ({results}, {point}), e.g. "
+                   "'results/points/{point}/real_metrics.json'; '' (default): no sim-to-real columns")
+    p.add_argument("--source-real-metrics", default="",
+                   help="metrics of the drone-resolution (source) model on the real images (sim-to-real reference)")
+    p.add_argument("--source-metrics", default="",
+                   help="metrics of the source model on its synthetic test split (for the reference's gap)")
+    p.add_argument("--gap-tolerance", type=float, default=None,
+                   help="largest |synthetic - real IoU| counted as transferring (default 0.05)")
     p.add_argument("--example-index", type=int, default=0, help="image index shown in Fig. 6")
     p.add_argument("--extrapolate", type=float, default=0.0,
                    help="extend tolerance search beyond the sampled range by this fraction of it (flagged)")
@@ -77,10 +96,12 @@ def iou_measurement(metrics: dict[str, Any], where: str) -> tuple[float, float]:
     return iou, float(np.var(tp - iou * u, ddof=1) / (len(recs) * u.mean() ** 2))
 
 
-def load_point_results(params: dict[str, Any], results: str, metrics_pattern: str, compression_pattern: str
-                       ) -> list[dict[str, Any]]:
-    """One record per point of params.yaml: parameters, IoU (+variance), compression (+variance)."""
+def load_point_results(params: dict[str, Any], results: str, metrics_pattern: str, compression_pattern: str,
+                       real_pattern: str = "", gap_tolerance: float | None = None) -> list[dict[str, Any]]:
+    """One record per point of params.yaml: parameters, IoU (+variance), compression (+variance) and, with
+    ``real_pattern``, the real-image columns (``metraw.sim_to_real.real_columns``)."""
     from metraw.points import parameter_points, target_params
+    from metraw.sim_to_real import GAP_TOLERANCE, real_columns
 
     names = list((params["target"].get("sweeps") or {}))
     if not names:
@@ -90,7 +111,8 @@ def load_point_results(params: dict[str, Any], results: str, metrics_pattern: st
     for point in parameter_points(params):
         mpath = Path(metrics_pattern.format(results=results, point=point))
         cpath = Path(compression_pattern.format(results=results, point=point)) if compression_pattern else None
-        for path in (mpath, cpath):
+        rpath = Path(real_pattern.format(results=results, point=point)) if real_pattern else None
+        for path in (mpath, cpath, rpath):
             if path is not None and not path.is_file():
                 missing.append(str(path))
         if missing:
@@ -109,10 +131,39 @@ def load_point_results(params: dict[str, Any], results: str, metrics_pattern: st
                         "bits_per_pixel": float(comp["overall"]["bits_per_pixel"]),
                         **{f"ratio_{c}": v["ratio"] for c, v in comp["channels"].items()},
                         "_signal": comp.get("signal_e")})
+        if rpath is not None:
+            real = _read_json(rpath, "real-image metrics file")
+            _, real_var = iou_measurement(real, str(rpath))
+            row.update(real_columns(row, real, iou_var, real_var,
+                                    GAP_TOLERANCE if gap_tolerance is None else gap_tolerance))
         rows.append(row)
     if missing:
         raise MetrawError(f"{len(missing)} per-point result file(s) missing, e.g. {missing[0]}")
     return rows
+
+
+def _sim_to_real(args, rows: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """The top-level ``sim_to_real`` block (None without ``--real-metrics-pattern``)."""
+    from metraw.points import NOMINAL
+    from metraw import sim_to_real
+
+    if not args.real_metrics_pattern:
+        if args.source_real_metrics:
+            raise MetrawError("--source-real-metrics needs --real-metrics-pattern (the per-point real metrics)")
+        return None
+    tolerance = sim_to_real.GAP_TOLERANCE if args.gap_tolerance is None else args.gap_tolerance
+    source = None
+    if args.source_real_metrics:
+        rpath = Path(args.source_real_metrics)
+        real = _read_json(rpath, "source real-image metrics file")
+        _, real_var = iou_measurement(real, str(rpath))
+        synthetic, syn_var = None, 0.0
+        if args.source_metrics:
+            spath = Path(args.source_metrics)
+            synthetic = _read_json(spath, "source metrics file")
+            _, syn_var = iou_measurement(synthetic, str(spath))
+        source = sim_to_real.source_record(synthetic, real, syn_var, real_var, tolerance)
+    return sim_to_real.summary(rows, NOMINAL, source, tolerance)
 
 
 def _csv(rows: list[dict[str, Any]], cols: list[str]) -> str:
@@ -139,7 +190,9 @@ def run(args) -> int:
     required = float(params.get("spec", {}).get("required_iou", math.nan))
     if not 0 < required < 1:
         raise MetrawError(f"{args.params}: spec.required_iou must lie in (0, 1), got {required}")
-    rows = load_point_results(params, args.results, args.metrics_pattern, args.compression_pattern)
+    rows = load_point_results(params, args.results, args.metrics_pattern, args.compression_pattern,
+                              args.real_metrics_pattern, args.gap_tolerance)
+    real = _sim_to_real(args, rows)
     names = list(params["target"]["sweeps"])
     nominal = target_params(params, NOMINAL)
     at = {n: float(nominal[n]) for n in names}
@@ -187,9 +240,13 @@ def run(args) -> int:
         "tolerances": {n: {k: v for k, v in t.__dict__.items()} for n, t in tols.items()},
         "joint_region": joint,
     }
+    if real is not None:
+        summary["sim_to_real"] = real
     spec.save(out / "spec.yaml")
     _write_text(out / "aggregate.json", json.dumps(summary, indent=2, default=float) + "\n")
     pcols = ["point", *names, "iou", "iou_sd", "iou_loo_pred", "iou_loo_sd", "iou_loo_inside", "precision", "recall"]
+    if real is not None:
+        pcols += ["real_iou", "real_iou_sd", "real_precision", "real_recall", "sim_to_real_gap", "sim_to_real_gap_sd"]
     if has_ratio:
         pcols += ["ratio", "ratio_sd", "bits_per_pixel"] + sorted(k for k in rows[0] if k.startswith("ratio_")
                                                                    and k != "ratio_sd")
@@ -198,9 +255,12 @@ def run(args) -> int:
         on_line = [r for r in rows if all(r[m] == at[m] for m in names if m != n)]
         t = figures.line_table(iou_gp, n, at)
         _write_text(plotdir / f"iou_{n}.csv", _csv([dict(zip(t, v)) for v in zip(*t.values())], list(t)))
-        figures.response_line(iou_gp, n, at, figdir / IOU_FIGS.get(n, f"iou_{n}.png"), ylabel="IoU (test split)",
+        figures.response_line(iou_gp, n, at, figdir / IOU_FIGS.get(n, f"iou_{n}.png"),
+                              ylabel="IoU (test split)" if real is None else "IoU (synthetic test split; real: all)",
                               points=[(r[n], r["iou"], r["iou_sd"]) for r in on_line], required=required,
-                              tolerance=tols[n], title=f"IoU vs {n} (others nominal)")
+                              tolerance=tols[n], title=f"IoU vs {n} (others nominal)",
+                              real_points=[(r[n], r["real_iou"], r["real_iou_sd"]) for r in on_line if "real_iou" in r],
+                              real_label=REAL_LABEL)
         if ratio_gp is not None:
             t = figures.line_table(ratio_gp, n, at)
             _write_text(plotdir / f"ratio_{n}.csv", _csv([dict(zip(t, v)) for v in zip(*t.values())], list(t)))
@@ -218,6 +278,11 @@ def run(args) -> int:
     print(f"aggregate: {len(rows)} points; IoU LOO share inside 2 sigma {iou_loo['share_inside']:.2f} "
           f"(+- {iou_loo['share_inside_se']:.2f}, expected {iou_loo['expected_share']:.3f})"
           + ("" if ratio_loo is None else f"; ratio LOO {ratio_loo['share_inside']:.2f}"))
+    if real is not None and real["nominal"] is not None:
+        nom = real["nominal"]
+        print(f"  sim-to-real at nominal: synthetic IoU {nom['synthetic_iou']:.3f}, real IoU {nom['real_iou']:.3f}, "
+              f"gap {nom['gap']:+.3f} (sd {nom['gap_sd']:.3f}): {'within' if nom['within_tolerance'] else 'outside'} "
+              f"{real['tolerance']:g}; {real['points_within_tolerance']}/{real['n_points']} points within")
     for n, t in tols.items():
         if t.meets_requirement:
             print(f"  {n}: optimal {t.optimal:.4g}, min {t.min:.4g} ({t.min_limited_by}), "

@@ -1,0 +1,68 @@
+# Sim-to-real benchmark (issue #16; included by the Snakefile when params.yaml sim_to_real is on): the real
+# photos of sim_to_real.path (KIT AIS, YOLO car boxes) ingested as approximate raws like the kit_ais source,
+# emulated through every parameter point exactly as the synthetic source (rule emulate's flags and helpers),
+# and scored by that point's synthetic-trained model on all its images; the drone-resolution model is scored on
+# the un-emulated store (metraw evaluate resamples it to the model's training GSD).
+
+
+rule real_store:
+    output:
+        directory(REAL_STORE),
+    params:
+        real=config["sim_to_real"],
+        camera=config["source"]["camera"],
+        codec=config["codec"],
+        white_fraction=config["sim_to_real"].get("white_fraction", 1.0),
+        seed=config["sim_to_real"].get("seed", 0),
+    log:
+        "logs/real_store.log",
+    shell:
+        "metraw ingest {params.real[path]} --labels yolo --camera {PARAMS_FILE} --gsd-m {params.real[gsd_m]}"
+        " --white-fraction {params.white_fraction} --seed {params.seed} --out {output}"
+        " --codec-step {params.codec[step]} --codec-seed {params.codec[seed]} 2> {log}"
+
+
+rule emulate_real:
+    input:
+        REAL_STORE,
+    output:
+        directory("results/points/{point}/real.zarr"),
+    params:
+        target=point_target,
+        point=point_overrides,
+        emulation=config["target"].get("emulation", {}),
+        codec=config["codec"],
+    threads: 1  # one process per point, as rule emulate
+    priority: emulation_priority
+    log:
+        "logs/emulate_real/{point}.log",
+    shell:
+        "metraw emulate {input} {output} --params {PARAMS_FILE} --point '{params.point}'"
+        " --mode {params.emulation[mode]} --seed {params.emulation[seed]} --workers {threads}"
+        " --codec-step {params.codec[step]} --codec-seed {params.codec[seed]} 2> {log}"
+
+
+rule evaluate_real:
+    input:
+        store="results/points/{point}/real.zarr",
+        model="results/points/{point}/model",
+    output:
+        REAL_POINT_METRICS,
+    threads: lambda wildcards: workflow.cores  # callable: --report and dry runs need no --cores
+    log:
+        "logs/evaluate_real/{point}.log",
+    shell:
+        "metraw evaluate {input.store} --model {input.model} --split all --out {output} 2> {log}"
+
+
+rule evaluate_source_real:
+    input:
+        store=REAL_STORE,
+        model="results/source/model",
+    output:
+        SOURCE_REAL_METRICS,
+    threads: lambda wildcards: workflow.cores  # callable: --report and dry runs need no --cores
+    log:
+        "logs/evaluate_real/source.log",
+    shell:
+        "metraw evaluate {input.store} --model {input.model} --split all --out {output} 2> {log}"
