@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import numba as nb
 import numpy as np
+from numba.core import types
+from numba.extending import overload
 
 PROB_BITS = 12                 # rANS probability resolution
 PROB_SCALE = 1 << PROB_BITS
@@ -26,8 +28,42 @@ def _u(i):
     return np.uint64(i)
 
 
+#: Largest activity-context table (entries): thresholds up to CTAB_MAX - 2 (x 2^8) use it, larger ones compares.
+CTAB_MAX = 1 << 15
+
+
+def context_table(thr: np.ndarray) -> np.ndarray | None:
+    """Table of the activity context c = #{i: act > thr_i} (thresholds multiples of 2^8, as stored)
+    by k = min(((act - 1) >> 8) + 1, size - 1): act > 2^8 T <=> (act - 1) >> 8 >= T for act >= 0, so
+    entry k counts the T_i <= k - 1, exact up to the largest threshold. None when that table would
+    exceed ``CTAB_MAX`` entries (the decoder then compares)."""
+    t = np.sort(np.asarray(thr, np.int64) >> 8)
+    n = int(t[-1]) + 2 if t.size else 1
+    if n > CTAB_MAX:
+        return None
+    return np.searchsorted(t, np.arange(n, dtype=np.int64) - 1, side="right").astype(np.uint8)
+
+
+def _context(act, thr, ctab):
+    """Activity context (compiled only: see the overload)."""
+    raise NotImplementedError
+
+
+@overload(_context, inline="always")
+def _context_impl(act, thr, ctab):
+    if isinstance(ctab, types.NoneType):
+        def compare(act, thr, ctab):
+            return ((act > thr[0]) + (act > thr[1]) + (act > thr[2]) + (act > thr[3]) + (act > thr[4])
+                    + (act > thr[5]) + (act > thr[6]))
+        return compare
+
+    def lookup(act, thr, ctab):
+        return np.int64(ctab[np.uint64(min(((act - 1) >> 8) + 1, ctab.size - 1))])
+    return lookup
+
+
 @nb.njit(cache=True, nogil=True, inline="always")
-def _pixel(pf, b, ws, uv, thr, coef, bias, tab0, pshift, lut, fcum, alpha, amax, words, x, pos, esc, epos):
+def _pixel(pf, b, ws, uv, thr, ctab, coef, bias, tab0, pshift, lut, fcum, alpha, amax, words, x, pos, esc, epos):
     """Decode the pixel at flat index ``b`` of the padded buffer ``pf`` (row stride ``ws``) from one
     lane, without checking the lane's word and escape positions; returns (symbol, x, pos, epos)."""
     half = np.int64(1 << 15)
@@ -38,8 +74,7 @@ def _pixel(pf, b, ws, uv, thr, coef, bias, tab0, pshift, lut, fcum, alpha, amax,
     ww = pf[_u(b - 2)]
     nn = pf[_u(b - 2 * ws)]
     act = abs(w_ - nw) + abs(n_ - nw) + abs(n_ - ne) + abs(w_ - ww) + abs(n_ - nn)
-    c = ((act > thr[0]) + (act > thr[1]) + (act > thr[2]) + (act > thr[3]) + (act > thr[4]) + (act > thr[5])
-         + (act > thr[6]))
+    c = _context(act, thr, ctab)
     o = c * 12
     # sum_i k_i (n_i - W) = sum_i k_i n_i - W sum_i k_i (exact integers: the encoder's value)
     acc = (coef[_u(o)] * n_ + coef[_u(o + 1)] * nw + coef[_u(o + 2)] * ne + coef[_u(o + 3)] * ww
@@ -71,11 +106,11 @@ def _pixel(pf, b, ws, uv, thr, coef, bias, tab0, pshift, lut, fcum, alpha, amax,
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def decode_pixel(pf, b, ws, uv, thr, coef, bias, tab0, pshift, lut, fcum, alpha, amax, words, x, pos, pmin,
+def decode_pixel(pf, b, ws, uv, thr, ctab, coef, bias, tab0, pshift, lut, fcum, alpha, amax, words, x, pos, pmin,
                  esc, epos, eend):
     """``_pixel`` with the lane's limits checked: returns (symbol, x, pos, epos, ok), ok false once the
     lane has used a word below ``pmin`` (its pad) or an escape at or past ``eend``."""
-    v, x, pos, epos = _pixel(pf, b, ws, uv, thr, coef, bias, tab0, pshift, lut, fcum, alpha, amax, words, x, pos,
+    v, x, pos, epos = _pixel(pf, b, ws, uv, thr, ctab, coef, bias, tab0, pshift, lut, fcum, alpha, amax, words, x, pos,
                              esc, epos)
     return v, x, pos, epos, (pos >= pmin) & (epos <= eend)
 
@@ -87,9 +122,10 @@ def _u16(u, y, x):
 
 
 @nb.njit(cache=True, nogil=True)
-def decode_plane(p, u, sym, thr, coef, bias, tab0, pshift, lut, fcum, amax, words, xs, pos, pmin, esc, epos, eend):
+def decode_plane(p, u, sym, thr, ctab, coef, bias, tab0, pshift, lut, fcum, amax, words, xs, pos, pmin, esc, epos, eend):
     """Decode one plane into the padded buffer ``p`` (h + 2, w + 4) and the symbols ``sym`` (the
-    plane's view of the tile); ``u`` is the plane's dither, ``lut`` (tables x 2^PROB_BITS) and
+    plane's view of the tile); ``u`` is the plane's dither; ``thr`` the 7 activity thresholds (padded)
+    and ``ctab`` their ``context_table`` or None (compiled separately: compares instead of a lookup); ``lut`` (tables x 2^PROB_BITS) and
     ``fcum`` (tables x alphabet) C-contiguous. Updates the per-lane state ``xs``, word positions
     ``pos`` (lower limits ``pmin``) and escape positions ``epos`` (limits ``eend``) in place;
     returns ok. ``words`` must hold at least w readable pad words below each lane's ``pmin`` and
@@ -118,16 +154,16 @@ def decode_plane(p, u, sym, thr, coef, bias, tab0, pshift, lut, fcum, amax, word
                 b0 = (y0 + 2) * ws + 2
                 for xs_ in range(10, w - 1):
                     b = b0 + xs_
-                    v, a0, q0, e0 = _pixel(pf, b, ws, _u16(u, y0, xs_), thr, coef, bias, tab0, pshift, lutf, fcf,
+                    v, a0, q0, e0 = _pixel(pf, b, ws, _u16(u, y0, xs_), thr, ctab, coef, bias, tab0, pshift, lutf, fcf,
                                               alpha, amax, words, a0, q0, esc, e0)
                     sym[_u(y0), _u(xs_)] = v
-                    v, a1, q1, e1 = _pixel(pf, b + ws - 3, ws, _u16(u, y0 + 1, xs_ - 3), thr, coef, bias, tab0, pshift, lutf, fcf,
+                    v, a1, q1, e1 = _pixel(pf, b + ws - 3, ws, _u16(u, y0 + 1, xs_ - 3), thr, ctab, coef, bias, tab0, pshift, lutf, fcf,
                                               alpha, amax, words, a1, q1, esc, e1)
                     sym[_u(y0 + 1), _u(xs_ - 3)] = v
-                    v, a2, q2, e2 = _pixel(pf, b + 2 * ws - 6, ws, _u16(u, y0 + 2, xs_ - 6), thr, coef, bias, tab0, pshift, lutf, fcf,
+                    v, a2, q2, e2 = _pixel(pf, b + 2 * ws - 6, ws, _u16(u, y0 + 2, xs_ - 6), thr, ctab, coef, bias, tab0, pshift, lutf, fcf,
                                               alpha, amax, words, a2, q2, esc, e2)
                     sym[_u(y0 + 2), _u(xs_ - 6)] = v
-                    v, a3, q3, e3 = _pixel(pf, b + 3 * ws - 9, ws, _u16(u, y0 + 3, xs_ - 9), thr, coef, bias, tab0, pshift, lutf, fcf,
+                    v, a3, q3, e3 = _pixel(pf, b + 3 * ws - 9, ws, _u16(u, y0 + 3, xs_ - 9), thr, ctab, coef, bias, tab0, pshift, lutf, fcf,
                                               alpha, amax, words, a3, q3, esc, e3)
                     sym[_u(y0 + 3), _u(xs_ - 9)] = v
                 # limits checked once per group: a lane uses at most one word and one escape per pixel, and
@@ -149,7 +185,7 @@ def decode_plane(p, u, sym, thr, coef, bias, tab0, pshift, lut, fcum, amax, word
                 if x0 == 0 and y > 0:
                     p[yy, 0] = p[yy - 1, 2]
                     p[yy, 1] = p[yy - 1, 2]
-                v, x, ps, ep, ok = decode_pixel(pf, yy * ws + x0 + 2, ws, _u16(u, y, x0), thr, coef, bias, tab0, pshift,
+                v, x, ps, ep, ok = decode_pixel(pf, yy * ws + x0 + 2, ws, _u16(u, y, x0), thr, ctab, coef, bias, tab0, pshift,
                                                 lutf, fcf, alpha, amax, words, xs[j], pos[j], pmin[j], esc, epos[j],
                                                 eend[j])
                 if not ok:

@@ -48,7 +48,7 @@ import numba as nb
 import numpy as np
 
 from metraw.codec.container import get_varint, put_varint
-from metraw.codec.decode_kernel import PROB_BITS, PROB_SCALE, RANS_L, decode_plane
+from metraw.codec.decode_kernel import PROB_BITS, PROB_SCALE, RANS_L, context_table, decode_plane
 from metraw.errors import MetrawError
 
 FRAC = 16                      # fixed-point bits of reconstructed values
@@ -835,7 +835,7 @@ def _decode(mv: memoryview, dithers: list[np.ndarray], outs) -> list[np.ndarray]
         coef12 = np.concatenate([c11, c11.sum(1, keepdims=True)], 1).reshape(-1)
         h, w = u.shape
         p = np.full((h + 2, w + 4), np.int64(c0s[k]) << 16, np.int64)
-        if not decode_plane(p, np.asarray(u, np.float64), outs[k], thr7, coef12, bias, g * nact * nph, pshift, lut, fcum,
+        if not decode_plane(p, np.asarray(u, np.float64), outs[k], thr7, context_table(thr), coef12, bias, g * nact * nph, pshift, lut, fcum,
                              amax, words, xs, pos, pmin, esc, epos, eend):
             raise ValueError("coded data ran out")
     if np.any(pos != pmin) or np.any(xs != RANS_L) or np.any(epos != eend):
