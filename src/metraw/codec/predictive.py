@@ -745,6 +745,75 @@ def _account(planes, groups, idx, t_all, freq, esc_i, group_heads, tables, tabs_
     return list(bits + side + rest * w)
 
 
+@nb.njit(cache=True, nogil=True)
+def _parse_tables(b, off, ntab, alpha, bytes8):
+    """The section's ``ntab`` frequency tables from its bytes ``b`` at ``off``: per table u16 first,
+    u16 span, then span frequencies (u8, ``_normalise``d again, or u16 little endian); span 0 is an
+    unused table (escape only). Returns (freq, new offset, error: 0 ok, 1 truncated, 2 overrun,
+    3 bad sum)."""
+    freq = np.zeros((ntab, alpha), np.int64)
+    q8 = np.zeros((1, alpha), np.int64)
+    width = 1 if bytes8 else 2
+    for t in range(ntab):
+        if off + 4 > b.size:
+            return freq, off, 1
+        first = np.int64(b[off]) | (np.int64(b[off + 1]) << 8)
+        span = np.int64(b[off + 2]) | (np.int64(b[off + 3]) << 8)
+        off += 4
+        if span == 0:
+            freq[t, alpha - 1] = PROB_SCALE
+            continue
+        if first + span > alpha:
+            return freq, off, 2
+        if off + width * span > b.size:
+            return freq, off, 1
+        if bytes8:
+            q8[0, :] = 0
+            for j in range(span):
+                q8[0, first + j] = b[off + j]
+            f = _normalise(q8)
+            for j in range(alpha):
+                freq[t, j] = f[0, j]
+        else:
+            for j in range(span):
+                freq[t, first + j] = np.int64(b[off + 2 * j]) | (np.int64(b[off + 2 * j + 1]) << 8)
+        off += width * span
+        tot = np.int64(0)
+        for j in range(alpha):
+            tot += freq[t, j]
+        if tot != PROB_SCALE:
+            return freq, off, 3
+    return freq, off, 0
+
+
+@nb.njit(cache=True, nogil=True)
+def _decoding_tables(freq, sym_type):
+    """The decoder's lookup tables: symbol by slot (tables x 2^PROB_BITS, ``sym_type``) and
+    freq << 16 | cumulative frequency (tables x alphabet)."""
+    ntab, alpha = freq.shape
+    lut = np.zeros((ntab, PROB_SCALE), sym_type)
+    fcum = np.empty((ntab, alpha), np.int64)
+    for t in range(ntab):
+        c = 0
+        for j in range(alpha):
+            f = freq[t, j]
+            fcum[t, j] = (f << 16) | c
+            for k in range(c, min(c + f, PROB_SCALE)):
+                lut[t, k] = j
+            c += f
+    return lut, fcum
+
+
+@nb.njit(cache=True, nogil=True)
+def _init_front(p, c0):
+    """The part of a plane's padded buffer (``_front``) the decoder reads before it writes it: the two
+    rows above the plane and the left padding of its first row, all ``c0``."""
+    p[0, :] = c0
+    p[1, :] = c0
+    p[2, 0] = c0
+    p[2, 1] = c0
+
+
 def decode_planes(blob, dithers: list[np.ndarray], outs: list[np.ndarray] | None = None) -> list[np.ndarray]:
     """Inverse of ``encode_planes``; ``dithers`` are the planes' dither arrays (same shapes). The
     symbols (int32) go to ``outs`` (arrays or views of the planes' shapes) if given."""
@@ -785,29 +854,11 @@ def _decode(mv: memoryview, dithers: list[np.ndarray], outs) -> list[np.ndarray]
     alpha = 2 * amax + 2
     nph = NPH >> pshift
     ntab = ngroup * nact * nph
-    freq = np.zeros((ntab, alpha), np.int64)
-    for t in range(ntab):
-        first, span = struct.unpack_from("<HH", mv, off)
-        off += 4
-        if span == 0:
-            freq[t, -1] = PROB_SCALE  # unused table: escape only
-            continue
-        if first + span > alpha:
-            raise ValueError("frequency table overruns the alphabet")
-        if tabbits == 8:
-            q8 = np.zeros((1, alpha), np.int64)
-            q8[0, first:first + span] = np.frombuffer(mv, "u1", span, off)
-            off += span
-            freq[t] = _normalise(q8)[0]
-        else:
-            freq[t, first:first + span] = np.frombuffer(mv, "<u2", span, off)
-            off += 2 * span
-        if freq[t].sum() != PROB_SCALE:
-            raise ValueError("frequency table does not sum to the probability scale")
-    cum = np.concatenate([np.zeros((ntab, 1), np.int64), np.cumsum(freq, 1)[:, :-1]], 1)
-    lut = np.stack([np.repeat(np.arange(alpha, dtype=np.uint8 if alpha <= 256 else np.int16), f) for f in freq])
-    fcum = (freq << 16) | cum
-    # words of lane j at [pmin_j + 1, pmin_j + n_j], with a pad word at pmin_j (branch-free renormalisation)
+    freq, off, err = _parse_tables(np.frombuffer(mv, np.uint8), off, ntab, alpha, tabbits == 8)
+    if err:
+        raise ValueError(("frequency tables are truncated", "frequency table overruns the alphabet",
+                          "frequency table does not sum to the probability scale")[err - 1])
+    lut, fcum = _decoding_tables(freq, np.uint8 if alpha <= 256 else np.int16)
     nwords = [ln[1] for ln in lanes]
     # words of lane j at [pmin_j + 1, pmin_j + n_j], after ``pad`` zero words (words[pmin_j] the last of
     # them: branch-free renormalisation); escapes followed by ``pad`` zeros. The decoder's steady part
@@ -827,6 +878,8 @@ def _decode(mv: memoryview, dithers: list[np.ndarray], outs) -> list[np.ndarray]
     pos = pmin + np.array(nwords, np.int64)
     if outs is None:
         outs = [np.empty(u.shape, np.int32) for u in dithers]
+    # one padded buffer for the planes in turn (``_init_front`` sets what the decoder reads before writing)
+    buf = np.empty(max((u.shape[0] + 2) * (u.shape[1] + 4) for u in dithers), np.int64)
     for k, u in enumerate(dithers):
         g = 0 if shared else k
         thr, coef, bias = heads[g]
@@ -834,7 +887,8 @@ def _decode(mv: memoryview, dithers: list[np.ndarray], outs) -> list[np.ndarray]
         c11 = coef.reshape(nact, NTAP - 1)
         coef12 = np.concatenate([c11, c11.sum(1, keepdims=True)], 1).reshape(-1)
         h, w = u.shape
-        p = np.full((h + 2, w + 4), np.int64(c0s[k]) << 16, np.int64)
+        p = buf[:(h + 2) * (w + 4)].reshape(h + 2, w + 4)
+        _init_front(p, np.int64(c0s[k]) << 16)
         if not decode_plane(p, np.asarray(u, np.float64), outs[k], thr7, context_table(thr), coef12, bias, g * nact * nph, pshift, lut, fcum,
                              amax, words, xs, pos, pmin, esc, epos, eend):
             raise ValueError("coded data ran out")
