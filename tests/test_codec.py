@@ -390,3 +390,22 @@ def test_context_table_matches_threshold_compares(monkeypatch):
     assert np.array_equal(predictive.decode_planes(blob, [u])[0], s)
     monkeypatch.setattr(decode_kernel, "CTAB_MAX", 1)
     assert np.array_equal(predictive.decode_planes(blob, [u])[0], s)
+
+
+@pytest.mark.parametrize("threads", [1, 2, 3, 5])
+def test_many_tiles_bytes_independent_of_threads(monkeypatch, threads):
+    """Frames of more than 2 x TILE_PIXELS are cut into more row tiles (shared among the threads, the
+    calling one included); the bytes depend on the frame only, not on the thread count."""
+    img = _scene((520, 96))
+    ref = codec.encode(img, 1.0, 4, check_profile=False)
+    monkeypatch.setattr(codec, "TILE_PIXELS", 12000)
+    assert len(codec._tiles(520, 96, 2)) == 4  # 128-row tiles at least
+    monkeypatch.setattr(codec, "THREADS", 1)
+    one = codec.encode(img, 1.0, 4, check_profile=False)
+    assert len(codec.read_header(one).tiles) == 4 and one != ref
+    monkeypatch.setattr(codec, "THREADS", threads)
+    blob = codec.encode(img, 1.0, 4, check_profile=False)
+    assert blob == one
+    dec = codec.decode(blob)
+    assert np.array_equal(dec.data, codec.decode(one).data)
+    _within_bound(img, dec, 1.0)

@@ -36,8 +36,13 @@ __all__ = ["encode", "decode", "ProfileMismatchWarning", "measured_noise_sigma",
 
 #: Threads for tile-parallel coding, the calling thread included (the numba kernels release the GIL).
 THREADS = 2
-#: Row tiles of frames with >= 256 rows (part of the format: fixed, so the bytes do not depend on THREADS).
+#: Row tiles of frames with >= 256 rows, at least (the tiling depends on the frame's size only, never on
+#: THREADS, so the bytes do not depend on the thread count).
 TILES = 2
+#: Pixels of a row tile, at most, on large frames (more tiles than ``TILES`` beyond 2 x TILE_PIXELS): a
+#: tile's working set (~40 bytes per pixel) then stays small; on a 20 MP frame 4 tiles instead of 2 code
+#: ~1.5x faster on one core at +0.1 % bits (each tile starts its prediction afresh).
+TILE_PIXELS = 5_000_000
 #: Relative difference between measured and claimed noise that triggers a warning.
 MISMATCH_TOLERANCE = 0.2
 
@@ -58,14 +63,31 @@ def _pool() -> ThreadPoolExecutor:
 
 
 def _map_tiles(fn, items: list) -> list:
-    """[fn(item) for item in items], on ``THREADS`` threads: the calling thread takes the first item
-    while the pool's helpers take the rest (one thread less to wake than handing every item to the
-    pool: on a small frame the wake-up of an idle core is a sizeable part of the run)."""
+    """[fn(item) for item in items], on ``THREADS`` threads: the calling thread and the pool's helpers
+    take the next item in turn until none is left (the calling thread works too: one thread less to
+    wake than handing every item to the pool, and on a small frame the wake-up of an idle core is a
+    sizeable part of the run). Results in the order of ``items``, whichever thread made them."""
     if THREADS <= 1 or len(items) <= 1:
         return [fn(item) for item in items]
-    futures = [_pool().submit(fn, item) for item in items[1:]]
-    first = fn(items[0])
-    return [first] + [f.result() for f in futures]
+    results = [None] * len(items)
+    order = iter(range(len(items)))
+    lock = threading.Lock()
+
+    def run():
+        while True:
+            with lock:
+                i = next(order, None)
+            if i is None:
+                return
+            results[i] = fn(items[i])
+
+    helpers = [_pool().submit(run) for _ in range(min(THREADS, len(items)) - 1)]
+    try:
+        run()
+    finally:
+        for f in helpers:
+            f.result()
+    return results
 
 
 def _forget_pool_after_fork() -> None:
@@ -81,9 +103,10 @@ class ProfileMismatchWarning(UserWarning):
     """The profile's noise model contradicts the noise measured in the pixels."""
 
 
-def _tiles(h: int, cell: int) -> list[tuple[int, int]]:
-    """Row tiles (start, stop), starting on a CFA cell boundary."""
-    n = 1 if h < 256 else TILES
+def _tiles(h: int, w: int, cell: int) -> list[tuple[int, int]]:
+    """Row tiles (start, stop), starting on a CFA cell boundary: 1 below 256 rows, else ``TILES`` or
+    more so that a tile has at most ~``TILE_PIXELS`` pixels (and at least 128 rows)."""
+    n = 1 if h < 256 else max(TILES, min(-(-h * w // TILE_PIXELS), h // 128))
     size = -(-h // n)
     size += size % cell
     return [(r, min(h, r + size)) for r in range(0, h, size)]
@@ -197,7 +220,7 @@ def encode(image: RawImage, step: float = 1.0, seed: int = 0, check_profile: boo
     data = image.data
     prof = image.profile
     pattern = prof.cfa_pattern
-    tiles = _tiles(h, cell_size(pattern))
+    tiles = _tiles(h, w, cell_size(pattern))
 
     def work(tile):
         r0, r1 = tile
