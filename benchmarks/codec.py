@@ -187,9 +187,10 @@ def speed_main() -> int:
     shared machine gives this process one core then hits every case alike instead of one row."""
     print(f"# load: {os.getloadavg()} at the start (2 cores); medians of {SPEED_REPS} rounds, all cases "
           f"round-robin, each interleaved with JPEG-LS (CharLS); a sample = mean of {SPEED_BATCH} consecutive calls")
-    print(f"{'frame':12s} {'q':>4s} {'bpp':>6s} {'enc ms':>7s} {'dec ms':>7s} {'jls e':>6s} {'jls d':>6s} "
+    print(f"{'frame':12s} {'MP':>4s} {'q':>4s} {'bpp':>6s} {'enc ms':>7s} {'dec ms':>7s} {'jls e':>6s} {'jls d':>6s} "
           f"{'wall2 e':>7s} {'wall2 d':>7s} | {'cpu1 ms e':>9s} {'cpu1 ms d':>9s} {'jls e':>6s} {'jls d':>6s} "
-          f"{'cpu1 e':>6s} {'cpu1 d':>6s} {'par e':>5s} {'par d':>5s} {'won e':>5s} {'won d':>5s}")
+          f"{'cpu1 e':>6s} {'cpu1 d':>6s} {'par e':>5s} {'par d':>5s} {'won e':>5s} {'won d':>5s} | "
+          f"{'Mpx/s e2':>8s} {'Mpx/s d2':>8s} {'Mpx/s e1':>8s} {'Mpx/s d1':>8s}")
     cases = []
     for name, img in frames():
         if name not in REAL_NAMES:
@@ -227,15 +228,73 @@ def speed_main() -> int:
         # share of rounds in which metraw (2 threads) beat JPEG-LS, encode and decode
         won_e = np.mean(np.array(walls[0]) < np.array(walls[2]))
         won_d = np.mean(np.array(walls[1]) < np.array(walls[3]))
-        print(f"{name:12s} {step:4.1f} {8 * len(blob) / img.data.size:6.3f} {te * 1e3:7.1f} {td * 1e3:7.1f} "
+        mp = img.data.size / 1e6
+        print(f"{name:12s} {mp:4.1f} {step:4.1f} {8 * len(blob) / img.data.size:6.3f} {te * 1e3:7.1f} {td * 1e3:7.1f} "
               f"{te_j * 1e3:6.1f} {td_j * 1e3:6.1f} {te_j / te:7.2f} {td_j / td:7.2f} | {ce * 1e3:9.1f} {cd * 1e3:9.1f} "
               f"{ce_j * 1e3:6.1f} {cd_j * 1e3:6.1f} {ce / ce_j:6.2f} {cd / cd_j:6.2f} {ce2 / te:5.2f} {cd2 / td:5.2f} "
-              f"{won_e:5.2f} {won_d:5.2f}")
+              f"{won_e:5.2f} {won_d:5.2f} | {mp / te:8.1f} {mp / td:8.1f} {mp / ce:8.1f} {mp / cd:8.1f}")
     print("# wall2 = JPEG-LS wall / metraw wall, metraw on 2 threads (> 1: metraw faster); cpu1 = metraw CPU time "
           "on 1 thread / JPEG-LS CPU time; par = metraw CPU / wall on 2 threads (2: tiles fully concurrent); "
-          "won = share of rounds in which metraw's 2-thread wall time beat JPEG-LS's")
+          "won = share of rounds in which metraw's 2-thread wall time beat JPEG-LS's; Mpx/s e2/d2 = megapixels per "
+          "second of wall time on 2 threads, e1/d1 per second of CPU time on 1 thread")
     print(f"# load: {os.getloadavg()} at the end")
+    speed_large()
     return 0
+
+
+#: Rounds of the 20 MP frame's timing (each call takes ~0.2-0.5 s: fewer rounds than the real frames).
+LARGE_REPS = 7
+
+
+def large_frame() -> RawImage:
+    """A 20.0 MP RGGB frame (5472 x 3648, a 1"-sensor camera's size) from the sensor model: a smooth
+    scene with edges and fine texture, 50 to 20000 e-, 14-bit. Deterministic (seeded)."""
+    prof = CalibrationProfile(gain_dn_per_e=0.5, black_level_dn=100, read_noise_e=3, white_level_dn=16000,
+                              adc_bits=14, cfa_pattern="RGGB")
+    yy, xx = np.mgrid[0:3648, 0:5472].astype(np.float32)
+    mean = (50 + 20000 * (0.5 + 0.5 * np.sin(xx / 150.0) * np.cos(yy / 97.0))
+            * (1 + 0.3 * np.sign(np.sin(xx / 41.0 + yy / 53.0))) / 1.3
+            + 300 * np.sin(xx / 2.7) * np.sin(yy / 3.1) ** 2)
+    return RawImage(expose(np.maximum(mean, 0.0), prof, rng_from_seed(20)), prof)
+
+
+def speed_large() -> None:
+    """Absolute times and Mpix/s on the 20 MP frame (steps 1 and 2), interleaved with JPEG-LS: metraw on
+    2 threads (wall) and on 1 thread (CPU), medians of ``LARGE_REPS`` rounds."""
+    img = large_frame()
+    d = img.data
+    jl = imagecodecs.jpegls_encode(d)
+    mp = d.size / 1e6
+    print(f"\n# 20 MP frame ({d.shape[1]} x {d.shape[0]} RGGB, synthetic, sensor model): medians of {LARGE_REPS} "
+          f"rounds, load {os.getloadavg()} at the start")
+    print(f"{'step':>4s} {'bpp':>6s} {'jls bpp':>7s} | {'wall2 e ms':>10s} {'wall2 d ms':>10s} {'jls e ms':>8s} {'jls d ms':>8s} "
+          f"{'x jls e':>7s} {'x jls d':>7s} | {'cpu1 e ms':>9s} {'cpu1 d ms':>9s} {'jls e':>6s} {'jls d':>6s} "
+          f"{'cpu1 e':>6s} {'cpu1 d':>6s} | {'Mpx/s e2':>8s} {'Mpx/s d2':>8s} {'Mpx/s e1':>8s} {'Mpx/s d1':>8s}")
+    threads = codec.THREADS
+    try:
+        for step in (1.0, 2.0):
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                blob = codec.encode(img, step, 0)
+                fns = [lambda: codec.encode(img, step, 0), lambda: codec.decode(blob),
+                       lambda: imagecodecs.jpegls_encode(d), lambda: imagecodecs.jpegls_decode(jl)]
+                walls = [[] for _ in fns]
+                cpus = [[] for _ in fns]
+                for _ in range(LARGE_REPS):
+                    for nthreads, dest in ((threads, walls), (1, cpus)):
+                        codec.THREADS = nthreads
+                        w, c = side_by_side(fns, reps=1, cpu=True, samples=True)
+                        for k in range(4):
+                            dest[k] += (w if dest is walls else c)[k]
+            te, td, te_j, td_j = (float(np.median(v)) for v in walls)
+            ce, cd, ce_j, cd_j = (float(np.median(v)) for v in cpus)
+            print(f"{step:4.1f} {8 * len(blob) / d.size:6.3f} {8 * len(jl) / d.size:7.3f} | {te * 1e3:10.1f} {td * 1e3:10.1f} "
+                  f"{te_j * 1e3:8.1f} {td_j * 1e3:8.1f} {te_j / te:7.2f} {td_j / td:7.2f} | {ce * 1e3:9.1f} {cd * 1e3:9.1f} "
+                  f"{ce_j * 1e3:6.1f} {cd_j * 1e3:6.1f} {ce / ce_j:6.2f} {cd / cd_j:6.2f} | {mp / te:8.1f} {mp / td:8.1f} "
+                  f"{mp / ce:8.1f} {mp / cd:8.1f}")
+    finally:
+        codec.THREADS = threads
+    print("# x jls = JPEG-LS wall / metraw wall (metraw on 2 threads); cpu1 = metraw CPU on 1 thread / JPEG-LS CPU")
 
 
 def main() -> int:
