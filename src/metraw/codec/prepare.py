@@ -40,19 +40,35 @@ def _splitmix64(value: int) -> int:
     return z ^ (z >> 31)
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _dither_value(index, k1, k2):
+    """The dither of flat pixel ``index`` (lowbias32 keyed by k1, k2), in [-1/2, 1/2)."""
+    m = np.uint64(0xFFFFFFFF)
+    x = (np.uint64(index) * np.uint64(0x9E3779B9) + np.uint64(k1)) & m
+    x ^= x >> np.uint64(16)
+    x = (x * np.uint64(0x7FEB352D)) & m
+    x ^= x >> np.uint64(15)
+    x = (x * np.uint64(0x846CA68B)) & m
+    x ^= np.uint64(k2)
+    x ^= x >> np.uint64(16)
+    return np.float64(x >> np.uint64(8)) * (1.0 / 16777216.0) - 0.5
+
+
 @nb.njit(cache=True, nogil=True)
 def _dither_kernel(k1, k2, start, count):
     out = np.empty(count, np.float64)
-    m = np.uint64(0xFFFFFFFF)
     for i in range(count):
-        x = (np.uint64(start + i) * np.uint64(0x9E3779B9) + np.uint64(k1)) & m
-        x ^= x >> np.uint64(16)
-        x = (x * np.uint64(0x7FEB352D)) & m
-        x ^= x >> np.uint64(15)
-        x = (x * np.uint64(0x846CA68B)) & m
-        x ^= np.uint64(k2)
-        x ^= x >> np.uint64(16)
-        out[i] = np.float64(x >> np.uint64(8)) * (1.0 / 16777216.0) - 0.5
+        out[i] = _dither_value(start + i, k1, k2)
+    return out
+
+
+@nb.njit(cache=True, nogil=True)
+def _dither_grid_kernel(k1, k2, start, rows, cols, row_step, col_step):
+    out = np.empty((rows, cols), np.float64)
+    for i in range(rows):
+        base = start + i * row_step
+        for j in range(cols):
+            out[i, j] = _dither_value(base + j * col_step, k1, k2)
     return out
 
 
@@ -65,6 +81,14 @@ def dither(seed: int, start: int, count: int) -> np.ndarray:
     """
     key = _splitmix64(int(seed))
     return _dither_kernel(key & 0xFFFFFFFF, (key >> 32) & 0xFFFFFFFF, int(start), int(count))
+
+
+def dither_grid(seed: int, start: int, rows: int, cols: int, row_step: int, col_step: int) -> np.ndarray:
+    """``dither`` of the pixels start + i row_step + j col_step (i < rows, j < cols) as a contiguous
+    (rows, cols) array: a CFA plane's dither without the rest of the frame's."""
+    key = _splitmix64(int(seed))
+    return _dither_grid_kernel(key & 0xFFFFFFFF, (key >> 32) & 0xFFFFFFFF, int(start), int(rows), int(cols),
+                               int(row_step), int(col_step))
 
 
 def offset_e(profile: CalibrationProfile) -> float:
