@@ -63,15 +63,16 @@ def _context_impl(act, thr, ctab):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _pixel(pf, b, ws, uv, thr, ctab, coef, bias, tab0, pshift, lut, fcum, alpha, amax, words, x, pos, esc, epos):
-    """Decode the pixel at flat index ``b`` of the padded buffer ``pf`` (row stride ``ws``) from one
-    lane, without checking the lane's word and escape positions; returns (symbol, x, pos, epos)."""
+def _pixel(pf, b, ws, w_, ww, uv, thr, ctab, coef, bias, tab0, pshift, lut, fcum, alpha, amax, words, x, pos, esc,
+           epos):
+    """Decode the pixel at flat index ``b`` of the padded buffer ``pf`` (row stride ``ws``; its left
+    neighbours ``w_`` = pf[b - 1] and ``ww`` = pf[b - 2] passed in: a lane keeps them in registers, off
+    the store-to-load path) from one lane, without checking the lane's word and escape positions;
+    returns (symbol, its buffer value pf[b], x, pos, epos)."""
     half = np.int64(1 << 15)
-    w_ = pf[_u(b - 1)]
     n_ = pf[_u(b - ws)]
     nw = pf[_u(b - ws - 1)]
     ne = pf[_u(b - ws + 1)]
-    ww = pf[_u(b - 2)]
     nn = pf[_u(b - 2 * ws)]
     act = abs(w_ - nw) + abs(n_ - nw) + abs(n_ - ne) + abs(w_ - ww) + abs(n_ - nn)
     c = _context(act, thr, ctab)
@@ -101,8 +102,9 @@ def _pixel(pf, b, ws, uv, thr, ctab, coef, bias, tab0, pshift, lut, fcum, alpha,
     r = ev if is_esc else s - amax
     epos += np.int64(is_esc)
     v = sh + ((r ^ -f) + f)
-    pf[_u(b)] = (v << 16) - uv
-    return v, x, pos, epos
+    pv = (v << 16) - uv
+    pf[_u(b)] = pv
+    return v, pv, x, pos, epos
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -110,8 +112,8 @@ def decode_pixel(pf, b, ws, uv, thr, ctab, coef, bias, tab0, pshift, lut, fcum, 
                  esc, epos, eend):
     """``_pixel`` with the lane's limits checked: returns (symbol, x, pos, epos, ok), ok false once the
     lane has used a word below ``pmin`` (its pad) or an escape at or past ``eend``."""
-    v, x, pos, epos = _pixel(pf, b, ws, uv, thr, ctab, coef, bias, tab0, pshift, lut, fcum, alpha, amax, words, x, pos,
-                             esc, epos)
+    v, _, x, pos, epos = _pixel(pf, b, ws, pf[_u(b - 1)], pf[_u(b - 2)], uv, thr, ctab, coef, bias, tab0, pshift, lut,
+                                fcum, alpha, amax, words, x, pos, esc, epos)
     return v, x, pos, epos, (pos >= pmin) & (epos <= eend)
 
 
@@ -152,20 +154,34 @@ def decode_plane(p, u, sym, thr, ctab, coef, bias, tab0, pshift, lut, fcum, amax
                 q0, q1, q2, q3 = pos[0], pos[1], pos[2], pos[3]
                 e0, e1, e2, e3 = epos[0], epos[1], epos[2], epos[3]
                 b0 = (y0 + 2) * ws + 2
+                # each lane's two left neighbours, carried in registers along the row
+                b = b0 + 10
+                w0, ww0 = pf[_u(b - 1)], pf[_u(b - 2)]
+                w1, ww1 = pf[_u(b + ws - 4)], pf[_u(b + ws - 5)]
+                w2, ww2 = pf[_u(b + 2 * ws - 7)], pf[_u(b + 2 * ws - 8)]
+                w3, ww3 = pf[_u(b + 3 * ws - 10)], pf[_u(b + 3 * ws - 11)]
                 for xs_ in range(10, w - 1):
                     b = b0 + xs_
-                    v, a0, q0, e0 = _pixel(pf, b, ws, _u16(u, y0, xs_), thr, ctab, coef, bias, tab0, pshift, lutf, fcf,
+                    v, pv, a0, q0, e0 = _pixel(pf, b, ws, w0, ww0, _u16(u, y0, xs_), thr, ctab, coef, bias, tab0, pshift, lutf, fcf,
                                               alpha, amax, words, a0, q0, esc, e0)
                     sym[_u(y0), _u(xs_)] = v
-                    v, a1, q1, e1 = _pixel(pf, b + ws - 3, ws, _u16(u, y0 + 1, xs_ - 3), thr, ctab, coef, bias, tab0, pshift, lutf, fcf,
+                    ww0 = w0
+                    w0 = pv
+                    v, pv, a1, q1, e1 = _pixel(pf, b + ws - 3, ws, w1, ww1, _u16(u, y0 + 1, xs_ - 3), thr, ctab, coef, bias, tab0, pshift, lutf, fcf,
                                               alpha, amax, words, a1, q1, esc, e1)
                     sym[_u(y0 + 1), _u(xs_ - 3)] = v
-                    v, a2, q2, e2 = _pixel(pf, b + 2 * ws - 6, ws, _u16(u, y0 + 2, xs_ - 6), thr, ctab, coef, bias, tab0, pshift, lutf, fcf,
+                    ww1 = w1
+                    w1 = pv
+                    v, pv, a2, q2, e2 = _pixel(pf, b + 2 * ws - 6, ws, w2, ww2, _u16(u, y0 + 2, xs_ - 6), thr, ctab, coef, bias, tab0, pshift, lutf, fcf,
                                               alpha, amax, words, a2, q2, esc, e2)
                     sym[_u(y0 + 2), _u(xs_ - 6)] = v
-                    v, a3, q3, e3 = _pixel(pf, b + 3 * ws - 9, ws, _u16(u, y0 + 3, xs_ - 9), thr, ctab, coef, bias, tab0, pshift, lutf, fcf,
+                    ww2 = w2
+                    w2 = pv
+                    v, pv, a3, q3, e3 = _pixel(pf, b + 3 * ws - 9, ws, w3, ww3, _u16(u, y0 + 3, xs_ - 9), thr, ctab, coef, bias, tab0, pshift, lutf, fcf,
                                               alpha, amax, words, a3, q3, esc, e3)
                     sym[_u(y0 + 3), _u(xs_ - 9)] = v
+                    ww3 = w3
+                    w3 = pv
                 # limits checked once per group: a lane uses at most one word and one escape per pixel, and
                 # the caller pads the words before each lane and the escapes after the last (``decode_plane``)
                 if not ((q0 >= pmin[0]) & (q1 >= pmin[1]) & (q2 >= pmin[2]) & (q3 >= pmin[3]) & (e0 <= eend[0])
