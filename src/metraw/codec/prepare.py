@@ -118,14 +118,21 @@ def escape_mask(data: np.ndarray, profile: CalibrationProfile) -> np.ndarray:
 def _forward_kernel(data, black, inv_k, c, xmax, inv_step, u):
     h, w = data.shape
     out = np.empty((h, w), np.int32)
+    row = np.empty(w, np.float64)
     for i in range(h):
+        # the row first gathered into a contiguous buffer: ``data`` may be a strided view (a CFA plane of
+        # the tile), and the arithmetic below vectorises (sqrt included) only on contiguous rows
         for j in range(w):
-            x = (np.float64(data[i, j]) - black) * inv_k + c
+            row[j] = data[i, j]
+        ui = u[i]
+        oi = out[i]
+        for j in range(w):
+            x = (row[j] - black) * inv_k + c
             x = min(max(x, 0.0), xmax)
             z = 2.0 * np.sqrt(x)
             z *= inv_step
-            z += u[i, j]
-            out[i, j] = np.int32(np.rint(z))
+            z += ui[j]
+            oi[j] = np.int32(np.rint(z))
     return out
 
 
@@ -154,11 +161,17 @@ def inverse(symbols: np.ndarray, profile: CalibrationProfile, step: float, u: np
 @nb.njit(cache=True, nogil=True)
 def _inverse_dn_kernel(sym, u, half_step, k, offset, out):
     h, w = sym.shape
+    row = np.empty(w, np.uint16)
     for i in range(h):
+        # computed into a contiguous row (vectorises), then stored: ``out`` may be a strided view
+        si = sym[i]
+        ui = u[i]
         for j in range(w):
-            zh = (np.float64(sym[i, j]) - u[i, j]) * half_step
+            zh = (np.float64(si[j]) - ui[j]) * half_step
             v = np.rint(k * (zh * zh) + offset)
-            out[i, j] = np.uint16(min(max(v, 0.0), 65535.0))
+            row[j] = np.uint16(min(max(v, 0.0), 65535.0))
+        for j in range(w):
+            out[i, j] = row[j]
 
 
 def inverse_dn(symbols: np.ndarray, profile: CalibrationProfile, step: float, u: np.ndarray,
