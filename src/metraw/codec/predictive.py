@@ -36,8 +36,10 @@ the decoder runs the steady part of each 4-row group with the lane states in reg
 evaluates sum_i k_i (n_i - W) as sum_i k_i n_i - W sum_i k_i (exact integers, the same value).
 The encoder's work is a few compiled calls per section (``_model_plane``, ``_residuals``,
 ``_code_section``), each releasing the GIL, so that row tiles in parallel threads rarely wait on
-each other for the interpreter. In the per-pixel decoding step no array is sliced and no branch
-touches an array (numba would count references there, an atomic operation per pixel).
+each other for the interpreter. The decoder's per-pixel loop is ``metraw.codec.decode_kernel``
+(unsigned indices into flat views, context by table lookup, lane limits checked once per group
+of rows); its set-up (tables, buffers) is compiled too. Planes arrive contiguous (``metraw.codec``
+makes each CFA plane's dither and symbols as its own array): the vectorised passes need that.
 """
 
 from __future__ import annotations
