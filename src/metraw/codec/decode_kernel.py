@@ -90,7 +90,7 @@ def _pixel(pf, b, ws, w_, ww, uv, thr, ctab, coef, bias, tab0, pshift, lut, fcum
     t = tab0 + c * (4 >> pshift) + ((((fr ^ (-f & 0xFFFF)) >> 13) & 3) >> pshift)
     slot = np.int64(x & np.uint64(PROB_SCALE - 1))
     s = np.int64(lut[_u((t << PROB_BITS) + slot)])
-    fc = fcum[_u(t * alpha + s)]
+    fc = np.int64(fcum[_u(t * alpha + s)])
     x = np.uint64(fc >> 16) * (x >> np.uint64(PROB_BITS)) + np.uint64(slot - (fc & 0xFFFF))
     # renormalise without a data-dependent branch: words[pos] is the next word (or a pad)
     need = np.uint64(x < np.uint64(RANS_L))
