@@ -360,9 +360,9 @@ def test_compiled_kernels_release_the_gil():
 
     from metraw.codec import predictive
 
-    from metraw.codec import decode_kernel
+    from metraw.codec import decoder
 
-    kernels = [(m.__name__, k, v) for m in (codec, predictive, prepare, decode_kernel) for k, v in vars(m).items()
+    kernels = [(m.__name__, k, v) for m in (codec, predictive, prepare, decoder) for k, v in vars(m).items()
                if isinstance(v, numba.core.registry.CPUDispatcher)]
     assert len(kernels) >= 15
     held = [f"{m}.{k}" for m, k, v in kernels if not v.targetoptions.get("nogil")]
@@ -370,17 +370,17 @@ def test_compiled_kernels_release_the_gil():
 
 
 def test_context_table_matches_threshold_compares(monkeypatch):
-    """The decoder's activity-context lookup (``decode_kernel.context_table``) equals counting the
+    """The decoder's activity-context lookup (``decoder.context_table``) equals counting the
     thresholds below the activity, at and around every threshold; streams decode to the same symbols
     with the lookup and with the compares it falls back to for thresholds too large for a table."""
-    from metraw.codec import decode_kernel, predictive
+    from metraw.codec import decoder, predictive
 
     thr = np.array([0, 3, 3, 7, 40], np.int64) << 8
-    tab = decode_kernel.context_table(thr)
+    tab = decoder.context_table(thr)
     act = np.concatenate([np.arange(0, 50 << 8), [10**9]])
     k = np.minimum(((act - 1) >> 8) + 1, tab.size - 1)
     assert np.array_equal(tab[k], (act[:, None] > thr[None, :]).sum(1))
-    assert decode_kernel.context_table(np.array([2**31], np.int64) << 8) is None
+    assert decoder.context_table(np.array([2**31], np.int64) << 8) is None
     rng = np.random.default_rng(9)
     h, w = 260, 270
     yy, xx = np.mgrid[0:h, 0:w]
@@ -388,7 +388,7 @@ def test_context_table_matches_threshold_compares(monkeypatch):
     s = np.rint(300 + 40 * np.sin(xx / 5.0) * (yy > 130) + rng.normal(0, 1, (h, w)) + u).astype(np.int32)
     blob = predictive.encode_planes([(s, u)])
     assert np.array_equal(predictive.decode_planes(blob, [u])[0], s)
-    monkeypatch.setattr(decode_kernel, "CTAB_MAX", 1)
+    monkeypatch.setattr(decoder, "CTAB_MAX", 1)
     assert np.array_equal(predictive.decode_planes(blob, [u])[0], s)
 
 

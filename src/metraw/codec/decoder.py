@@ -1,4 +1,7 @@
-"""The decoder's per-pixel loop of ``metraw.codec.predictive`` (compiled, ``nogil``).
+"""Decoder of the sections ``metraw.codec.predictive`` writes, and the format's constants.
+
+``decode_planes`` parses a section (plane header, predictors, frequency tables, lane words and
+escapes, all in compiled code where it loops) and runs the per-pixel loop (compiled, ``nogil``).
 
 Lane j of a section holds rows j, j + L, ... of a plane (L = 4 lanes for large tiles) and runs
 3 pixels behind lane j - 1, so its causal neighbours are ready and the L dependency chains
@@ -13,14 +16,27 @@ there, an atomic operation per pixel).
 
 from __future__ import annotations
 
+import struct
+
 import numba as nb
 import numpy as np
 from numba.core import types
 from numba.extending import overload
 
+from metraw.codec.container import get_varint
+from metraw.errors import MetrawError
+
 PROB_BITS = 12                 # rANS probability resolution
 PROB_SCALE = 1 << PROB_BITS
 RANS_L = 1 << 16
+FRAC = 16                      # fixed-point bits of reconstructed values
+COEF_BITS = 12                 # fractional bits of the predictor coefficients (int16 storage)
+NPH = 4                        # folded dither-phase bins per activity context
+MAX_NACT = 8                   # activity contexts per group, at most
+NTAP = 12                      # W + 11 differences (n_i - W); the 12th LS unknown is the bias
+MAX_RESID = 1023
+_HEAD = struct.Struct("<BBBBBBH")  # nplanes, nact, phase shift, shared, lanes, table bits, amax
+# then per lane: u32 final state, varint words, varint escapes; then per plane zigzag-varint c0
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -214,3 +230,194 @@ def decode_plane(p, u, sym, thr, ctab, coef, bias, tab0, pshift, lut, fcum, amax
                     p[yy, w + 2] = p[yy, w + 1]
                     p[yy, w + 3] = p[yy, w + 1]
     return True
+
+
+@nb.njit(cache=True, nogil=True)
+def _normalise(counts):
+    """Per row: integer frequencies summing to PROB_SCALE, >= 1 wherever counts > 0 (all-zero rows
+    stay zero: unused tables)."""
+    ntab, alpha = counts.shape
+    freq = np.zeros((ntab, alpha), np.int64)
+    for t in range(ntab):
+        tot = 0
+        for j in range(alpha):
+            tot += counts[t, j]
+        if tot == 0:
+            continue
+        s = 0
+        best = 0
+        for j in range(alpha):
+            c = counts[t, j]
+            if c > 0:
+                f = (c * PROB_SCALE) // tot
+                if f < 1:
+                    f = 1
+                freq[t, j] = f
+                s += f
+                if f > freq[t, best]:
+                    best = j
+        diff = PROB_SCALE - s
+        if diff >= 0:
+            freq[t, best] += diff
+        else:
+            while diff < 0:  # take from the largest entries, keeping >= 1
+                best = 0
+                for j in range(alpha):
+                    if freq[t, j] > freq[t, best]:
+                        best = j
+                take = min(-diff, freq[t, best] - 1)
+                freq[t, best] -= take
+                diff += take
+    return freq
+
+
+@nb.njit(cache=True, nogil=True)
+def _parse_tables(b, off, ntab, alpha, bytes8):
+    """The section's ``ntab`` frequency tables from its bytes ``b`` at ``off``: per table u16 first,
+    u16 span, then span frequencies (u8, ``_normalise``d again, or u16 little endian); span 0 is an
+    unused table (escape only). Returns (freq, new offset, error: 0 ok, 1 truncated, 2 overrun,
+    3 bad sum)."""
+    freq = np.zeros((ntab, alpha), np.int64)
+    q8 = np.zeros((1, alpha), np.int64)
+    width = 1 if bytes8 else 2
+    for t in range(ntab):
+        if off + 4 > b.size:
+            return freq, off, 1
+        first = np.int64(b[off]) | (np.int64(b[off + 1]) << 8)
+        span = np.int64(b[off + 2]) | (np.int64(b[off + 3]) << 8)
+        off += 4
+        if span == 0:
+            freq[t, alpha - 1] = PROB_SCALE
+            continue
+        if first + span > alpha:
+            return freq, off, 2
+        if off + width * span > b.size:
+            return freq, off, 1
+        if bytes8:
+            q8[0, :] = 0
+            for j in range(span):
+                q8[0, first + j] = b[off + j]
+            f = _normalise(q8)
+            for j in range(alpha):
+                freq[t, j] = f[0, j]
+        else:
+            for j in range(span):
+                freq[t, first + j] = np.int64(b[off + 2 * j]) | (np.int64(b[off + 2 * j + 1]) << 8)
+        off += width * span
+        tot = np.int64(0)
+        for j in range(alpha):
+            tot += freq[t, j]
+        if tot != PROB_SCALE:
+            return freq, off, 3
+    return freq, off, 0
+
+
+@nb.njit(cache=True, nogil=True)
+def _decoding_tables(freq, sym_type):
+    """The decoder's lookup tables: symbol by slot (tables x 2^PROB_BITS, ``sym_type``) and
+    freq << 16 | cumulative frequency (tables x alphabet)."""
+    ntab, alpha = freq.shape
+    lut = np.zeros((ntab, PROB_SCALE), sym_type)
+    fcum = np.empty((ntab, alpha), np.uint32)  # f <= 2^12, cum < 2^12: 32 bits (half the cache of int64)
+    for t in range(ntab):
+        c = 0
+        for j in range(alpha):
+            f = freq[t, j]
+            fcum[t, j] = np.uint32((f << 16) | c)
+            for k in range(c, min(c + f, PROB_SCALE)):
+                lut[t, k] = j
+            c += f
+    return lut, fcum
+
+
+@nb.njit(cache=True, nogil=True)
+def _init_front(p, c0):
+    """The part of a plane's padded buffer (``_front``) the decoder reads before it writes it: the two
+    rows above the plane and the left padding of its first row, all ``c0``."""
+    p[0, :] = c0
+    p[1, :] = c0
+    p[2, 0] = c0
+    p[2, 1] = c0
+
+
+def decode_planes(blob, dithers: list[np.ndarray], outs: list[np.ndarray] | None = None) -> list[np.ndarray]:
+    """Inverse of ``encode_planes``; ``dithers`` are the planes' dither arrays (same shapes). The
+    symbols (int32) go to ``outs`` (arrays or views of the planes' shapes) if given."""
+    try:
+        return _decode(memoryview(blob), dithers, outs)
+    except (struct.error, ValueError, IndexError) as exc:
+        raise MetrawError(f"codec stream is corrupt: {exc}") from None
+
+
+def _decode(mv: memoryview, dithers: list[np.ndarray], outs) -> list[np.ndarray]:
+    npl, nact, pshift, shared, nl, tabbits, amax = _HEAD.unpack_from(mv, 0)
+    off = _HEAD.size
+    if (npl != len(dithers) or not 1 <= nact <= MAX_NACT or shared > 1 or amax > MAX_RESID or not 1 <= nl <= 16
+            or pshift not in (0, 2) or tabbits not in (8, 16)):
+        raise ValueError("plane header does not match the frame")
+    lanes = []
+    for _ in range(nl):
+        (st,) = struct.unpack_from("<I", mv, off)
+        nwd, off = get_varint(mv, off + 4)
+        nes, off = get_varint(mv, off)
+        lanes.append((st, nwd, nes))
+    c0s = []
+    for _ in range(npl):
+        z, off = get_varint(mv, off)
+        c0s.append(z >> 1 if not z & 1 else -((z + 1) >> 1))
+    if any(abs(c) >= 2**31 for c in c0s) or sum(ln[1] for ln in lanes) > len(mv) or sum(ln[2] for ln in lanes) > len(mv):
+        raise ValueError("plane header is out of range")
+    ngroup = 1 if shared else npl
+    heads = []
+    for _ in range(ngroup):
+        thr = np.frombuffer(mv, "<u4", nact - 1, off).astype(np.int64) << 8
+        off += 4 * (nact - 1)
+        coef = np.frombuffer(mv, "<i2", nact * (NTAP - 1), off).astype(np.int64)
+        off += 2 * nact * (NTAP - 1)
+        bias = np.frombuffer(mv, "<i4", nact, off).astype(np.int64)
+        off += 4 * nact
+        heads.append((thr, coef, bias))
+    alpha = 2 * amax + 2
+    nph = NPH >> pshift
+    ntab = ngroup * nact * nph
+    freq, off, err = _parse_tables(np.frombuffer(mv, np.uint8), off, ntab, alpha, tabbits == 8)
+    if err:
+        raise ValueError(("frequency tables are truncated", "frequency table overruns the alphabet",
+                          "frequency table does not sum to the probability scale")[err - 1])
+    lut, fcum = _decoding_tables(freq, np.uint8 if alpha <= 256 else np.int16)
+    nwords = [ln[1] for ln in lanes]
+    # words of lane j at [pmin_j + 1, pmin_j + n_j], after ``pad`` zero words (words[pmin_j] the last of
+    # them: branch-free renormalisation); escapes followed by ``pad`` zeros. The decoder's steady part
+    # checks a lane's limits once per group of rows and reads at most a row's width past them.
+    pad = max([u.shape[1] for u in dithers] + [0]) + 16
+    pmin = (np.cumsum(np.array(nwords, np.int64) + pad) - np.array(nwords, np.int64) - 1).astype(np.int64)
+    words = np.zeros(int(sum(nwords)) + nl * pad, np.uint16)
+    for j, n in enumerate(nwords):
+        words[pmin[j] + 1:pmin[j] + 1 + n] = np.frombuffer(mv, "<u2", n, off)
+        off += 2 * n
+    nesc = [ln[2] for ln in lanes]
+    esc = np.zeros(int(sum(nesc)) + pad, np.int32)
+    esc[:int(sum(nesc))] = np.frombuffer(mv, "<i4", int(sum(nesc)), off)
+    epos = np.concatenate([[0], np.cumsum(nesc)[:-1]]).astype(np.int64)
+    eend = epos + np.array(nesc, np.int64)
+    xs = np.array([ln[0] for ln in lanes], np.uint64)
+    pos = pmin + np.array(nwords, np.int64)
+    if outs is None:
+        outs = [np.empty(u.shape, np.int32) for u in dithers]
+    # one padded buffer for the planes in turn (``_init_front`` sets what the decoder reads before writing)
+    buf = np.empty(max((u.shape[0] + 2) * (u.shape[1] + 4) for u in dithers), np.int64)
+    for k, u in enumerate(dithers):
+        g = 0 if shared else k
+        thr, coef, bias = heads[g]
+        thr7 = np.concatenate([thr, np.full(MAX_NACT - 1 - thr.size, np.iinfo(np.int64).max, np.int64)])
+        c11 = coef.reshape(nact, NTAP - 1)
+        coef12 = np.concatenate([c11, c11.sum(1, keepdims=True)], 1).reshape(-1)
+        h, w = u.shape
+        p = buf[:(h + 2) * (w + 4)].reshape(h + 2, w + 4)
+        _init_front(p, np.int64(c0s[k]) << 16)
+        if not decode_plane(p, np.asarray(u, np.float64), outs[k], thr7, context_table(thr), coef12, bias, g * nact * nph, pshift, lut, fcum,
+                             amax, words, xs, pos, pmin, esc, epos, eend):
+            raise ValueError("coded data ran out")
+    if np.any(pos != pmin) or np.any(xs != RANS_L) or np.any(epos != eend):
+        raise ValueError("rANS did not end in its initial state")
+    return outs
