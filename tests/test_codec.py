@@ -409,3 +409,31 @@ def test_many_tiles_bytes_independent_of_threads(monkeypatch, threads):
     dec = codec.decode(blob)
     assert np.array_equal(dec.data, codec.decode(one).data)
     _within_bound(img, dec, 1.0)
+
+
+def test_sections_with_extreme_escapes_or_damaged_bytes_fail_cleanly():
+    """A section whose escape values are extreme (+-2^31: the decoder's integers wrap) or whose bytes
+    are damaged (a stream with a right CRC from a buggy writer) decodes or fails with MetrawError; the
+    decoder's unchecked indices (context table, padded words and escapes) never leave their arrays."""
+    from metraw.codec import predictive
+
+    rng = np.random.default_rng(11)
+    h, w = 260, 270
+    yy, xx = np.mgrid[0:h, 0:w]
+    u = prepare.dither(5, 0, h * w).reshape(h, w)
+    s = np.rint(300 + 40 * np.sin(xx / 5.0) + rng.normal(0, 1, (h, w)) + u).astype(np.int32)
+    s[rng.integers(0, h, 40), rng.integers(0, w, 40)] += 5000
+    blob = predictive.encode_planes([(s, u)])
+    nesc = int(np.count_nonzero(np.abs(s - np.rint(300 + 40 * np.sin(xx / 5.0))) > 1000))
+    assert nesc > 10
+    for _ in range(60):
+        b = bytearray(blob)
+        for _ in range(int(rng.integers(1, 4))):
+            i = len(b) - 4 * int(rng.integers(1, nesc + 1))
+            b[i:i + 4] = int(rng.choice([2**31 - 1, -2**31, 2**30])).to_bytes(4, "little", signed=True)
+        for _ in range(int(rng.integers(0, 4))):
+            b[int(rng.integers(8, len(b)))] = int(rng.integers(0, 256))
+        try:
+            predictive.decode_planes(bytes(b), [u])
+        except MetrawError:
+            pass

@@ -74,7 +74,9 @@ def _context_impl(act, thr, ctab):
         return compare
 
     def lookup(act, thr, ctab):
-        return np.int64(ctab[np.uint64(min(((act - 1) >> 8) + 1, ctab.size - 1))])
+        # unsigned min: a negative key (act wrapped around on a corrupt stream's huge values) also
+        # lands on the last entry, so no stream can index outside the table
+        return np.int64(ctab[min(np.uint64(((act - 1) >> 8) + 1), np.uint64(ctab.size - 1))])
     return lookup
 
 
