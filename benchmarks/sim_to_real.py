@@ -136,8 +136,11 @@ def main() -> None:
 
     paths = stores(args.work, args.params, args.kit, args.n_synthetic, args.kit_gsd_m)
     syn = RawStore.open(paths["synthetic"])
-    print("== realism: synthetic scenes (first 40) vs KIT AIS")
-    print(format_table(summarise([syn[i] for i in range(min(40, len(syn)))], args.kit)))
+    first = [syn[i] for i in range(min(60, len(syn)))]
+    print("== realism: synthetic scenes (first 60, all kinds) vs KIT AIS")
+    print(format_table(summarise(first, args.kit)))
+    print("== realism: the urban ones among them (KIT AIS shows city streets only)")
+    print(format_table(summarise([im for im in first if im.meta.get("scene_type") == "urban"], args.kit)))
 
     config = load_config(args.params)
     if args.epochs:

@@ -270,3 +270,25 @@ def test_pool_factor_follows_ground_sampling_and_keeps_the_grid():
     assert y.shape == (1, 4, 50, 70)
     with pytest.raises(ValueError):
         Segmenter(4, 8, 2, upsample=2, pool=2)
+
+
+def test_tone_jitter_is_a_power_law_on_electrons_with_the_median_fixed():
+    """z ~ 2 sqrt(e): a power g on the VST level is the power g on the photoelectrons; the image's level
+    (median) maps to itself, and a channel gain c in electrons scales that plane by sqrt(c)."""
+    from metraw.segment.data import tone_jitter
+
+    level = 80.0
+    planes = np.stack([np.linspace(-60, 120, 50, dtype=np.float32).reshape(5, 10)] * 4)
+    same = tone_jitter(planes, level, rng_from_seed(0), 1.0, 1.0)
+    np.testing.assert_allclose(same, planes, atol=1e-4)  # ranges of 1: identity (all above the clip)
+    for seed in range(5):
+        out = tone_jitter(planes, level, rng_from_seed(seed), 1.6, 1.0)
+        zabs_in, zabs_out = (planes + level) / level, (out + level) / level
+        g = math.log(zabs_out[0, 4, 9]) / math.log(zabs_in[0, 4, 9])  # one exponent for the whole crop
+        assert 1 / 1.6 - 1e-6 <= g <= 1.6 + 1e-6
+        np.testing.assert_allclose(zabs_out, zabs_in ** g, rtol=1e-4)
+        at_level = tone_jitter(np.zeros((4, 2, 2), np.float32), level, rng_from_seed(seed), 1.6, 1.0)
+        np.testing.assert_allclose(at_level, 0.0, atol=1e-4)  # the median stays put
+        gains = tone_jitter(np.zeros((4, 2, 2), np.float32), level, rng_from_seed(seed), 1.0, 1.3)
+        c = ((gains[:, 0, 0] + level) / level) ** 2
+        assert np.all((c >= 1 / 1.3 - 1e-5) & (c <= 1.3 + 1e-5)) and np.ptp(c) > 0

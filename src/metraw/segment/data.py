@@ -23,6 +23,7 @@ keeps its colour and the sub-pixel geometry of the CFA is respected.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -56,8 +57,33 @@ def vst_mosaic(image: RawImage) -> np.ndarray:
 
     Noise is ~unit variance per pixel for signals >~ 1 e-; the median subtraction is a constant.
     """
+    return vst_mosaic_and_level(image)[0]
+
+
+def vst_mosaic_and_level(image: RawImage) -> tuple[np.ndarray, float]:
+    """``vst_mosaic`` and the median it subtracted (the image's VST level, ~2 sqrt(median e-))."""
     z = anscombe(image.data, image.profile)
-    return (z - np.median(z)).astype(np.float32)
+    level = float(np.median(z))
+    return (z - level).astype(np.float32), level
+
+
+def tone_jitter(planes: np.ndarray, level: float, rng: np.random.Generator, gamma_range: float,
+                gain_range: float) -> np.ndarray:
+    """Domain randomisation of tone and colour on packed VST planes (S, h, w) centred on ``level``.
+
+    The VST value is ~2 sqrt(e-), so a power law on it is one on the photoelectrons: z -> level (z / level)^g
+    with g log-uniform in [1 / gamma_range, gamma_range] (the median stays put; darks are crushed or lifted
+    as a processed photo's tone curve does), then each CFA plane is scaled by sqrt(c), c log-uniform in
+    [1 / gain_range, gain_range] (a white balance error of c in electrons). The noise is no longer unit
+    variance: an augmentation for robustness to processed real photos, not a metrological step (off by
+    default; ``TrainConfig.tone_gamma_range`` / ``channel_gain_range``).
+    """
+    g = math.exp(rng.uniform(-math.log(gamma_range), math.log(gamma_range)))
+    c = np.exp(rng.uniform(-math.log(gain_range), math.log(gain_range), planes.shape[0])).astype(np.float32)
+    ref = max(level, 1.0)
+    zabs = np.maximum(planes + np.float32(level), np.float32(0.5)) / np.float32(ref)
+    out = np.float32(ref) * zabs ** np.float32(g) * np.sqrt(c)[:, None, None] - np.float32(level)
+    return out.astype(np.float32, copy=False)
 
 
 def _canonical_offset(ci: np.ndarray, mono: bool) -> tuple[int, int]:
@@ -114,6 +140,7 @@ class PreparedImage:
     pattern: str
     index: int
     gsd_m: float | None = None
+    level: float = 0.0  # the median VST value subtracted from z
 
     @property
     def packed_shape(self) -> tuple[int, int]:
@@ -125,8 +152,10 @@ class PreparedImage:
         """Whole image, untransformed: planes (S, h, w) and site car fractions (S, h, w)."""
         return canonical_pack(self.z, self.mask.astype(np.float32), self.pattern, 0)
 
-    def crop(self, crop_px: int, rng: np.random.Generator, augment: bool = True) -> tuple[np.ndarray, np.ndarray]:
-        """A random crop of ``crop_px`` packed pixels (or the whole image if smaller), augmented."""
+    def crop(self, crop_px: int, rng: np.random.Generator, augment: bool = True, gamma_range: float = 1.0,
+             gain_range: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+        """A random crop of ``crop_px`` packed pixels (or the whole image if smaller), augmented (dihedral;
+        ``tone_jitter`` when a range exceeds 1)."""
         s = cell_size(self.pattern)
         side = crop_px * s + (s - 1)  # one spare row/column for the canonical shift
         H, W = self.z.shape
@@ -140,7 +169,10 @@ class PreparedImage:
         pattern = _shifted_pattern(self.pattern, y0, x0)
         planes, frac = canonical_pack(z, m.astype(np.float32), pattern, k)
         c = min(crop_px, planes.shape[-2], planes.shape[-1])
-        return planes[:, :c, :c], frac[:, :c, :c]
+        planes, frac = planes[:, :c, :c], frac[:, :c, :c]
+        if augment and (gamma_range > 1.0 or gain_range > 1.0):
+            planes = tone_jitter(planes, self.level, rng, gamma_range, gain_range)
+        return planes, frac
 
 
 def _shifted_pattern(pattern: str, dy: int, dx: int) -> str:
@@ -155,8 +187,8 @@ def prepare(image: RawImage, index: int = -1) -> PreparedImage:
     """Preprocess one RawImage for the segmenter (needs a label mask)."""
     if image.mask is None:
         raise MetrawError(f"image {index} has no label mask; segmentation needs masks")
-    return PreparedImage(vst_mosaic(image), image.mask.astype(np.float16), image.cfa_pattern, index,
-                         image.profile.gsd_m)
+    z, level = vst_mosaic_and_level(image)
+    return PreparedImage(z, image.mask.astype(np.float16), image.cfa_pattern, index, image.profile.gsd_m, level)
 
 
 def prepare_store(store, indices, progress: bool | None = None) -> list[PreparedImage]:
@@ -165,9 +197,9 @@ def prepare_store(store, indices, progress: bool | None = None) -> list[Prepared
     return [prepare(store[int(i)], int(i)) for i in progress_bar(list(indices), desc="load", disable=disable)]
 
 
-def batch_crops(images: list[PreparedImage], crop_px: int, rng: np.random.Generator, augment: bool = True
-                ) -> tuple[np.ndarray, np.ndarray]:
+def batch_crops(images: list[PreparedImage], crop_px: int, rng: np.random.Generator, augment: bool = True,
+                gamma_range: float = 1.0, gain_range: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """Stack one random crop per image; all crops cut to the smallest common packed side."""
-    xs, ys = zip(*(img.crop(crop_px, rng, augment) for img in images))
+    xs, ys = zip(*(img.crop(crop_px, rng, augment, gamma_range, gain_range) for img in images))
     c = min(min(x.shape[-2:]) for x in xs)
     return (np.stack([x[:, :c, :c] for x in xs]), np.stack([y[:, :c, :c] for y in ys]))

@@ -50,6 +50,9 @@ class TrainConfig:
     at: finer inputs are average-pooled by floor(grid_gsd_m / packed GSD) and the logits
     upsampled back, so drone images cost what their ground content needs (0: never pool).
     ``crops_per_image``: random crops drawn per training image per epoch.
+    ``tone_gamma_range``, ``channel_gain_range``: domain randomisation of tone curve and white balance of the
+    training crops (``metraw.segment.data.tone_jitter``; 1.0 = off, the default: the emulated raws' noise
+    model is exact and the network sees it unchanged). For models meant to run on processed real photos.
     ``threads``: torch CPU threads, fixed here and not taken from the machine or the workflow's
     ``--cores``: the thread count changes the kernels' summation order, hence the weights' bytes.
     """
@@ -63,6 +66,8 @@ class TrainConfig:
     min_grid_px: int = 0
     grid_gsd_m: float = 0.0
     crops_per_image: int = 1
+    tone_gamma_range: float = 1.0
+    channel_gain_range: float = 1.0
     weight_decay: float = 1e-4
     seed: int = 0
     threads: int = 2
@@ -252,7 +257,8 @@ def fit(images: list[PreparedImage], config: TrainConfig, device: str | None = N
         order = np.concatenate([rng.permutation(len(images)) for _ in range(config.crops_per_image)])
         for s in range(steps_per_epoch):
             batch = [images[i] for i in order[s * config.batch_size:(s + 1) * config.batch_size]]
-            yield batch_crops(batch, config.crop_px * pool, rng, augment=True)
+            yield batch_crops(batch, config.crop_px * pool, rng, augment=True, gamma_range=config.tone_gamma_range,
+                              gain_range=config.channel_gain_range)
 
     t0 = time.perf_counter()
     losses = train_loop(model, epoch_batches, steps_per_epoch, config, device, progress)
