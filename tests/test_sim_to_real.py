@@ -174,3 +174,5 @@ def test_gap_note_within_and_outside():
     assert gap_note(0.01, 0.02, "box-approximate").endswith("within 0.05")
     note = gap_note(0.3, 0.05, "exact")
     assert "outside 0.05" in note and "YOLO" not in note and "scene realism" in note
+    note = gap_note(0.07, 0.01, "box-approximate", precision=(0.30, 0.17), recall=(0.28, 0.23))
+    assert "precision 0.300 -> 0.170, recall 0.280 -> 0.230" in note and "YOLO" in note

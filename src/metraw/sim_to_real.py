@@ -71,7 +71,9 @@ def real_columns(row: dict[str, Any], real: dict[str, Any], iou_var: float, real
             "real_labels": labels, "real_n_images": real.get("n_images"),
             "sim_to_real_gap": gap, "sim_to_real_gap_sd": gap_sd,
             "sim_to_real_within_tolerance": abs(gap) <= tolerance,
-            "sim_to_real_note": gap_note(gap, gap_sd, labels, tolerance)}
+            "sim_to_real_note": gap_note(gap, gap_sd, labels, tolerance,
+                                         precision=(row.get("precision"), real.get("precision")),
+                                         recall=(row.get("recall"), real.get("recall")))}
 
 
 def reasons(labels: str | None) -> list[str]:
@@ -80,13 +82,23 @@ def reasons(labels: str | None) -> list[str]:
     return keys + ["approximate-raw", "scene-realism"]
 
 
-def gap_note(gap: float, gap_sd: float, labels: str | None, tolerance: float = GAP_TOLERANCE) -> str:
-    """One sentence: the gap against the tolerance and, when it is larger, why it can be."""
+def gap_note(gap: float, gap_sd: float, labels: str | None, tolerance: float = GAP_TOLERANCE,
+             precision: tuple[float | None, float | None] = (None, None),
+             recall: tuple[float | None, float | None] = (None, None)) -> str:
+    """The gap against the tolerance and, when it is larger, why it can be; with the synthetic and real
+    ``precision`` and ``recall``, which of the two fell. Box labels contain the car, so they can lower
+    recall but not precision: a fall in precision is false alarms on the real images."""
     head = (f"synthetic test IoU - real IoU = {gap:+.3f} (sd {gap_sd:.3f}); "
             f"{'within' if abs(gap) <= tolerance else 'outside'} {tolerance:g}")
     if abs(gap) <= tolerance:
         return head
-    return head + ". Reasons a gap can be large: " + "; ".join(REASONS[k] for k in reasons(labels))
+    parts = [head]
+    if None not in precision and None not in recall:
+        parts.append(f"precision {precision[0]:.3f} -> {precision[1]:.3f}, recall {recall[0]:.3f} -> {recall[1]:.3f} "
+                     "(a fall in precision is false alarms on the real images, which box labels cannot cause: "
+                     "scene realism and the approximate raws; a fall in recall is car area missed, box corners "
+                     "included)")
+    return ". ".join(parts) + ". Reasons a gap can be large: " + "; ".join(REASONS[k] for k in reasons(labels))
 
 
 def summary(rows: list[dict[str, Any]], nominal: str, source: dict[str, Any] | None = None,
