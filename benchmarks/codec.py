@@ -14,22 +14,22 @@ timed one by one (warm caches), so they need not add up to the totals.
 
     stage                                          canon_dng 2.0 MP RGGB    micasense 1.2 MP mono
                                                    before    after          before    after
-    encode, total                                   56.8      39.1            24.8      18.8
+    encode, total                                   56.8      37.9            24.8      18.0
       dither (counter hash)                          0.8       0.9             0.5       0.5
-      transform + quantise (forward)                 1.2       2.3 (a)         0.7       0.7
-      profile noise check (tile 0)                   0.8       0.8             0.2       0.1
-      model: padded buffer                           3.3       0.8 (b)         0.8       0.7
-      model: activity thresholds                     2.6       0.9             0.2       0.1
-      model: least-squares normal equations + solve  5.2       5.0             0.6       0.6
-      prediction + context (_residuals)             21.7      13.5            11.6       8.8
-      entropy coding (tables, 4-lane rANS, escapes) 14.7       8.7             8.8       5.1
-      rest (escape list, packing, cache effects)     6.5       6.2             1.6       2.2
-    decode, total                                   45.9      36.7            24.7      21.1
+      transform + quantise (forward)                 1.2       2.0 (a)         0.7       0.8
+      profile noise check (tile 0)                   0.8       0.8             0.2       0.2
+      model: padded buffer                           3.3       0.7 (b)         0.8       0.6
+      model: activity thresholds                     2.6       1.0             0.2       0.1
+      model: least-squares normal equations + solve  5.2       4.9             0.6       0.6
+      prediction + context (_residuals)             21.7      13.2            11.6       8.6
+      entropy coding (tables, 4-lane rANS, escapes) 14.7       8.4             8.8       5.1
+      rest (escape list, packing, cache effects)     6.5       6.0             1.6       1.5
+    decode, total                                   45.9      35.2            24.7      20.2
       container unpack + CRC-32C                     0.1       0.1             0.1       0.1
       dither                                         0.8       0.9             0.5       0.5
-      section set-up (tables, buffers) +            45.6      32.6            22.9      22.4
-        per-pixel prediction, context, rANS         (set-up 2.2, per pixel 30.4)  (1.3, 21.1)
-      inverse transform                              1.1       1.9 (a)         0.4       0.5
+      section set-up (tables, buffers) +            45.6      31.7            22.9      18.8
+        per-pixel prediction, context, rANS         (set-up 1.8, per pixel 29.8)  (1.0, 17.8)
+      inverse transform                              1.1       1.2 (a)         0.4       0.5
     (a) per CFA plane through a row buffer (the planes are now contiguous arrays; strided rows
         are gathered / stored); (b) contiguous planes vectorise.
 
@@ -37,6 +37,12 @@ The per-pixel loops dominate: the encoder's prediction pass and rANS (~60 %), th
 sequential 4-lane loop (~85 %). Container, CRC and per-tile Python work are < 1 ms per frame.
 The decoder is bound by each lane's dependency chain (neighbours -> activity context ->
 12-tap prediction -> table index -> rANS lookup -> value), ~190 instructions per pixel.
+
+``--speed`` before / after on the same machine, back to back (load 7-9 from other users, so the
+2-thread runs got ~1 core: par 0.45-0.7), metraw CPU on 1 thread / JPEG-LS CPU, steps 1 and 2:
+canon_dng 1.19-1.20 / 1.08-1.09 -> 0.84-0.88 / 0.90; micasense 0.81 / 1.54 -> 0.68-0.69 / 0.86-0.87;
+spacenet_pan 1.04-1.05 / 1.54-1.55 -> 0.81-0.82 / 0.89-0.90 (encode / decode); 20 MP frame
+1.35-1.50 / 1.16-1.24 -> 0.97-0.99 / 0.82-1.13 (7 rounds only: noisy).
 """
 
 from __future__ import annotations
