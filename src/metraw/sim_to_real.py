@@ -136,5 +136,7 @@ def source_record(synthetic: dict[str, Any] | None, real: dict[str, Any], syn_va
         gap_sd = math.sqrt(max(syn_var, 0.0) + max(real_var, 0.0))
         rec.update({"synthetic_iou": float(synthetic["iou"]), "synthetic_iou_sd": math.sqrt(max(syn_var, 0.0)),
                     "gap": gap, "gap_sd": gap_sd, "within_tolerance": abs(gap) <= tolerance,
-                    "note": gap_note(gap, gap_sd, rec["real_labels"], tolerance)})
+                    "note": gap_note(gap, gap_sd, rec["real_labels"], tolerance,
+                                     precision=(synthetic.get("precision"), rec["real_precision"]),
+                                     recall=(synthetic.get("recall"), rec["real_recall"]))})
     return rec
