@@ -9,6 +9,9 @@ rule compress:
     params:
         codec=config["codec"],
     threads: lambda wildcards: workflow.cores  # callable: --report and dry runs need no --cores
+    resources:
+        mem_mb=1000,  # measured peak RSS with head room (README, SLURM: resources table)
+        runtime=20,  # minutes, a generous bound on the measured wall time
     log:
         "logs/compress/{point}.log",
     shell:
@@ -44,6 +47,9 @@ rule aggregate:
     # symlinked from the cache, so reverting a sweep value restores the old aggregate instead of recomputing it.
     # The key does not cover metraw's own code: after changing it, run with --workflow-profile none or clear the cache.
     cache: True
+    resources:
+        mem_mb=1500,  # measured peak RSS with head room (README, SLURM: resources table)
+        runtime=20,  # minutes, a generous bound on the measured wall time
     log:
         "logs/aggregate.log",
     shell:

@@ -32,6 +32,9 @@ rule emulate:
         codec=config["codec"],
     threads: 1  # one process per point; the points share the cores (see emulation_priority)
     priority: emulation_priority
+    resources:
+        mem_mb=2000,  # measured peak RSS with head room (README, SLURM: resources table)
+        runtime=60,  # minutes, a generous bound on the measured wall time
     log:
         "logs/emulate/{point}.log",
     shell:

@@ -10,6 +10,9 @@ rule train:
     params:
         training=config["training"],
     threads: lambda wildcards: workflow.cores  # callable: --report and dry runs need no --cores
+    resources:
+        mem_mb=1500,  # measured peak RSS with head room (README, SLURM: resources table)
+        runtime=60,  # minutes, a generous bound on the measured wall time
     log:
         "logs/train/{point}.log",
     shell:
@@ -23,6 +26,9 @@ rule evaluate:
     output:
         "results/points/{point}/metrics.json",
     threads: lambda wildcards: workflow.cores  # callable: --report and dry runs need no --cores
+    resources:
+        mem_mb=1500,  # measured peak RSS with head room (README, SLURM: resources table)
+        runtime=20,  # minutes, a generous bound on the measured wall time
     log:
         "logs/evaluate/{point}.log",
     shell:
@@ -37,6 +43,9 @@ rule train_source:
     params:
         training=config["training"],
     threads: lambda wildcards: workflow.cores  # callable: --report and dry runs need no --cores
+    resources:
+        mem_mb=6000,  # measured peak RSS with head room (README, SLURM: resources table)
+        runtime=120,  # minutes, a generous bound on the measured wall time
     log:
         "logs/train/source.log",
     shell:
@@ -50,6 +59,9 @@ rule evaluate_source:
     output:
         "results/source/metrics.json",
     threads: lambda wildcards: workflow.cores  # callable: --report and dry runs need no --cores
+    resources:
+        mem_mb=2000,  # measured peak RSS with head room (README, SLURM: resources table)
+        runtime=20,  # minutes, a generous bound on the measured wall time
     log:
         "logs/evaluate/source.log",
     shell:

@@ -14,6 +14,9 @@ rule real_store:
         codec=config["codec"],
         white_fraction=config["sim_to_real"].get("white_fraction", 1.0),
         seed=config["sim_to_real"].get("seed", 0),
+    resources:
+        mem_mb=2000,  # measured peak RSS with head room (README, SLURM: resources table)
+        runtime=20,  # minutes, a generous bound on the measured wall time
     log:
         "logs/real_store.log",
     shell:
@@ -34,6 +37,9 @@ rule emulate_real:
         codec=config["codec"],
     threads: 1  # one process per point, as rule emulate
     priority: emulation_priority
+    resources:
+        mem_mb=1500,  # measured peak RSS with head room (README, SLURM: resources table)
+        runtime=30,  # minutes, a generous bound on the measured wall time
     log:
         "logs/emulate_real/{point}.log",
     shell:
@@ -49,6 +55,9 @@ rule evaluate_real:
     output:
         REAL_POINT_METRICS,
     threads: lambda wildcards: workflow.cores  # callable: --report and dry runs need no --cores
+    resources:
+        mem_mb=1500,  # measured peak RSS with head room (README, SLURM: resources table)
+        runtime=20,  # minutes, a generous bound on the measured wall time
     log:
         "logs/evaluate_real/{point}.log",
     shell:
@@ -62,6 +71,9 @@ rule evaluate_source_real:
     output:
         SOURCE_REAL_METRICS,
     threads: lambda wildcards: workflow.cores  # callable: --report and dry runs need no --cores
+    resources:
+        mem_mb=1500,  # measured peak RSS with head room (README, SLURM: resources table)
+        runtime=20,  # minutes, a generous bound on the measured wall time
     log:
         "logs/evaluate_real/source.log",
     shell:

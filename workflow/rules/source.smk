@@ -11,6 +11,9 @@ if config["source"]["dataset"] == "synthetic":
             synthetic=config["source"]["synthetic"],
             camera=config["source"]["camera"],
             codec=config["codec"],
+        resources:
+            mem_mb=3000,  # measured peak RSS with head room (README, SLURM: resources table)
+            runtime=60,  # minutes, a generous bound on the measured wall time
         log:
             "logs/source_store.log",
         shell:
@@ -27,6 +30,9 @@ else:
             kit=config["source"]["kit_ais"],
             camera=config["source"]["camera"],
             codec=config["codec"],
+        resources:
+            mem_mb=2000,  # as real_store (the same ingest of the KIT photos)
+            runtime=20,  # minutes
         log:
             "logs/source_store.log",
         shell:
@@ -41,6 +47,9 @@ rule calibrate_source:
         SOURCE_STORE,
     output:
         "results/source/calibration.json",
+    resources:
+        mem_mb=1000,  # measured peak RSS with head room (README, SLURM: resources table)
+        runtime=10,  # minutes, a generous bound on the measured wall time
     log:
         "logs/calibrate_source.log",
     script:
