@@ -296,6 +296,17 @@ def test_result_profile_provenance_and_determinism():
         emulate(src, tgt, mode="fast")
 
 
+def test_approximate_source_stays_approximate_after_emulation():
+    """A raw rebuilt from a processed photo is flagged approximate; its emulated target raws keep the flag
+    and say why (a synthetic or camera source gives an exact target profile)."""
+    src = structured_source()
+    assert not emulate(src, target(), seed=0).profile.approximate
+    prof = src.profile.replace(approximate=True, approximate_reason="made from a processed 8-bit RGB image")
+    out = emulate(RawImage(src.data, prof, mask=src.mask), target(), seed=0)
+    assert out.profile.approximate and "processed 8-bit RGB" in out.profile.approximate_reason
+    assert out.profile.gsd_m == pytest.approx(target().gsd_m)
+
+
 def test_parse_point_and_from_params():
     pt = parse_point("focal_length_m=1.644,diameter_m=0.2,exposure_s=180e-6,cfa_pattern=mono,frame_offset_m=10:-5")
     assert pt["exposure_s"] == 180e-6 and pt["cfa_pattern"] == "mono" and pt["frame_offset_m"] == (10.0, -5.0)

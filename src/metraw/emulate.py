@@ -691,6 +691,9 @@ def emulate(source: RawImage, target: TargetSystem, mode: str = "auto", seed: in
     if np.any(haze > 0):
         counts += rng.poisson(haze)
     profile = target.profile()
+    if source.profile.approximate:  # a raw rebuilt from a processed photo stays flagged through the emulation
+        profile = profile.replace(approximate=True, approximate_reason="emulated from an approximate source: "
+                                  + (source.profile.approximate_reason or "source profile marked approximate"))
     data = readout(counts, profile, rng)
     flags = np.zeros(tshape, np.uint8)
     sat_t = data >= profile.white_level_dn
