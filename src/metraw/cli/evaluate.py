@@ -20,10 +20,15 @@ def register(subparsers) -> None:
                    help="images to score: auto (default): the test split of the training store, all images of a "
                    "foreign one; test: the model's test split (a store with as many images as the training "
                    "store, e.g. another parameter point); all: every image")
-    p.add_argument("--device", default=None, help="torch device (default: cuda when present, else cpu)")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
-    p.add_argument("--progress", action="store_true", help="show progress bars even when not on a terminal")
+    add_run_options(p, overwrite_help="replace an existing output file")
     p.set_defaults(func=run)
+
+
+def add_run_options(p, overwrite_help: str) -> None:
+    """--device, --overwrite, --progress: shared by the commands that run a trained model (evaluate, predict)."""
+    p.add_argument("--device", default=None, help="torch device (default: cuda when present, else cpu)")
+    p.add_argument("--overwrite", action="store_true", help=overwrite_help)
+    p.add_argument("--progress", action="store_true", help="show progress bars even when not on a terminal")
 
 
 def run(args) -> int:

@@ -6,6 +6,8 @@ import json
 import sys
 import time
 
+from metraw.cli.evaluate import add_run_options
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser("predict", help="car probability and mask of every image of a store (labels optional)",
@@ -20,9 +22,7 @@ def register(subparsers) -> None:
                    help="also write an overlay (quick-look RGB, predicted mask in cyan, labels in magenta) of the "
                    "first images: one PNG, or a folder of one PNG per image")
     p.add_argument("--overlay-count", type=int, default=4, help="images in the overlay (default: 4)")
-    p.add_argument("--device", default=None, help="torch device (default: cuda when present, else cpu)")
-    p.add_argument("--overwrite", action="store_true", help="replace existing outputs")
-    p.add_argument("--progress", action="store_true", help="show progress bars even when not on a terminal")
+    add_run_options(p, overwrite_help="replace existing outputs")
     p.set_defaults(func=run)
 
 
