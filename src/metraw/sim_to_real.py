@@ -62,18 +62,28 @@ def real_columns(row: dict[str, Any], real: dict[str, Any], iou_var: float, real
     """The real-image columns of one point's row (``row`` holds its synthetic "iou"): real_iou (+ sd),
     precision, recall, labels, image count, ``sim_to_real_gap`` = synthetic test IoU - real IoU with its
     sd (independent image sets: the variances add), whether it is within ``tolerance`` and a note."""
-    real_iou = float(real["iou"])
-    gap = float(row["iou"]) - real_iou
-    gap_sd = math.sqrt(max(iou_var, 0.0) + max(real_var, 0.0))
-    labels = real.get("labels")
-    return {"real_iou": real_iou, "real_iou_sd": math.sqrt(max(real_var, 0.0)),
+    rec = _real_fields(real, real_var)
+    gap = _gap_fields(row, rec, iou_var, real_var, tolerance)
+    return {**rec, "sim_to_real_gap": gap["gap"], "sim_to_real_gap_sd": gap["gap_sd"],
+            "sim_to_real_within_tolerance": gap["within_tolerance"], "sim_to_real_note": gap["note"]}
+
+
+def _real_fields(real: dict[str, Any], real_var: float) -> dict[str, Any]:
+    """real_iou (+ sd), precision, recall, labels and image count of a real-image metrics record."""
+    return {"real_iou": float(real["iou"]), "real_iou_sd": math.sqrt(max(real_var, 0.0)),
             "real_precision": real.get("precision"), "real_recall": real.get("recall"),
-            "real_labels": labels, "real_n_images": real.get("n_images"),
-            "sim_to_real_gap": gap, "sim_to_real_gap_sd": gap_sd,
-            "sim_to_real_within_tolerance": abs(gap) <= tolerance,
-            "sim_to_real_note": gap_note(gap, gap_sd, labels, tolerance,
-                                         precision=(row.get("precision"), real.get("precision")),
-                                         recall=(row.get("recall"), real.get("recall")))}
+            "real_labels": real.get("labels"), "real_n_images": real.get("n_images")}
+
+
+def _gap_fields(synthetic: dict[str, Any], rec: dict[str, Any], syn_var: float, real_var: float,
+                tolerance: float) -> dict[str, Any]:
+    """gap = synthetic IoU - real IoU, its sd (the variances add), within ``tolerance`` and the note."""
+    gap = float(synthetic["iou"]) - rec["real_iou"]
+    gap_sd = math.sqrt(max(syn_var, 0.0) + max(real_var, 0.0))
+    return {"gap": gap, "gap_sd": gap_sd, "within_tolerance": abs(gap) <= tolerance,
+            "note": gap_note(gap, gap_sd, rec["real_labels"], tolerance,
+                             precision=(synthetic.get("precision"), rec["real_precision"]),
+                             recall=(synthetic.get("recall"), rec["real_recall"]))}
 
 
 def reasons(labels: str | None) -> list[str]:
@@ -128,15 +138,8 @@ def source_record(synthetic: dict[str, Any] | None, real: dict[str, Any], syn_va
                   tolerance: float = GAP_TOLERANCE) -> dict[str, Any]:
     """The drone-resolution reference: the source-trained model on its synthetic test split and on the
     un-emulated real images (resampled by ``metraw evaluate`` to its training GSD)."""
-    rec: dict[str, Any] = {"real_iou": float(real["iou"]), "real_iou_sd": math.sqrt(max(real_var, 0.0)),
-                           "real_precision": real.get("precision"), "real_recall": real.get("recall"),
-                           "real_labels": real.get("labels"), "real_n_images": real.get("n_images")}
+    rec: dict[str, Any] = _real_fields(real, real_var)
     if synthetic is not None and synthetic.get("iou") is not None:
-        gap = float(synthetic["iou"]) - rec["real_iou"]
-        gap_sd = math.sqrt(max(syn_var, 0.0) + max(real_var, 0.0))
         rec.update({"synthetic_iou": float(synthetic["iou"]), "synthetic_iou_sd": math.sqrt(max(syn_var, 0.0)),
-                    "gap": gap, "gap_sd": gap_sd, "within_tolerance": abs(gap) <= tolerance,
-                    "note": gap_note(gap, gap_sd, rec["real_labels"], tolerance,
-                                     precision=(synthetic.get("precision"), rec["real_precision"]),
-                                     recall=(synthetic.get("recall"), rec["real_recall"]))})
+                    **_gap_fields(synthetic, rec, syn_var, real_var, tolerance)})
     return rec

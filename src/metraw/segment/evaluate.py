@@ -91,8 +91,6 @@ def summarise(per_image: list[dict[str, Any]]) -> dict[str, Any]:
             "mean_image_iou": mean, "mean_image_iou_se": se}
 
 
-
-
 # ----------------------------------------------------------------- ground sampling
 def gsd_scale(image_packed_gsd_m: float | None, train_packed_gsd_m: float | None, recorded: bool = True,
               tolerance: float = GSD_TOLERANCE) -> tuple[float, bool, str | None]:
@@ -150,9 +148,7 @@ def predict_logits(model, planes: np.ndarray, device: str = "cpu", scale: float 
     model.eval()
     with torch.no_grad():
         x = torch.from_numpy(np.ascontiguousarray(planes))[None].to(device)
-        y = model(resample_to_gsd(x, scale)) if scale != 1.0 else model(x)
-        if scale != 1.0:
-            y = resample_to_gsd(y, scale, size=tuple(planes.shape[-2:]))
+        y = resample_to_gsd(model(resample_to_gsd(x, scale)), scale, size=tuple(planes.shape[-2:]))
         return y[0].float().cpu().numpy()
 
 

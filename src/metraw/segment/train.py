@@ -136,22 +136,25 @@ def pool_factor(images: list[PreparedImage], grid_gsd_m: float) -> int:
     floor(grid_gsd_m / packed GSD) of the finest image, at least 1; 1 when ``grid_gsd_m`` <= 0
     or an image's profile lacks the geometry (GSD unknown).
     """
-    if grid_gsd_m <= 0:
-        return 1
-    gsds = [img.gsd_m * cell_size(img.pattern) for img in images if img.gsd_m]
-    if len(gsds) < len(images):
+    gsds = packed_gsds_m(images)
+    if grid_gsd_m <= 0 or gsds is None:
         return 1
     return max(1, int(math.floor(grid_gsd_m / min(gsds) + 1e-9)))
+
+
+def packed_gsds_m(images: list[PreparedImage]) -> list[float] | None:
+    """Packed-grid GSD of every image [m per packed pixel] (mosaic GSD x CFA cell side); None when an
+    image's profile lacks the geometry (or there are no images)."""
+    gsds = [img.gsd_m * cell_size(img.pattern) for img in images if img.gsd_m]
+    return gsds if gsds and len(gsds) == len(images) else None
 
 
 def training_packed_gsd_m(images: list[PreparedImage]) -> float | None:
     """Median ground sample distance of the training images' packed grid [m per packed pixel]
     (mosaic GSD x CFA cell side); None when any image's profile lacks the geometry. Recorded in the
     checkpoint so that ``metraw evaluate`` / ``predict`` can resample images of another GSD to it."""
-    gsds = [img.gsd_m * cell_size(img.pattern) for img in images if img.gsd_m]
-    if not gsds or len(gsds) < len(images):
-        return None
-    return float(np.median(gsds))
+    gsds = packed_gsds_m(images)
+    return None if gsds is None else float(np.median(gsds))
 
 
 def store_digest(store) -> str:
