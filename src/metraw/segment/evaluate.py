@@ -36,8 +36,13 @@ from typing import Any
 
 import numpy as np
 
+from metraw.cfa import unpack_planes
 from metraw.errors import MetrawError
 from metraw.segment.data import PreparedImage
+from metraw.segment.objects import object_counts, object_scores
+
+#: Per-image object counts (``metraw.segment.objects``), pooled by ``summarise``.
+OBJECT_KEYS = ("true_objects", "found_objects", "predicted_objects", "false_alarms")
 
 #: Relative difference of packed GSDs [-] above which an image is resampled to the training GSD.
 GSD_TOLERANCE = 0.02
@@ -87,8 +92,11 @@ def summarise(per_image: list[dict[str, Any]]) -> dict[str, Any]:
     vals = np.array([r["iou"] for r in per_image if r["iou"] is not None], dtype=np.float64)
     mean = float(vals.mean()) if vals.size else None
     se = float(vals.std(ddof=1) / math.sqrt(vals.size)) if vals.size > 1 else None
+    objects = {k: sum(r.get(k, 0) for r in per_image) for k in OBJECT_KEYS} if all(
+        OBJECT_KEYS[0] in r for r in per_image) else None
     return {**scores(tp, fp, fn), "tp": tp, "fp": fp, "fn": fn, "n_images": len(per_image),
-            "mean_image_iou": mean, "mean_image_iou_se": se}
+            "mean_image_iou": mean, "mean_image_iou_se": se,
+            **({**objects, **object_scores(objects)} if objects else {})}
 
 
 # ----------------------------------------------------------------- ground sampling
@@ -177,7 +185,16 @@ def score_image(model, img: PreparedImage, device: str = "cpu", scale: float = 1
     planes, frac = img.full()
     pred = car_probability(predict_logits(model, planes, device, scale)) > 0.5
     tp, fp, fn = confusion(pred, frac)
-    return {"index": img.index, "shape": list(frac.shape), "tp": tp, "fp": fp, "fn": fn, **scores(tp, fp, fn)}
+    return {"index": img.index, "shape": list(frac.shape), "tp": tp, "fp": fp, "fn": fn, **scores(tp, fp, fn),
+            **object_counts(*_mosaic(pred, frac, img.pattern))}
+
+
+def _mosaic(pred: np.ndarray, frac: np.ndarray, pattern: str) -> tuple[np.ndarray, np.ndarray]:
+    """Packed (S, h, w) prediction and fractions back on the (canonical) mosaic grid, for object counts."""
+    if pattern == "mono":
+        return pred.reshape(pred.shape[-2:]), frac.reshape(frac.shape[-2:])
+    shape = (2 * pred.shape[-2], 2 * pred.shape[-1])
+    return unpack_planes(pred, "RGGB", shape), unpack_planes(frac, "RGGB", shape)
 
 
 def evaluate_images(model, images: list[PreparedImage], device: str = "cpu", progress: bool | None = None
@@ -278,6 +295,10 @@ def evaluate_store(store_path, model_dir, device: str | None = None, progress: b
     is_training, identified_by = training_store(store, store_path, record)
     indices, split_name = select_images(store, store_path, model_dir, ckpt, config, split, is_training)
     train_gsd = ckpt.get("train_packed_gsd_m")
+    from metraw.segment.train import replicate_dirs
+
+    replicas = [(d, *open_model(d, device)[:2]) for d in replicate_dirs(model_dir)]
+    rep_records: list[list[dict[str, Any]]] = [[] for _ in replicas]
     records, notes, packed_shape = [], [], None
     with flush_denormals():
         for i in progress_bar(indices, desc="evaluate", disable=None if progress is None else not progress):
@@ -294,6 +315,8 @@ def evaluate_store(store_path, model_dir, device: str | None = None, progress: b
             rec.update({"labels": label_kind(image.meta), "packed_gsd_m": gsd, "gsd_scale": scale,
                         "gsd_matched": matched})
             records.append(rec)
+            for (_, rmodel, _), rrecs in zip(replicas, rep_records):
+                rrecs.append(score_image(rmodel, img, device, scale))
             if note and note not in notes:
                 notes.append(note)
     out = {**summarise(records), "per_image": records}
@@ -303,4 +326,27 @@ def evaluate_store(store_path, model_dir, device: str | None = None, progress: b
                 "store": str(store_path), "model": str(model_dir), "epochs": record.get("epochs"),
                 "upsample": ckpt["upsample"], "pool": ckpt.get("pool", 1), "device": device, "config": ckpt["config"],
                 "packed_shape": packed_shape})
+    if replicas:
+        out.update(replicate_summary(out, [(TrainConfig.from_dict(c["config"]).seed, recs)
+                                           for (_, _, c), recs in zip(replicas, rep_records)], config.seed))
     return out
+
+
+def replicate_summary(primary: dict[str, Any], replicas: list[tuple[int, list[dict[str, Any]]]],
+                      primary_seed: int) -> dict[str, Any]:
+    """Scores of every replicate model (same images) and the IoU's mean and spread over the training seeds.
+
+    ``iou_replicate_mean``: mean of the pooled IoUs of the model and its replicates; ``iou_replicate_sd``: their
+    standard deviation (training-to-training); ``iou_replicate_se`` = sd / sqrt(n) (the mean's seed error; the
+    test-image sampling error comes on top, the test images being the same for all).
+    """
+    keys = ("iou", "precision", "recall", "object_f1")
+    reps = [{"seed": primary_seed, **{k: primary.get(k) for k in keys}}]
+    for seed, recs in replicas:
+        summ = summarise(recs)
+        reps.append({"seed": seed, **{k: summ.get(k) for k in keys}})
+    ious = np.array([r["iou"] for r in reps if r["iou"] is not None], dtype=np.float64)
+    sd = float(ious.std(ddof=1)) if ious.size > 1 else None
+    return {"replicates": reps, "n_replicates": len(reps),
+            "iou_replicate_mean": float(ious.mean()) if ious.size else None, "iou_replicate_sd": sd,
+            "iou_replicate_se": sd / math.sqrt(ious.size) if sd is not None else None}
