@@ -186,7 +186,7 @@ def test_cli_train_evaluate_and_errors(tiny_store, tmp_path, capsys):
     # timings are logged (stderr), not written into the results
     assert not [k for k in metrics if k.endswith("time_s")]
     err = capsys.readouterr().err
-    assert re.search(r"metraw train: \d+ images, 1 epoch\(s\) in [\d.]+ s", err), err
+    assert re.search(r"metraw train: \d+ images, 1 epoch\(s\), 1 replicate\(s\) in [\d.]+ s", err), err
     assert re.search(r"metraw evaluate: 3 test images in [\d.]+ s", err), err
     assert main(["train", str(tiny_store), "--out", str(tmp_path / "m2"), "--params", str(params),
                  "--profile", "nope"]) == 2

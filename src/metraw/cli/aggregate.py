@@ -77,7 +77,10 @@ def _read_json(path: Path, what: str) -> dict[str, Any]:
 
 
 def iou_measurement(metrics: dict[str, Any], where: str) -> tuple[float, float]:
-    """Test-split IoU and the sampling variance of that estimate.
+    """Test-split IoU and the variance of that estimate.
+
+    With replicate models (``metraw train`` with ``replicates`` > 1) the IoU is their mean and the variance
+    adds the seeds' squared standard error (``iou_replicate_se``) to the test-image term below.
 
     The pooled IoU R = sum(TP_i) / sum(U_i) (U_i = TP_i + FP_i + FN_i per test image) is a ratio
     estimator; its variance over the draw of test images is, to first order (delta method),
@@ -93,7 +96,12 @@ def iou_measurement(metrics: dict[str, Any], where: str) -> tuple[float, float]:
     u = tp + np.array([r["fp"] + r["fn"] for r in recs], dtype=np.float64)
     if u.mean() <= 0:
         return iou, 0.0
-    return iou, float(np.var(tp - iou * u, ddof=1) / (len(recs) * u.mean() ** 2))
+    var = float(np.var(tp - iou * u, ddof=1) / (len(recs) * u.mean() ** 2))
+    if metrics.get("iou_replicate_mean") is not None and metrics.get("iou_replicate_se") is not None:
+        # replicate models (training seeds) scored on the same test images: their mean IoU, with the seed
+        # error of that mean added to the test-image sampling error
+        return float(metrics["iou_replicate_mean"]), var + float(metrics["iou_replicate_se"]) ** 2
+    return iou, var
 
 
 def load_point_results(params: dict[str, Any], results: str, metrics_pattern: str, compression_pattern: str,
@@ -122,7 +130,9 @@ def load_point_results(params: dict[str, Any], results: str, metrics_pattern: st
         tp = target_params(params, point)
         row = {"point": point, **{n: float(tp[n]) for n in names}, "iou": iou, "iou_sd": math.sqrt(iou_var),
                "precision": metrics.get("precision"), "recall": metrics.get("recall"),
-               "n_test_images": metrics.get("n_images"), "epochs": metrics.get("epochs")}
+               "n_test_images": metrics.get("n_images"), "epochs": metrics.get("epochs"),
+               "n_replicates": metrics.get("n_replicates", 1), "iou_replicate_sd": metrics.get("iou_replicate_sd"),
+               "object_f1": metrics.get("object_f1")}
         if cpath is not None:
             comp = _read_json(cpath, "compression file")
             ratios = np.array([im["ratio"] for im in comp["images"]], dtype=np.float64)

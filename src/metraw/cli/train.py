@@ -17,12 +17,22 @@ def register(subparsers) -> None:
     p.add_argument("--profile", default=None, help="training profile name (default: training.profile in params)")
     p.add_argument("--device", default=None, help="torch device (default: cuda when present, else cpu)")
     p.add_argument("--epochs", type=int, default=None, help="override the profile's number of epochs")
+    p.add_argument("--source", default=None,
+                   help="train on the fly: fresh target draws (sampling phase, flip, photon noise) of this source "
+                        "store's training scenes every epoch, at the target STORE was emulated for; STORE's test "
+                        "split stays the test set (default: train on STORE's fixed images)")
+    p.add_argument("--codec-step", type=float, default=None,
+                   help="with --source: pass every draw through the noise-preserving codec at this step, as STORE "
+                        "was written (default: no codec)")
+    p.add_argument("--replicates", type=int, default=None,
+                   help="override the profile's number of replicate models (seeds seed, seed+1, ...)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output directory")
     p.add_argument("--progress", action="store_true", help="show progress bars even when not on a terminal")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    from metraw.errors import MetrawError
     from metraw.points import load_params
     from metraw.segment.train import load_config, train_store
 
@@ -30,10 +40,25 @@ def run(args) -> int:
     config = load_config(args.params, args.profile)
     if args.epochs is not None:
         config.epochs = args.epochs
-    record = train_store(args.store, args.out, config, device=args.device, progress=True if args.progress else None,
-                         overwrite=args.overwrite)
+    if args.replicates is not None:
+        if args.replicates < 1:
+            raise MetrawError(f"--replicates must be >= 1, got {args.replicates}")
+        config.replicates = args.replicates
+    progress = True if args.progress else None
+    if args.source is not None:
+        from metraw.segment.onthefly import train_store_on_the_fly
+
+        record = train_store_on_the_fly(args.store, args.source, args.out, config, device=args.device,
+                                        progress=progress, overwrite=args.overwrite, codec_step=args.codec_step)
+    else:
+        if args.codec_step is not None:
+            raise MetrawError("--codec-step applies to on-the-fly draws only (give --source)")
+        record = train_store(args.store, args.out, config, device=args.device, progress=progress,
+                             overwrite=args.overwrite)
     # timings go to the log (stderr) and stdout, never into DIR (metraw.segment.train.TIMINGS)
-    print(f"metraw train: {record['n_train']} images, {record['epochs']} epoch(s) in {record['training_time_s']:.2f} s "
+    times = record.get("replicate_training_time_s", [record["training_time_s"]])
+    print(f"metraw train: {record['n_train']} {'scenes drawn on the fly' if record.get('on_the_fly') else 'images'}, "
+          f"{record['epochs']} epoch(s), {len(times)} replicate(s) in {sum(times):.2f} s "
           f"(preprocessing {record['preprocess_time_s']:.2f} s)", file=sys.stderr)
     print(json.dumps({k: record[k] for k in ("epochs", "training_time_s", "n_train", "upsample", "device")}))
     return 0

@@ -34,8 +34,10 @@ from metraw.sensor import rng_from_seed
 
 CHECKPOINT = "model.pt"
 TRAIN_METRICS = "train.json"
+#: Sub-directory of a model directory holding replicate ``r`` (seed + r), a model directory itself.
+REPLICATE_DIR = "replicate-{r}"
 #: Wall-clock fields of the training record: returned by ``fit``/``train_store``, left out of train.json.
-TIMINGS = ("training_time_s", "preprocess_time_s")
+TIMINGS = ("training_time_s", "preprocess_time_s", "draw_time_s", "fields_time_s", "replicate_training_time_s")
 
 
 @dataclass
@@ -53,6 +55,10 @@ class TrainConfig:
     ``tone_gamma_range``, ``channel_gain_range``: domain randomisation of tone curve and white balance of the
     training crops (``metraw.segment.data.tone_jitter``; 1.0 = off, the default: the emulated raws' noise
     model is exact and the network sees it unchanged). For models meant to run on processed real photos.
+    ``replicates``: models trained per point with seeds ``seed``, ``seed + 1``, ... (the first is the model,
+    the others its replicates: their spread is the training-to-training part of the IoU's uncertainty).
+    ``draws_per_epoch``: fresh target draws per scene per epoch when training on the fly from the source
+    (``metraw.segment.onthefly``; ignored when training on a store's fixed images).
     ``threads``: torch CPU threads, fixed here and not taken from the machine or the workflow's
     ``--cores``: the thread count changes the kernels' summation order, hence the weights' bytes.
     """
@@ -69,6 +75,8 @@ class TrainConfig:
     tone_gamma_range: float = 1.0
     channel_gain_range: float = 1.0
     weight_decay: float = 1e-4
+    replicates: int = 1
+    draws_per_epoch: int = 1
     seed: int = 0
     threads: int = 2
     split_seed: int = 0
@@ -284,30 +292,65 @@ def train_store(store_path: str | os.PathLike, out_dir: str | os.PathLike, confi
     t0 = time.perf_counter()
     images = prepare_store(store, train_idx, progress)
     prep_s = time.perf_counter() - t0
-    model, record = fit(images, config, device, progress)
-    record.update({"store": str(store_path), "store_digest": digest, "n_images": len(store),
-                   "train_indices": train_idx.tolist(), "test_indices": test_idx.tolist(),
-                   "preprocess_time_s": prep_s, "config": asdict(config)})
-    save_model(out_dir, model, config, record, test_idx, overwrite)
-    return record
+    runs = []
+    for cfg in replicate_configs(config):
+        model, record = fit(images, cfg, device, progress)
+        record.update({"store": str(store_path), "store_digest": digest, "n_images": len(store),
+                       "train_indices": train_idx.tolist(), "test_indices": test_idx.tolist(),
+                       "preprocess_time_s": prep_s, "config": asdict(cfg)})
+        runs.append((model, cfg, record))
+    save_replicates(out_dir, runs, test_idx, overwrite)
+    return runs[0][2]
 
 
-def save_model(out_dir, model, config: TrainConfig, record: dict[str, Any], test_indices, overwrite: bool = False
-               ) -> None:
+def replicate_configs(config: TrainConfig) -> list[TrainConfig]:
+    """One config per replicate: seeds ``seed`` .. ``seed + replicates - 1`` (at least one)."""
+    from dataclasses import replace
+
+    return [replace(config, seed=config.seed + r) for r in range(max(1, config.replicates))]
+
+
+def save_replicates(out_dir, runs: list, test_indices, overwrite: bool = False) -> None:
+    """Write the first (model, config, record) of ``runs`` as the model directory and the others into its
+    ``REPLICATE_DIR`` sub-directories, in one atomic step. The first record gets the replicates' seeds and
+    training times."""
+    first = runs[0][2]
+    first["replicate_seeds"] = [cfg.seed for _, cfg, _ in runs]
+    first["replicate_training_time_s"] = [rec["training_time_s"] for _, _, rec in runs]
+    extra = [(REPLICATE_DIR.format(r=r), run) for r, run in enumerate(runs) if r > 0]
+    save_model(out_dir, *runs[0], test_indices, overwrite, extra=extra)
+
+
+def replicate_dirs(model_dir) -> list[Path]:
+    """The replicate model directories inside ``model_dir`` (sorted by replicate number)."""
+    found = [p for p in Path(model_dir).glob(REPLICATE_DIR.format(r="*")) if (p / CHECKPOINT).is_file()]
+    return sorted(found, key=lambda p: int(p.name.rsplit("-", 1)[1]))
+
+
+def save_model(out_dir, model, config: TrainConfig, record: dict[str, Any], test_indices, overwrite: bool = False,
+               extra: list | None = None) -> None:
     """Write ``model.pt`` (weights, config, upsampling, test split, training packed GSD) and ``train.json``
-    (``record`` without its wall-clock ``TIMINGS``, so that the same training writes the same bytes) atomically."""
-    import torch
-
+    (``record`` without its wall-clock ``TIMINGS``, so that the same training writes the same bytes) atomically;
+    ``extra``: (sub-directory name, (model, config, record)) written the same way inside it (replicates)."""
     from metraw.atomic import atomic_path
 
     with atomic_path(out_dir, overwrite=overwrite) as tmp:
         tmp.mkdir(parents=True)
-        torch.save({"state_dict": {k: v.cpu() for k, v in model.state_dict().items()},
-                    "config": asdict(config), "upsample": record["upsample"], "pool": record.get("pool", 1),
-                    "in_channels": record["in_channels"], "test_indices": [int(i) for i in test_indices],
-                    "train_packed_gsd_m": record.get("train_packed_gsd_m")},
-                   tmp / CHECKPOINT)
-        (tmp / TRAIN_METRICS).write_text(json.dumps({k: v for k, v in record.items() if k not in TIMINGS}, indent=2))
+        _write_model(tmp, model, config, record, test_indices)
+        for name, (m, c, r) in extra or []:
+            (tmp / name).mkdir()
+            _write_model(tmp / name, m, c, r, test_indices)
+
+
+def _write_model(folder: Path, model, config: TrainConfig, record: dict[str, Any], test_indices) -> None:
+    import torch
+
+    torch.save({"state_dict": {k: v.cpu() for k, v in model.state_dict().items()},
+                "config": asdict(config), "upsample": record["upsample"], "pool": record.get("pool", 1),
+                "in_channels": record["in_channels"], "test_indices": [int(i) for i in test_indices],
+                "train_packed_gsd_m": record.get("train_packed_gsd_m")},
+               folder / CHECKPOINT)
+    (folder / TRAIN_METRICS).write_text(json.dumps({k: v for k, v in record.items() if k not in TIMINGS}, indent=2))
 
 
 def load_model(model_dir: str | os.PathLike, device: str | None = None):

@@ -1,0 +1,167 @@
+"""Training on fresh target draws: every epoch sees new target images of the source scenes (issue #15).
+
+A per-point store holds one emulated image per source scene; a network trained on those few
+hundred arrays of ~34 x 34 packed pixels overfits them. Here each training scene gets its
+``metraw.draws.PhaseField`` (the expected stage, computed once, ~40 ms per 1024 px scene) and every
+epoch draws, per scene, a new target raw: a random sampling phase of the target pixel grid on the
+ground (a whole CFA period in steps of GSD/K), a random flip of the scene, fresh photon and read
+noise. Each draw is exactly what the emulator would record (``tests/test_draws.py``); no
+augmentation is applied after the target CFA is laid (no rotation of the smear, no CFA shift).
+
+Determinism: draw k of scene i in epoch e uses ``SeedSequence(seed, spawn_key=(e, i))``; batches
+and crops come from one seeded generator, as in ``metraw.segment.train.fit``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any, Sequence
+
+import numpy as np
+
+from metraw.draws import DEFAULT_OVERSAMPLE, PhaseField, build_field
+from metraw.errors import MetrawError
+from metraw.segment.data import batch_crops, prepare
+from metraw.segment.train import (TrainConfig, build_model, default_device, pool_factor, set_determinism,
+                                  train_loop, training_packed_gsd_m, upsample_factor)
+from metraw.sensor import rng_from_seed
+from metraw.target import TargetSystem
+
+
+def build_fields(store, indices: Sequence[int], target, oversample: int = DEFAULT_OVERSAMPLE,
+                 progress: bool | None = None) -> list[PhaseField]:
+    """``PhaseField`` of source images ``indices`` of a RawStore seen by ``target``."""
+    from metraw.progress import progress_bar
+
+    disable = None if progress is None else not progress
+    return [build_field(store[int(i)], target, oversample, index=int(i))
+            for i in progress_bar(list(indices), desc="expected fields", disable=disable)]
+
+
+def draw_rng(seed: int, epoch: int, index: int) -> np.random.Generator:
+    """The generator of one draw: scene ``index`` in ``epoch`` (independent of batch order and workers)."""
+    return np.random.Generator(np.random.PCG64(np.random.SeedSequence(int(seed), spawn_key=(int(epoch), int(index)))))
+
+
+def draw_prepared(field: PhaseField | Sequence[PhaseField], seed: int, epoch: int, codec_step: float | None = None):
+    """One fresh draw of ``field`` prepared for the segmenter (VST, mask). A sequence of fields (the same
+    scene at several target points) draws one of them uniformly first (the robust model's box).
+    ``codec_step``: pass the draw through the noise-preserving codec at that step, as the per-point stores
+    are (their test images are what the model is scored on)."""
+    fields = [field] if isinstance(field, PhaseField) else list(field)
+    rng = draw_rng(seed, epoch, fields[0].index)
+    chosen = fields[int(rng.integers(0, len(fields)))] if len(fields) > 1 else fields[0]
+    image = chosen.draw(rng)
+    if codec_step:
+        from metraw.codec import decode, encode
+
+        image = _with_raw(image, decode(encode(image, codec_step, int(rng.integers(0, 2**31)), check_profile=False),
+                                        image.profile).data)
+    return prepare(image, chosen.index)
+
+
+def _with_raw(image, data):
+    from dataclasses import replace
+
+    return replace(image, data=data)
+
+
+def fit_draws(fields: list, config: TrainConfig, device: str | None = None,
+              progress: bool | None = None, init_state: dict[str, Any] | None = None,
+              draws_per_epoch: int = 1, static: bool = False, codec_step: float | None = None
+              ) -> tuple[Any, dict[str, Any]]:
+    """Train on fresh draws of ``fields`` (``draws_per_epoch`` per scene per epoch); returns (model, record).
+
+    ``fields``: one ``PhaseField`` per training scene, or per scene a list of fields (one per target
+    point of a box: each draw picks one). ``init_state``: a state dict to start from (fine-tuning a
+    pretrained network of the same architecture); None trains from scratch. Same network, loss and
+    schedule as ``train.fit``. ``static=True`` is the baseline of a per-point store: one fixed draw per
+    scene for the whole training, with the stores' dihedral augmentation after the CFA (``train.fit``).
+    """
+    if not fields:
+        raise MetrawError("no training scenes")
+    device = device or default_device()
+    set_determinism(config.seed, config.threads, device)
+    first = fields[0] if isinstance(fields[0], PhaseField) else fields[0][0]
+    probe = [prepare(first.draw(0), first.index)]
+    fixed = [draw_prepared(f, config.seed, 0, codec_step) for f in fields] if static else None
+    f_up = upsample_factor(probe, config.min_grid_px)
+    pool = pool_factor(probe, config.grid_gsd_m) if f_up == 1 else 1
+    in_ch = 1 if probe[0].pattern == "mono" else 4
+    model = build_model(in_ch, config, f_up, pool).to(device)
+    if init_state is not None:
+        model.load_state_dict(init_state)
+    n = len(fields) * draws_per_epoch
+    steps_per_epoch = math.ceil(n / config.batch_size)
+    rng = rng_from_seed(config.seed)
+    timing = {"draw_s": 0.0}
+
+    def epoch_batches(epoch):
+        order = rng.permutation(n)
+        for s in range(steps_per_epoch):
+            t0 = time.perf_counter()
+            ids = order[s * config.batch_size:(s + 1) * config.batch_size]
+            if static:
+                batch = [fixed[j % len(fields)] for j in ids]
+            else:
+                batch = [draw_prepared(fields[j % len(fields)], config.seed, epoch * draws_per_epoch + j // len(fields),
+                                       codec_step) for j in ids]
+            xy = batch_crops(batch, config.crop_px * pool, rng, augment=static)
+            timing["draw_s"] += time.perf_counter() - t0
+            yield xy
+
+    t0 = time.perf_counter()
+    losses = train_loop(model, epoch_batches, steps_per_epoch, config, device, progress)
+    total = time.perf_counter() - t0
+    record = {"epochs": config.epochs, "steps": steps_per_epoch * config.epochs, "loss_per_epoch": losses,
+              "training_time_s": total, "draw_time_s": timing["draw_s"], "device": device, "upsample": f_up,
+              "pool": pool, "in_channels": in_ch, "n_train": len(fields), "draws": n * config.epochs,
+              "draws_per_epoch": draws_per_epoch, "oversample": first.oversample, "static": static, "codec_step": codec_step,
+              "fine_tuned": init_state is not None, "train_packed_gsd_m": training_packed_gsd_m(probe),
+              "on_the_fly": True}
+    return model, record
+
+
+def store_target(store) -> TargetSystem:
+    """The target an emulated store was made for (its first image's ``emulate`` provenance)."""
+    for entry in reversed(store[0].provenance if len(store) else []):
+        if entry.get("function") == "emulate" and "target" in entry.get("params", {}):
+            return TargetSystem.from_dict(entry["params"]["target"])
+    raise MetrawError("the store holds no emulated images (no 'emulate' step in its provenance): on-the-fly "
+                      "training needs a per-point store emulated from --source")
+
+
+def train_store_on_the_fly(store_path, source_path, out_dir, config: TrainConfig, device: str | None = None,
+                           progress: bool | None = None, overwrite: bool = False,
+                           codec_step: float | None = None) -> dict[str, Any]:
+    """Train ``config.replicates`` models on fresh draws of ``source_path``'s training scenes at the target of the
+    emulated store ``store_path`` (image i emulated from source image i: same split); write them like
+    ``train.train_store``. The store's own test split stays the fixed test set."""
+    from dataclasses import asdict
+
+    from metraw.segment.data import split_indices
+    from metraw.segment.train import replicate_configs, save_replicates, store_digest
+    from metraw.store import RawStore
+
+    store = RawStore.open(store_path)
+    source = RawStore.open(source_path)
+    if len(store) != len(source):
+        raise MetrawError(f"{store_path} has {len(store)} images but the source {source_path} has {len(source)}: "
+                          "it was not emulated from that source")
+    target = store_target(store)
+    train_idx, test_idx = split_indices(len(store), config.test_fraction, config.split_seed)
+    t0 = time.perf_counter()
+    fields = build_fields(source, train_idx, target, progress=progress)
+    fields_s = time.perf_counter() - t0
+    digest = store_digest(store)
+    runs = []
+    for cfg in replicate_configs(config):
+        model, record = fit_draws(fields, cfg, device, progress, draws_per_epoch=cfg.draws_per_epoch,
+                                  codec_step=codec_step)
+        record.update({"store": str(store_path), "store_digest": digest, "source": str(source_path),
+                       "n_images": len(store), "train_indices": train_idx.tolist(), "test_indices": test_idx.tolist(),
+                       "fields_time_s": fields_s, "preprocess_time_s": fields_s, "config": asdict(cfg)})
+        runs.append((model, cfg, record))
+    save_replicates(out_dir, runs, test_idx, overwrite)
+    return runs[0][2]
