@@ -1,14 +1,19 @@
 # Train the same segmenter (same architecture, hyperparameters and split) on every point,
-# and on the source store itself as the drone-resolution reference.
+# and on the source store itself as the drone-resolution reference. A point's models learn from fresh
+# draws of the source scenes at that point (sampling phase, flip, photon noise; metraw.segment.onthefly),
+# `replicates` seeds each; its store's test split is the fixed test set. The drone-resolution reference
+# trains one model on the source store's images (it is no point of the sweep).
 
 
 rule train:
     input:
-        "results/points/{point}/target.zarr",
+        store="results/points/{point}/target.zarr",
+        source=SOURCE_STORE,
     output:
         directory("results/points/{point}/model"),
     params:
         training=config["training"],
+        codec=config["codec"],
     threads: lambda wildcards: workflow.cores  # callable: --report and dry runs need no --cores
     resources:
         mem_mb=1500,  # measured peak RSS with head room (README, SLURM: resources table)
@@ -16,7 +21,8 @@ rule train:
     log:
         "logs/train/{point}.log",
     shell:
-        "metraw train {input} --out {output} --params {PARAMS_FILE} 2> {log}"
+        "metraw train {input.store} --source {input.source} --codec-step {params.codec[step]} --out {output}"
+        " --params {PARAMS_FILE} 2> {log}"
 
 
 rule evaluate:
@@ -49,7 +55,7 @@ rule train_source:
     log:
         "logs/train/source.log",
     shell:
-        "metraw train {input} --out {output} --params {PARAMS_FILE} 2> {log}"
+        "metraw train {input} --out {output} --params {PARAMS_FILE} --replicates 1 2> {log}"
 
 
 rule evaluate_source:

@@ -62,7 +62,7 @@ REAL_STORE = "data/real.zarr"
 # (inputs with a "/" are repository paths, the others are in the point's folder)
 PER_POINT = {
     "emulate": {"in": [SOURCE_STORE], "out": "target.zarr", "rules": "workflow/rules/emulate.smk"},
-    "train": {"in": ["target.zarr"], "out": "model", "rules": "workflow/rules/segment.smk"},
+    "train": {"in": ["target.zarr", SOURCE_STORE], "out": "model", "rules": "workflow/rules/segment.smk"},
     "evaluate": {"in": ["target.zarr", "model"], "out": "metrics.json", "rules": "workflow/rules/segment.smk"},
     "compress": {"in": ["target.zarr"], "out": "compression.json", "rules": "workflow/rules/aggregate.smk"},
 }
@@ -88,7 +88,7 @@ def _params_for(rule: str, params: dict[str, Any]) -> list[str]:
         "emulate": emulate,
         "emulate_real": emulate,
         "evaluate_real": [],
-        "train": ["training"],
+        "train": ["training", "codec"],  # on-the-fly draws pass the codec as the store did
         "evaluate": [],  # the split and architecture travel inside the model folder (a dep)
         "compress": ["codec"],
     }[rule]

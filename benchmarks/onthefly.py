@@ -1,0 +1,198 @@
+"""Issue #15: learning curves and the scratch / fine-tune / robust table for satellite-resolution training.
+
+    python benchmarks/onthefly.py --source data/source.zarr [--params params.yaml] [--out DIR]
+        [--scenes 60,120,240,384] [--seeds 0,1,2] [--epochs 20] [--dpe 1,2,4] [--finetune-epochs 5]
+        [--sections curve,draws,box]
+
+Test set: the source's test split (params ``training.split_seed`` / ``test_fraction``), drawn at each
+point ``--test-draws`` times per scene with a fixed seed (random phases and flips): a fixed set of
+never-trained scenes. Scores are pooled area IoU, precision, recall and object F1
+(``metraw.segment.objects``), per seed; tables give mean +- standard error over seeds.
+
+Sections:
+- ``curve``: nominal IoU against the number of distinct training scenes, static (one fixed emulated
+  image per scene, the per-point store's protocol) against on-the-fly draws (1 draw per scene per epoch),
+  at the same number of optimiser steps for every n (epochs x n fixed at the profile's epochs x all scenes);
+- ``draws``: nominal IoU against on-the-fly draws per scene per epoch (all training scenes);
+- ``box``: at every point of params.yaml: a model trained from scratch on that point's draws, the robust
+  model (draws across all points, each draw at a random point) and that robust model fine-tuned on the point.
+Writes ``onthefly.csv`` (one row per run) and ``onthefly.png`` (the curves) into ``--out``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def test_set(fields, n_draws: int):
+    from metraw.segment.data import prepare
+    from metraw.segment.onthefly import draw_rng
+
+    return [prepare(f.draw(draw_rng(10**6, k, f.index)), f.index) for f in fields for k in range(n_draws)]
+
+
+def score(model, test) -> dict:
+    from metraw.segment.evaluate import evaluate_images
+
+    ev = evaluate_images(model, test, "cpu", False)
+    return {k: ev.get(k) for k in ("iou", "precision", "recall", "object_f1", "object_recall", "object_precision")}
+
+
+def mean_se(values):
+    v = np.array([x for x in values if x is not None], float)
+    if v.size == 0:
+        return float("nan"), float("nan")
+    return float(v.mean()), float(v.std(ddof=1) / np.sqrt(v.size)) if v.size > 1 else float("nan")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--source", required=True)
+    ap.add_argument("--params", default="params.yaml")
+    ap.add_argument("--out", default="benchmarks/results/onthefly")
+    ap.add_argument("--scenes", default="60,120,240,384")
+    ap.add_argument("--seeds", default="0,1,2")
+    ap.add_argument("--epochs", type=int, default=None, help="default: the training profile's")
+    ap.add_argument("--dpe", default="1,2,4")
+    ap.add_argument("--finetune-epochs", type=int, default=5)
+    ap.add_argument("--test-draws", type=int, default=2)
+    ap.add_argument("--sections", default="curve,draws,box")
+    args = ap.parse_args(argv)
+
+    from metraw.points import load_params, parameter_points, target_params
+    from metraw.segment.data import split_indices
+    from metraw.segment.onthefly import build_fields, fit_draws
+    from metraw.segment.train import load_config
+    from metraw.store import RawStore
+    from metraw.target import TargetSystem
+
+    params = load_params(args.params)
+    base = load_config(args.params)
+    if args.epochs:
+        base.epochs = args.epochs
+    seeds = [int(s) for s in args.seeds.split(",")]
+    store = RawStore.open(args.source)
+    train_idx, test_idx = split_indices(len(store), base.test_fraction, base.split_seed)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    sections = set(args.sections.split(","))
+    points = list(parameter_points(params))
+
+    def target(point):
+        return TargetSystem.from_dict(target_params(params, point))
+
+    def run(section, point, mode, n_scenes, dpe, seed, fields, test, epochs, init=None):
+        cfg = dataclasses.replace(base, seed=seed, epochs=epochs)
+        t0 = time.perf_counter()
+        model, rec = fit_draws(fields, cfg, "cpu", False, init_state=init, draws_per_epoch=dpe,
+                               static=mode == "static")
+        row = {"section": section, "point": point, "mode": mode, "n_scenes": n_scenes, "draws_per_epoch": dpe,
+               "seed": seed, "epochs": epochs, "train_s": round(time.perf_counter() - t0, 1), **score(model, test)}
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+        return model
+
+    fields_at = {}
+
+    def fields_for(point):
+        if point not in fields_at:
+            t0 = time.perf_counter()
+            tr = build_fields(store, train_idx, target(point))
+            te = build_fields(store, test_idx, target(point))
+            fields_at[point] = (tr, test_set(te, args.test_draws))
+            print(f"# fields at {point}: {len(tr)} train scenes, {len(fields_at[point][1])} test images, "
+                  f"{time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
+        return fields_at[point]
+
+    nominal_fields, nominal_test = fields_for("nominal")
+    if "curve" in sections:
+        for n in [int(s) for s in args.scenes.split(",")]:
+            for seed in seeds:
+                for mode in ("static", "on-the-fly"):  # same number of steps for every n (epochs scaled)
+                    epochs = max(1, round(base.epochs * len(nominal_fields) / n))
+                    run("curve", "nominal", mode, n, 1, seed, nominal_fields[:n], nominal_test, epochs)
+    if "draws" in sections:
+        for dpe in [int(s) for s in args.dpe.split(",")]:
+            for seed in seeds:
+                run("draws", "nominal", "on-the-fly", len(nominal_fields), dpe, seed, nominal_fields, nominal_test,
+                    base.epochs)
+    if "box" in sections:
+        for p in points:
+            fields_for(p)
+        box = [[fields_at[p][0][i] for p in points] for i in range(len(train_idx))]
+        seed = seeds[0]
+        robust = run("box", "all", "robust", len(box), 1, seed, box, nominal_test, base.epochs)
+        state = {k: v.clone() for k, v in robust.state_dict().items()}
+        for p in points:
+            tr, te = fields_at[p]
+            rows.append({**rows[-1], "point": p, "mode": "robust", **score(robust, te)})
+            print(json.dumps(rows[-1]), flush=True)
+            run("box", p, "scratch", len(tr), 1, seed, tr, te, base.epochs)
+            run("box", p, "fine-tune", len(tr), 1, seed, tr, te, args.finetune_epochs, init=state)
+
+    with open(out / "onthefly.csv", "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    print_tables(rows)
+    plot(rows, out / "onthefly.png")
+    return 0
+
+
+def print_tables(rows) -> None:
+    def table(sel, key, label):
+        groups = {}
+        for r in rows:
+            if sel(r):
+                groups.setdefault(key(r), []).append(r)
+        print(f"\n{label}\n| group | n seeds | IoU | precision | recall | object F1 | train s |\n|---|---|---|---|---|---|---|")
+        for k, rs in groups.items():
+            cells = []
+            for m in ("iou", "precision", "recall", "object_f1"):
+                mu, se = mean_se([r[m] for r in rs])
+                cells.append(f"{mu:.3f} +- {se:.3f}" if np.isfinite(se) else f"{mu:.3f}")
+            print(f"| {k} | {len(rs)} | " + " | ".join(cells) + f" | {np.median([r['train_s'] for r in rs]):.0f} |")
+
+    table(lambda r: r["section"] == "curve", lambda r: f"{r['mode']} {r['n_scenes']} scenes", "learning curve (nominal)")
+    table(lambda r: r["section"] == "draws", lambda r: f"{r['draws_per_epoch']} draws/scene/epoch", "draws (nominal)")
+    table(lambda r: r["section"] == "box" and r["point"] != "all", lambda r: f"{r['point']} {r['mode']}",
+          "scratch / fine-tune / robust per point")
+
+
+def plot(rows, path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    curve = [r for r in rows if r["section"] == "curve"]
+    if not curve:
+        return
+    fig, ax = plt.subplots(figsize=(5, 3.5))
+    for mode in ("static", "on-the-fly"):
+        ns = sorted({r["n_scenes"] for r in curve if r["mode"] == mode})
+        stats = [mean_se([r["iou"] for r in curve if r["mode"] == mode and r["n_scenes"] == n]) for n in ns]
+        ax.errorbar(ns, [s[0] for s in stats], yerr=[2 * np.nan_to_num(s[1]) for s in stats], marker="o",
+                    capsize=3, label=mode)
+        for r in curve:
+            if r["mode"] == mode:
+                ax.plot(r["n_scenes"], r["iou"], ".", color="grey", alpha=0.5)
+    ax.set_xscale("log")
+    ax.set_xlabel("distinct training scenes")
+    ax.set_ylabel("nominal IoU (test scenes)")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
