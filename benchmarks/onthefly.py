@@ -10,6 +10,7 @@ never-trained scenes. Scores are pooled area IoU, precision, recall and object F
 (``metraw.segment.objects``), per seed; tables give mean +- standard error over seeds.
 
 Sections:
+- ``speed``: median cost of a scene's expected stage and of one draw (raw; with codec and VST);
 - ``curve``: nominal IoU against the number of distinct training scenes, static (one fixed emulated
   image per scene, the per-point store's protocol) against on-the-fly draws (1 draw per scene per epoch),
   at the same number of optimiser steps for every n (epochs x n fixed at the profile's epochs x all scenes);
@@ -64,7 +65,7 @@ def main(argv=None) -> int:
     ap.add_argument("--dpe", default="1,2,4")
     ap.add_argument("--finetune-epochs", type=int, default=5)
     ap.add_argument("--test-draws", type=int, default=2)
-    ap.add_argument("--sections", default="curve,draws,box")
+    ap.add_argument("--sections", default="speed,curve,draws,box")
     args = ap.parse_args(argv)
 
     from metraw.points import load_params, parameter_points, target_params
@@ -113,6 +114,10 @@ def main(argv=None) -> int:
                   f"{time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
         return fields_at[point]
 
+    if "speed" in sections:
+        speed(store, train_idx[:48], target("nominal"))
+    if not sections & {"curve", "draws", "box"}:
+        return 0
     nominal_fields, nominal_test = fields_for("nominal")
     if "curve" in sections:
         for n in [int(s) for s in args.scenes.split(",")]:
@@ -146,6 +151,32 @@ def main(argv=None) -> int:
     print_tables(rows)
     plot(rows, out / "onthefly.png")
     return 0
+
+
+def speed(store, indices, target) -> None:
+    """Median cost of the expected stage per scene and of one draw (raw; + codec + VST), one core."""
+    from metraw.codec import decode, encode
+    from metraw.draws import build_field
+    from metraw.segment.data import prepare
+
+    images = [store[int(i)] for i in indices]
+    build_field(images[0], target)  # the plan (optics tables) is made once per target
+    t_field, t_draw, t_full = [], [], []
+    for k, img in enumerate(images):
+        t0 = time.perf_counter()
+        f = build_field(img, target, index=k)
+        t_field.append(time.perf_counter() - t0)
+        for j in range(10):
+            t0 = time.perf_counter()
+            d = f.draw(1000 * k + j)
+            t1 = time.perf_counter()
+            prepare(d.__class__(**{**d.__dict__, "data": decode(encode(d, 1.0, j, check_profile=False), d.profile).data}))
+            t_full.append(time.perf_counter() - t0)
+            t_draw.append(t1 - t0)
+    print(f"# speed at nominal ({images[0].shape[0]} px scenes -> {f.frame_shape} px draws, one core): expected stage "
+          f"{1e3 * np.median(t_field):.1f} ms/scene; draw {1e3 * np.median(t_draw):.2f} ms "
+          f"({1 / np.median(t_draw):.0f} draws/s); draw + codec + VST {1e3 * np.median(t_full):.2f} ms "
+          f"({1 / np.median(t_full):.0f} draws/s)", flush=True)
 
 
 def print_tables(rows) -> None:

@@ -55,10 +55,11 @@ def line_table(model: ResponseGP, name: str, at: Mapping[str, float], n: int = 2
 def response_line(model: ResponseGP, name: str, at: Mapping[str, float], path: str | Path, *, ylabel: str,
                   points: Sequence[tuple[float, float, float]] = (), required: float | None = None,
                   tolerance: Tolerance | None = None, title: str = "",
-                  real_points: Sequence[tuple[float, float, float]] = (), real_label: str = "real images (2 sd)"
-                  ) -> None:
+                  real_points: Sequence[tuple[float, float, float]] = (), real_label: str = "real images (2 sd)",
+                  replicate_points: Sequence[tuple[float, float]] = ()) -> None:
     """GP mean with 2-sigma band along ``name``; ``points``: (x, y, sd) measured on that line;
-    ``real_points``: a second measured series (x, y, sd), drawn as a curve through its points."""
+    ``real_points``: a second measured series (x, y, sd), drawn as a curve through its points;
+    ``replicate_points``: (x, y) of every replicate model (training seeds), drawn as small dots."""
     plt = _plt()
     t = line_table(model, name, at)
     fig, ax = plt.subplots(figsize=(4.8, 3.4))
@@ -69,6 +70,9 @@ def response_line(model: ResponseGP, name: str, at: Mapping[str, float], path: s
         px, py, ps = (np.array(v, dtype=float) for v in zip(*points))
         ax.errorbar(px, py, yerr=2 * ps, fmt="o", color="k", ms=4, capsize=2,
                     label="synthetic test (2 sd)" if real_points else "measured (2 sd)")
+    if replicate_points:
+        qx, qy = (np.array(v, dtype=float) for v in zip(*replicate_points))
+        ax.plot(qx, qy, ".", color="0.45", ms=3, label="replicates (seeds)")
     if real_points:
         rx, ry, rs = (np.array(v, dtype=float) for v in zip(*sorted(real_points)))
         ax.errorbar(rx, ry, yerr=2 * rs, fmt="s-", color="tab:orange", ms=4, lw=1.2, capsize=2, label=real_label)

@@ -132,7 +132,8 @@ def load_point_results(params: dict[str, Any], results: str, metrics_pattern: st
                "precision": metrics.get("precision"), "recall": metrics.get("recall"),
                "n_test_images": metrics.get("n_images"), "epochs": metrics.get("epochs"),
                "n_replicates": metrics.get("n_replicates", 1), "iou_replicate_sd": metrics.get("iou_replicate_sd"),
-               "object_f1": metrics.get("object_f1")}
+               "object_f1": metrics.get("object_f1"),
+               "replicate_ious": [q["iou"] for q in metrics.get("replicates", []) if q.get("iou") is not None]}
         if cpath is not None:
             comp = _read_json(cpath, "compression file")
             ratios = np.array([im["ratio"] for im in comp["images"]], dtype=np.float64)
@@ -254,7 +255,8 @@ def run(args) -> int:
         summary["sim_to_real"] = real
     spec.save(out / "spec.yaml")
     _write_text(out / "aggregate.json", json.dumps(summary, indent=2, default=float) + "\n")
-    pcols = ["point", *names, "iou", "iou_sd", "iou_loo_pred", "iou_loo_sd", "iou_loo_inside", "precision", "recall"]
+    pcols = ["point", *names, "iou", "iou_sd", "iou_loo_pred", "iou_loo_sd", "iou_loo_inside", "precision", "recall",
+             "object_f1", "n_replicates", "iou_replicate_sd"]
     if real is not None:
         pcols += ["real_iou", "real_iou_sd", "real_precision", "real_recall", "sim_to_real_gap", "sim_to_real_gap_sd"]
     if has_ratio:
@@ -270,7 +272,8 @@ def run(args) -> int:
                               points=[(r[n], r["iou"], r["iou_sd"]) for r in on_line], required=required,
                               tolerance=tols[n], title=f"IoU vs {n} (others nominal)",
                               real_points=[(r[n], r["real_iou"], r["real_iou_sd"]) for r in on_line if "real_iou" in r],
-                              real_label=REAL_LABEL)
+                              real_label=REAL_LABEL,
+                              replicate_points=[(r[n], y) for r in on_line for y in r.get("replicate_ious", [])])
         if ratio_gp is not None:
             t = figures.line_table(ratio_gp, n, at)
             _write_text(plotdir / f"ratio_{n}.csv", _csv([dict(zip(t, v)) for v in zip(*t.values())], list(t)))
