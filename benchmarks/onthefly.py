@@ -66,7 +66,14 @@ def main(argv=None) -> int:
     ap.add_argument("--finetune-epochs", type=int, default=5)
     ap.add_argument("--test-draws", type=int, default=2)
     ap.add_argument("--sections", default="speed,curve,draws,box")
+    ap.add_argument("--tables-from", default=None, help="print the tables and draw the figure from a CSV this "
+                    "benchmark wrote (no training)")
     args = ap.parse_args(argv)
+    if args.tables_from:
+        rows = read_rows(args.tables_from)
+        print_tables(rows)
+        plot(rows, Path(args.out) / "onthefly.png")
+        return 0
 
     from metraw.points import load_params, parameter_points, target_params
     from metraw.segment.data import split_indices
@@ -136,10 +143,11 @@ def main(argv=None) -> int:
         box = [[fields_at[p][0][i] for p in points] for i in range(len(train_idx))]
         seed = seeds[0]
         robust = run("box", "all", "robust", len(box), 1, seed, box, nominal_test, base.epochs)
+        robust_row = rows[-1]
         state = {k: v.clone() for k, v in robust.state_dict().items()}
         for p in points:
             tr, te = fields_at[p]
-            rows.append({**rows[-1], "point": p, "mode": "robust", **score(robust, te)})
+            rows.append({**robust_row, "point": p, **score(robust, te)})
             print(json.dumps(rows[-1]), flush=True)
             run("box", p, "scratch", len(tr), 1, seed, tr, te, base.epochs)
             run("box", p, "fine-tune", len(tr), 1, seed, tr, te, args.finetune_epochs, init=state)
@@ -179,6 +187,23 @@ def speed(store, indices, target) -> None:
           f"({1 / np.median(t_full):.0f} draws/s)", flush=True)
 
 
+def read_rows(path) -> list[dict]:
+    """Rows of an ``onthefly.csv`` with numbers parsed (empty cells: None)."""
+    def value(v):
+        if v == "":
+            return None
+        try:
+            return int(v)
+        except ValueError:
+            try:
+                return float(v)
+            except ValueError:
+                return v
+
+    with open(path, newline="") as fh:
+        return [{k: value(v) for k, v in r.items()} for r in csv.DictReader(fh)]
+
+
 def print_tables(rows) -> None:
     def table(sel, key, label):
         groups = {}
@@ -206,9 +231,10 @@ def plot(rows, path) -> None:
     import matplotlib.pyplot as plt
 
     curve = [r for r in rows if r["section"] == "curve"]
+    draws = [r for r in rows if r["section"] == "draws"]
     if not curve:
         return
-    fig, ax = plt.subplots(figsize=(5, 3.5))
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(9, 3.5), sharey=True)
     for mode in ("static", "on-the-fly"):
         ns = sorted({r["n_scenes"] for r in curve if r["mode"] == mode})
         stats = [mean_se([r["iou"] for r in curve if r["mode"] == mode and r["n_scenes"] == n]) for n in ns]
@@ -218,9 +244,18 @@ def plot(rows, path) -> None:
             if r["mode"] == mode:
                 ax.plot(r["n_scenes"], r["iou"], ".", color="grey", alpha=0.5)
     ax.set_xscale("log")
-    ax.set_xlabel("distinct training scenes")
-    ax.set_ylabel("nominal IoU (test scenes)")
+    ax.set_xlabel("distinct training scenes (same number of steps)")
+    ax.set_ylabel("nominal IoU (test scenes, mean $\\pm$ 2 se)")
     ax.legend()
+    dpes = sorted({r["draws_per_epoch"] for r in draws})
+    if dpes:
+        stats = [mean_se([r["iou"] for r in draws if r["draws_per_epoch"] == d]) for d in dpes]
+        total = [d * draws[0]["n_scenes"] * draws[0]["epochs"] for d in dpes]
+        ax2.errorbar(total, [m for m, _ in stats], yerr=[2 * np.nan_to_num(e) for _, e in stats], marker="o",
+                     capsize=3, color="tab:orange", label="on-the-fly, all scenes")
+        ax2.set_xscale("log")
+        ax2.set_xlabel("training draws (scenes x draws/epoch x epochs)")
+        ax2.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=120)
 
