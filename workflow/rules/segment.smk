@@ -48,6 +48,7 @@ rule train_source:
         directory("results/source/model"),
     params:
         training=config["training"],
+        profile=config["training"].get("source_profile", config["training"]["profile"]),
     threads: lambda wildcards: workflow.cores  # callable: --report and dry runs need no --cores
     resources:
         mem_mb=6000,  # measured peak RSS with head room (README, SLURM: resources table)
@@ -55,7 +56,8 @@ rule train_source:
     log:
         "logs/train/source.log",
     shell:
-        "metraw train {input} --out {output} --params {PARAMS_FILE} --replicates 1 2> {log}"
+        "metraw train {input} --out {output} --params {PARAMS_FILE} --replicates 1"
+        " --profile {params.profile} 2> {log}"
 
 
 rule evaluate_source:
