@@ -163,9 +163,9 @@ def main(argv=None) -> int:
 
 def speed(store, indices, target) -> None:
     """Median cost of the expected stage per scene and of one draw (raw; + codec + VST), one core."""
-    from metraw.codec import decode, encode
     from metraw.draws import build_field
     from metraw.segment.data import prepare
+    from metraw.segment.onthefly import through_codec
 
     images = [store[int(i)] for i in indices]
     build_field(images[0], target)  # the plan (optics tables) is made once per target
@@ -178,7 +178,7 @@ def speed(store, indices, target) -> None:
             t0 = time.perf_counter()
             d = f.draw(1000 * k + j)
             t1 = time.perf_counter()
-            prepare(d.__class__(**{**d.__dict__, "data": decode(encode(d, 1.0, j, check_profile=False), d.profile).data}))
+            prepare(through_codec(d, 1.0, j))
             t_full.append(time.perf_counter() - t0)
             t_draw.append(t1 - t0)
     print(f"# speed at nominal ({images[0].shape[0]} px scenes -> {f.frame_shape} px draws, one core): expected stage "

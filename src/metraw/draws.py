@@ -37,7 +37,8 @@ import scipy.sparse as sp
 
 from metraw.accuracy import DEFAULT_ACCURACY, Accuracy
 from metraw.cfa import color_index
-from metraw.emulate import _cell_planes, _Fourier, _saturated_cells, _window_matrix, plan_emulation
+from metraw.emulate import (_cell_mask, _cell_planes, _detect, _Fourier, _saturated_cells, _window_matrix,
+                            plan_emulation)
 from metraw.errors import MetrawError
 from metraw.image import FLAG_SATURATED, RawImage
 from metraw.sensor import readout, rng_from_seed
@@ -63,7 +64,6 @@ class PhaseField:
     target: TargetSystem
     oversample: int
     frame_shape: tuple[int, int]
-    channels: tuple[str, ...]
     field: dict[str, np.ndarray]
     sat: dict[str, np.ndarray] | None
     sub_total: np.ndarray | None
@@ -98,14 +98,11 @@ class PhaseField:
     def _detected(self, fields: dict[str, np.ndarray], a: int, b: int, flip: int) -> np.ndarray:
         k = self.oversample
         h, w = self.frame_shape
-        ci = color_index(self.target.cfa_pattern, (h, w))
         out = np.zeros((h, w))
-        for c, f in fields.items():
+        for c, f in fields.items():  # each target pixel detects its own colour's arrivals (as emulate._expected)
             arrive = self._pick(f, a, b, flip, (h, w))[::k, ::k]
-            if self.target.cfa_pattern == "mono":
-                out += arrive
-            else:
-                out += np.where(ci == self.channels.index(c), arrive, 0.0)
+            det = _detect(self.target, c, (h, w))
+            out += arrive if det is None else np.where(det, arrive, 0.0)
         return np.maximum(out, 0.0)
 
     def mask(self, a: int, b: int, flip: int = 0) -> np.ndarray | None:
@@ -188,15 +185,10 @@ def build_field(source: RawImage, target: TargetSystem, oversample: int = DEFAUL
     u = (np.arange(nx) - (nx - 1) / 2) * gt / k
     Ty = _window_matrix((v + cy) / hy + oy0, Ny, True, *g).T.tocsr()
     Tx = _window_matrix((u + cx) / hx + ox0, Nx, True, *g)
-    import scipy.fft as sfft
 
     def lattice(cells: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        out = {}
-        for c, e in cells.items():
-            G = sfft.rfft2(four.grid(plan.p[c] * e)) * plan.transfer[c]
-            gg = sfft.irfft2(G, plan.grid_shape)
-            out[c] = np.asarray((Ty @ gg) @ Tx).astype(np.float32)
-        return out
+        return {c: np.asarray((Ty @ four.filtered(four.grid(plan.p[c] * e), c)) @ Tx).astype(np.float32)
+                for c, e in cells.items()}
 
     cells = _cell_planes(source, plan)
     field = lattice(cells)
@@ -206,20 +198,15 @@ def build_field(source: RawImage, target: TargetSystem, oversample: int = DEFAUL
     if source.mask is not None:
         sub_total, sub_cy, sub_cx = _sub_cell_masks(source, plan, ny, nx, k)
     meta = {"approximate": bool(source.profile.approximate), "meta": dict(source.meta)}
-    return PhaseField(target=target, oversample=k, frame_shape=(h, w), channels=tuple(plan.channels), field=field,
+    return PhaseField(target=target, oversample=k, frame_shape=(h, w), field=field,
                       sat=sat, sub_total=sub_total, sub_count_y=sub_cy, sub_count_x=sub_cx, source_meta=meta,
                       index=index)
 
 
 def _sub_cell_masks(source: RawImage, plan, ny: int, nx: int, k: int):
     """Summed car fraction per GSD/K sub-cell (source cells by centre) and cells per sub-cell row/column."""
-    step = 1 if source.profile.is_mono else 2
     hc, wc = plan.cells_shape
-    m = source.mask[: hc * step, : wc * step]
-    if step == 2:  # mean over the cell's four pixels, as emulate._mask_fraction
-        m = (m[0::2, 0::2] + m[0::2, 1::2] + m[1::2, 0::2] + m[1::2, 1::2]).astype(np.float64) / 4.0
-    else:
-        m = m.astype(np.float64)
+    m = _cell_mask(source, plan)
     gt, cell = plan.target_gsd_m, plan.cell_m
     sy, sx = ny + k - 1, nx + k - 1
 

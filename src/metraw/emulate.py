@@ -449,16 +449,19 @@ class _Fourier:
     def grid(self, cells: np.ndarray) -> np.ndarray:
         g = self.Sy @ (cells @ self.SxT)
         g = np.asarray(g)
-        plan = self.plan
         if self.periodic:  # even extension about ground 0 (and so about the far edge): g(k) += g(-k mod N)
             g = g + np.roll(g[::-1], 1, axis=0)
             g = g + np.roll(g[:, ::-1], 1, axis=1)
         return g
 
+    def filtered(self, grid: np.ndarray, channel: str) -> np.ndarray:
+        """The gridded cells times ``channel``'s transfer functions, back on the ground grid."""
+        G = sfft.rfft2(grid, workers=_WORKERS) * self.plan.transfer[channel]
+        return sfft.irfft2(G, self.plan.grid_shape, workers=_WORKERS)
+
     def evaluate(self, grid: np.ndarray, channel: str) -> np.ndarray:
         plan = self.plan
-        G = sfft.rfft2(grid, workers=_WORKERS) * plan.transfer[channel]
-        g = sfft.irfft2(G, plan.grid_shape, workers=_WORKERS)
+        g = self.filtered(grid, channel)
         if self.separable:
             return np.asarray((self.Ty @ g) @ self.Tx)
         plan_m, plan_s = plan.gridding
@@ -626,15 +629,20 @@ def _photons(cells: dict[str, np.ndarray], plan: EmulationPlan, target, rng) -> 
     return out.reshape(ht, wt)
 
 
-def _mask_fraction(source: RawImage, plan: EmulationPlan) -> np.ndarray:
-    """Car-area fraction per target pixel: source cells assigned to the pixel holding their centre."""
+def _cell_mask(source: RawImage, plan: EmulationPlan) -> np.ndarray:
+    """Car-area fraction of every source CFA cell (float64): the mean of its pixels' fractions."""
     step = 1 if source.profile.is_mono else 2
     hc, wc = plan.cells_shape
     m = source.mask[: hc * step, : wc * step]
     if step == 2:  # mean over the cell's four pixels (float32 sums of four fractions, then float64)
-        m = (m[0::2, 0::2] + m[0::2, 1::2] + m[1::2, 0::2] + m[1::2, 1::2]).astype(np.float64) / 4.0
-    else:
-        m = m.astype(np.float64)
+        return (m[0::2, 0::2] + m[0::2, 1::2] + m[1::2, 0::2] + m[1::2, 1::2]).astype(np.float64) / 4.0
+    return m.astype(np.float64)
+
+
+def _mask_fraction(source: RawImage, plan: EmulationPlan) -> np.ndarray:
+    """Car-area fraction per target pixel: source cells assigned to the pixel holding their centre."""
+    hc, wc = plan.cells_shape
+    m = _cell_mask(source, plan)
     ht, wt = plan.frame_shape
     gt = plan.target_gsd_m
     c_r, s_r = math.cos(plan.rotation_rad), math.sin(plan.rotation_rad)

@@ -284,7 +284,7 @@ def evaluate_store(store_path, model_dir, device: str | None = None, progress: b
     """
     from metraw.progress import progress_bar
     from metraw.segment.data import prepare
-    from metraw.segment.train import TrainConfig, default_device, flush_denormals, set_determinism
+    from metraw.segment.train import TrainConfig, default_device, flush_denormals, replicate_dirs, set_determinism
     from metraw.store import RawStore
 
     device = device or default_device()
@@ -295,9 +295,7 @@ def evaluate_store(store_path, model_dir, device: str | None = None, progress: b
     is_training, identified_by = training_store(store, store_path, record)
     indices, split_name = select_images(store, store_path, model_dir, ckpt, config, split, is_training)
     train_gsd = ckpt.get("train_packed_gsd_m")
-    from metraw.segment.train import replicate_dirs
-
-    replicas = [(d, *open_model(d, device)[:2]) for d in replicate_dirs(model_dir)]
+    replicas = [open_model(d, device)[:2] for d in replicate_dirs(model_dir)]  # (model, checkpoint)
     rep_records: list[list[dict[str, Any]]] = [[] for _ in replicas]
     records, notes, packed_shape = [], [], None
     with flush_denormals():
@@ -315,7 +313,7 @@ def evaluate_store(store_path, model_dir, device: str | None = None, progress: b
             rec.update({"labels": label_kind(image.meta), "packed_gsd_m": gsd, "gsd_scale": scale,
                         "gsd_matched": matched})
             records.append(rec)
-            for (_, rmodel, _), rrecs in zip(replicas, rep_records):
+            for (rmodel, _), rrecs in zip(replicas, rep_records):
                 rrecs.append(score_image(rmodel, img, device, scale))
             if note and note not in notes:
                 notes.append(note)
@@ -328,7 +326,7 @@ def evaluate_store(store_path, model_dir, device: str | None = None, progress: b
                 "packed_shape": packed_shape})
     if replicas:
         out.update(replicate_summary(out, [(TrainConfig.from_dict(c["config"]).seed, recs)
-                                           for (_, _, c), recs in zip(replicas, rep_records)], config.seed))
+                                           for (_, c), recs in zip(replicas, rep_records)], config.seed))
     return out
 
 

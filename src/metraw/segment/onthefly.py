@@ -23,8 +23,7 @@ import numpy as np
 from metraw.draws import DEFAULT_OVERSAMPLE, PhaseField, build_field
 from metraw.errors import MetrawError
 from metraw.segment.data import batch_crops, prepare
-from metraw.segment.train import (TrainConfig, build_model, default_device, pool_factor, set_determinism,
-                                  train_loop, training_packed_gsd_m, upsample_factor)
+from metraw.segment.train import TrainConfig, default_device, new_network, train_loop, training_packed_gsd_m
 from metraw.sensor import rng_from_seed
 from metraw.target import TargetSystem
 
@@ -54,17 +53,17 @@ def draw_prepared(field: PhaseField | Sequence[PhaseField], seed: int, epoch: in
     chosen = fields[int(rng.integers(0, len(fields)))] if len(fields) > 1 else fields[0]
     image = chosen.draw(rng)
     if codec_step:
-        from metraw.codec import decode, encode
-
-        image = _with_raw(image, decode(encode(image, codec_step, int(rng.integers(0, 2**31)), check_profile=False),
-                                        image.profile).data)
+        image = through_codec(image, codec_step, int(rng.integers(0, 2**31)))
     return prepare(image, chosen.index)
 
 
-def _with_raw(image, data):
+def through_codec(image, step: float, seed: int):
+    """``image`` with its raw replaced by its round trip through the noise-preserving codec (step, dither seed)."""
     from dataclasses import replace
 
-    return replace(image, data=data)
+    from metraw.codec import decode, encode
+
+    return replace(image, data=decode(encode(image, step, seed, check_profile=False), image.profile).data)
 
 
 def fit_draws(fields: list, config: TrainConfig, device: str | None = None,
@@ -82,14 +81,10 @@ def fit_draws(fields: list, config: TrainConfig, device: str | None = None,
     if not fields:
         raise MetrawError("no training scenes")
     device = device or default_device()
-    set_determinism(config.seed, config.threads, device)
     first = fields[0] if isinstance(fields[0], PhaseField) else fields[0][0]
     probe = [prepare(first.draw(0), first.index)]
     fixed = [draw_prepared(f, config.seed, 0, codec_step) for f in fields] if static else None
-    f_up = upsample_factor(probe, config.min_grid_px)
-    pool = pool_factor(probe, config.grid_gsd_m) if f_up == 1 else 1
-    in_ch = 1 if probe[0].pattern == "mono" else 4
-    model = build_model(in_ch, config, f_up, pool).to(device)
+    model, f_up, pool, in_ch = new_network(probe, config, device)
     if init_state is not None:
         model.load_state_dict(init_state)
     n = len(fields) * draws_per_epoch
@@ -138,10 +133,8 @@ def train_store_on_the_fly(store_path, source_path, out_dir, config: TrainConfig
     """Train ``config.replicates`` models on fresh draws of ``source_path``'s training scenes at the target of the
     emulated store ``store_path`` (image i emulated from source image i: same split); write them like
     ``train.train_store``. The store's own test split stays the fixed test set."""
-    from dataclasses import asdict
-
     from metraw.segment.data import split_indices
-    from metraw.segment.train import replicate_configs, save_replicates, store_digest
+    from metraw.segment.train import fit_replicates, save_replicates, store_digest
     from metraw.store import RawStore
 
     store = RawStore.open(store_path)
@@ -155,13 +148,10 @@ def train_store_on_the_fly(store_path, source_path, out_dir, config: TrainConfig
     fields = build_fields(source, train_idx, target, progress=progress)
     fields_s = time.perf_counter() - t0
     digest = store_digest(store)
-    runs = []
-    for cfg in replicate_configs(config):
-        model, record = fit_draws(fields, cfg, device, progress, draws_per_epoch=cfg.draws_per_epoch,
-                                  codec_step=codec_step)
-        record.update({"store": str(store_path), "store_digest": digest, "source": str(source_path),
-                       "n_images": len(store), "train_indices": train_idx.tolist(), "test_indices": test_idx.tolist(),
-                       "fields_time_s": fields_s, "preprocess_time_s": fields_s, "config": asdict(cfg)})
-        runs.append((model, cfg, record))
+    runs = fit_replicates(config, lambda cfg: fit_draws(fields, cfg, device, progress,
+                                                        draws_per_epoch=cfg.draws_per_epoch, codec_step=codec_step),
+                          {"store": str(store_path), "store_digest": digest, "source": str(source_path),
+                           "n_images": len(store), "train_indices": train_idx.tolist(),
+                           "test_indices": test_idx.tolist(), "preprocess_time_s": fields_s})
     save_replicates(out_dir, runs, test_idx, overwrite)
     return runs[0][2]

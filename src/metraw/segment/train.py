@@ -37,7 +37,7 @@ TRAIN_METRICS = "train.json"
 #: Sub-directory of a model directory holding replicate ``r`` (seed + r), a model directory itself.
 REPLICATE_DIR = "replicate-{r}"
 #: Wall-clock fields of the training record: returned by ``fit``/``train_store``, left out of train.json.
-TIMINGS = ("training_time_s", "preprocess_time_s", "draw_time_s", "fields_time_s", "replicate_training_time_s")
+TIMINGS = ("training_time_s", "preprocess_time_s", "draw_time_s", "replicate_training_time_s")
 
 
 @dataclass
@@ -248,19 +248,25 @@ def build_model(in_channels: int, config: TrainConfig, upsample: int, pool: int 
     return Segmenter(in_channels, config.base_channels, config.depth, upsample, pool)
 
 
-def fit(images: list[PreparedImage], config: TrainConfig, device: str | None = None,
-        progress: bool | None = None, upsample: int | None = None) -> tuple[Any, dict[str, Any]]:
-    """Train a fresh model on prepared images; returns (model, training record)."""
-    if not images:
-        raise MetrawError("no training images")
-    device = device or default_device()
+def new_network(images: list[PreparedImage], config: TrainConfig, device: str, upsample: int | None = None):
+    """Seed torch (``set_determinism``) and build a fresh network sized for ``images``:
+    (model on ``device``, upsampling factor, pooling factor, input channels)."""
     set_determinism(config.seed, config.threads, device)
     f = upsample_factor(images, config.min_grid_px) if upsample is None else upsample
     pool = pool_factor(images, config.grid_gsd_m) if f == 1 else 1
     in_ch = 1 if images[0].pattern == "mono" else 4
     if any((img.pattern == "mono") != (in_ch == 1) for img in images):
         raise MetrawError("cannot train on a mix of mono and CFA images")
-    model = build_model(in_ch, config, f, pool).to(device)
+    return build_model(in_ch, config, f, pool).to(device), f, pool, in_ch
+
+
+def fit(images: list[PreparedImage], config: TrainConfig, device: str | None = None,
+        progress: bool | None = None, upsample: int | None = None) -> tuple[Any, dict[str, Any]]:
+    """Train a fresh model on prepared images; returns (model, training record)."""
+    if not images:
+        raise MetrawError("no training images")
+    device = device or default_device()
+    model, f, pool, in_ch = new_network(images, config, device, upsample)
     steps_per_epoch = math.ceil(len(images) * config.crops_per_image / config.batch_size)
     rng = rng_from_seed(config.seed)
 
@@ -292,22 +298,26 @@ def train_store(store_path: str | os.PathLike, out_dir: str | os.PathLike, confi
     t0 = time.perf_counter()
     images = prepare_store(store, train_idx, progress)
     prep_s = time.perf_counter() - t0
-    runs = []
-    for cfg in replicate_configs(config):
-        model, record = fit(images, cfg, device, progress)
-        record.update({"store": str(store_path), "store_digest": digest, "n_images": len(store),
-                       "train_indices": train_idx.tolist(), "test_indices": test_idx.tolist(),
-                       "preprocess_time_s": prep_s, "config": asdict(cfg)})
-        runs.append((model, cfg, record))
+    runs = fit_replicates(config, lambda cfg: fit(images, cfg, device, progress),
+                          {"store": str(store_path), "store_digest": digest, "n_images": len(store),
+                           "train_indices": train_idx.tolist(), "test_indices": test_idx.tolist(),
+                           "preprocess_time_s": prep_s})
     save_replicates(out_dir, runs, test_idx, overwrite)
     return runs[0][2]
 
 
-def replicate_configs(config: TrainConfig) -> list[TrainConfig]:
-    """One config per replicate: seeds ``seed`` .. ``seed + replicates - 1`` (at least one)."""
+def fit_replicates(config: TrainConfig, fit_one, common: dict[str, Any]) -> list:
+    """``fit_one(cfg)`` -> (model, record) for seeds ``seed`` .. ``seed + replicates - 1`` (at least one); every
+    record gets ``common`` and its own config. Returns [(model, config, record), ...] for ``save_replicates``."""
     from dataclasses import replace
 
-    return [replace(config, seed=config.seed + r) for r in range(max(1, config.replicates))]
+    runs = []
+    for r in range(max(1, config.replicates)):
+        cfg = replace(config, seed=config.seed + r)
+        model, record = fit_one(cfg)
+        record.update({**common, "config": asdict(cfg)})
+        runs.append((model, cfg, record))
+    return runs
 
 
 def save_replicates(out_dir, runs: list, test_indices, overwrite: bool = False) -> None:
