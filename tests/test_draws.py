@@ -76,7 +76,9 @@ def test_draw_noise_is_poisson_plus_read_noise(scene, target):
     prof = target.profile()
     e = np.stack([(field.draw(s, 1, 2, 0).data.astype(np.float64) - prof.black_level_dn) / prof.gain_dn_per_e
                   for s in range(n)])
-    haze = target.haze_for("G")  # the same for every channel in params.yaml
+    from metraw.cfa import color_index
+
+    haze = np.take([target.haze_for(c) for c in target.channels], color_index(target.cfa_pattern, e.shape[1:]))
     dark = prof.dark_current_e_per_s * (prof.exposure_s or 0.0)
     lam = field.expected(1, 2, 0) + haze + dark
     var_model = lam + prof.read_noise_e**2 + prof.gain_dn_per_e**-2 / 12

@@ -731,6 +731,7 @@ def emulate(source: RawImage, target: TargetSystem, mode: str = "auto", seed: in
         "accuracy": acc.to_dict(), **plan.summary(), "error_bounds": bounds, "clipped_negative_source_e": clipped,
         "saturated_source_cells": 0 if sat_cells is None else int(sat_cells.sum()),
         "target_pixels_fed_by_saturated": n_fed, "mean_signal_e": mean_signal_e,
+        "haze_e": {c: target.haze_for(c) for c in target.channels},
         "deviation": ("source read noise and rounding are thinned with the signal (relative excess variance "
                       f"<= {bounds['source_noise_excess_variance_rel']:.2g})"
                       + ("; expected chain + one Poisson draw per pixel (relative excess variance "

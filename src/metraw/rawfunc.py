@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from metraw.atmosphere import path_radiance_electrons
 from metraw.cfa import cell_size, channel_names, plane_offsets
 from metraw.errors import MetrawError
 from metraw.image import FLAG_SATURATED, RawImage
@@ -223,6 +224,33 @@ def thin(image: RawImage, p: float | dict[str, float], seed: int | np.random.Gen
                          f"{pmax * (prof.read_noise_e**2 + 0.25):.3g} e-^2 per pixel (relative order p = {pmax:.3g})")
     return read_out(kept, image, new_profile, rng, function="thin",
                     params={"p": pmap, **info}, flags=_saturation_flags(image))
+
+
+def atmosphere(image: RawImage, transmission: float, path_radiance_w_m2_sr_m: float, exponent: float = 2.0,
+               seed: int | np.random.Generator = 0) -> RawImage:
+    """The image seen through (more) atmosphere: the scene's light thinned by ``transmission`` (binomial,
+    exact) plus path radiance collected through the image's own optics (independent Poisson, exact).
+
+    ``path_radiance_w_m2_sr_m``: spectral path radiance at 550 nm with spectral slope ``exponent``
+    (`metraw.atmosphere`); its photoelectrons per pixel follow from the profile's pitch, focal length,
+    aperture, exposure, optics transmission, QE and bands. Counts are estimated, thinned and read out
+    again as in `thin`; the same deviation is reported (the source's read noise and rounding are thinned
+    with the signal: excess variance <= T^2 (sigma_d^2 + 1/4) e-^2; none for a noiseless integer source).
+    """
+    if not 0 <= transmission <= 1:
+        raise MetrawError(f"atmosphere: transmission must lie in [0, 1], got {transmission!r}")
+    rng = rng_from_seed(seed)
+    prof = image.profile
+    haze = path_radiance_electrons(prof, float(path_radiance_w_m2_sr_m), float(exponent))
+    n, info = _counts_estimate(image, rng)
+    kept = thin_counts(n, float(transmission), rng)
+    added = rng.poisson(np.take(np.array([haze[c] for c in prof.channels]), image.color_index()))
+    info["deviation"] = (f"source read noise and rounding thinned with the signal: excess variance <= "
+                         f"{transmission**2 * (prof.read_noise_e**2 + 0.25):.3g} e-^2 per pixel")
+    return read_out(kept + added, image, prof, rng, function="atmosphere",
+                    params={"transmission": float(transmission), "path_radiance_w_m2_sr_m": float(path_radiance_w_m2_sr_m),
+                            "path_radiance_exponent": float(exponent), "haze_e": haze, **info},
+                    flags=_saturation_flags(image))
 
 
 def redistribute(image: RawImage, kernel: np.ndarray, seed: int | np.random.Generator = 0) -> RawImage:

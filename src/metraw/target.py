@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from metraw.atmosphere import path_radiance_electrons
 from metraw.cfa import channel_names, validate_pattern
 from metraw.errors import MetrawError
 from metraw.profile import DEFAULT_BANDS_M, CalibrationProfile
@@ -29,9 +30,11 @@ class TargetSystem:
     diameter), ``focal_length_m``, ``optical_transmission``, ``jitter_rms_rad`` (line-of-sight
     jitter, 1-sigma per axis). Orbit: ``altitude_m``, ``ground_speed_m_per_s`` and
     ``track_angle_rad`` (direction of ground motion, from the source's column axis).
-    Atmosphere: ``atmospheric_transmission`` (one way, ground to payload) and ``haze_e``:
-    path radiance as mean photoelectrons per target pixel during the exposure, a number (every
-    channel) or a mapping per channel. Detector: ``pixel_pitch_m``, ``cfa_pattern``,
+    Atmosphere (`metraw.atmosphere`): ``atmospheric_transmission`` (one way, ground to payload, on the
+    scene's light); ``path_radiance_w_m2_sr_m`` (spectral path radiance at 550 nm) with its spectral
+    slope ``path_radiance_exponent`` (L ~ lambda^-a), collected through the target's own optics,
+    exposure and pixel; ``haze_e``: further path-radiance photoelectrons per pixel given directly (a
+    number for every channel, or a mapping per channel; 0 when the radiance is used). Detector: ``pixel_pitch_m``, ``cfa_pattern``,
     ``exposure_s``, ``qe_per_channel``, ``read_noise_e``, ``gain_dn_per_e``, ``black_level_dn``,
     ``adc_bits``, ``full_well_e``, ``dark_current_e_per_s``, ``band_edges_m`` (pass band per
     channel; default `metraw.profile.DEFAULT_BANDS_M`).
@@ -57,6 +60,8 @@ class TargetSystem:
     full_well_e: float | None = None
     dark_current_e_per_s: float = 0.0
     haze_e: float | dict[str, float] = 0.0
+    path_radiance_w_m2_sr_m: float = 0.0
+    path_radiance_exponent: float = 2.0
     jitter_rms_rad: float = 0.0
     frame_offset_m: tuple[float, float] = (0.0, 0.0)
     frame_rotation_rad: float = 0.0
@@ -70,7 +75,7 @@ class TargetSystem:
             if not (math.isfinite(v) and v > 0):
                 raise MetrawError(f"target {name} must be a finite number > 0, got {getattr(self, name)!r}")
         for name in ("exposure_s", "ground_speed_m_per_s", "read_noise_e", "black_level_dn",
-                     "dark_current_e_per_s", "jitter_rms_rad"):
+                     "dark_current_e_per_s", "jitter_rms_rad", "path_radiance_w_m2_sr_m"):
             v = float(getattr(self, name))
             if not (math.isfinite(v) and v >= 0):
                 raise MetrawError(f"target {name} must be a finite number >= 0, got {getattr(self, name)!r}")
@@ -84,10 +89,13 @@ class TargetSystem:
             raise MetrawError(f"target adc_bits must be in 1..16, got {self.adc_bits!r}")
         if self.black_level_dn >= 2 ** int(self.adc_bits) - 1:
             raise MetrawError(f"target black_level_dn {self.black_level_dn} leaves no range in {self.adc_bits} bits")
+        if not (math.isfinite(float(self.path_radiance_exponent)) and 0 <= self.path_radiance_exponent <= 6):
+            raise MetrawError(f"target path_radiance_exponent must lie in [0, 6], got {self.path_radiance_exponent!r}")
         for c in self.channels:
             if self.qe_per_channel and c not in self.qe_per_channel:
                 raise MetrawError(f"target qe_per_channel has no value for channel {c}")
-            h = self.haze_for(c)
+        for c in self.channels:
+            h = self._direct_haze(c)
             if not (math.isfinite(h) and h >= 0):
                 raise MetrawError(f"target haze_e must be >= 0, got {h!r} for channel {c}")
         if self.frame_shape_px is not None:
@@ -97,6 +105,10 @@ class TargetSystem:
             object.__setattr__(self, "frame_shape_px", shape)
         object.__setattr__(self, "frame_offset_m", tuple(float(v) for v in self.frame_offset_m))
         object.__setattr__(self, "adc_bits", int(self.adc_bits))
+        path = (path_radiance_electrons(self.profile(), float(self.path_radiance_w_m2_sr_m),
+                                        float(self.path_radiance_exponent))
+                if self.path_radiance_w_m2_sr_m else {c: 0.0 for c in self.channels})
+        object.__setattr__(self, "_path_e", path)
 
     # ----------------------------------------------------------------- derived values
     @property
@@ -122,12 +134,26 @@ class TargetSystem:
         return float(self.qe_per_channel.get(channel, 1.0)) if self.qe_per_channel else 1.0
 
     def haze_for(self, channel: str) -> float:
-        if isinstance(self.haze_e, dict):
-            return float(self.haze_e.get(channel, 0.0))
-        return float(self.haze_e)
+        """Mean path-radiance photoelectrons per pixel of ``channel`` in one exposure: the radiance
+        collected through the target's optics (`metraw.atmosphere.path_radiance_electrons`) plus ``haze_e``."""
+        return self._direct_haze(channel) + self._path_e[channel]
+
+    def path_radiance_electrons(self) -> dict[str, float]:
+        """Path radiance's mean photoelectrons per pixel and exposure, per channel (without ``haze_e``)."""
+        return dict(self._path_e)
+
+    def _direct_haze(self, channel: str) -> float:
+        return float(self.haze_e.get(channel, 0.0)) if isinstance(self.haze_e, dict) else float(self.haze_e)
 
     def band(self, channel: str) -> tuple[float, float]:
-        lo, hi = self.band_edges_m.get(channel, DEFAULT_BANDS_M[channel])
+        """Pass band [m] of ``channel``. A mono target's default is the span of the R, G, B bands
+        (420-680 nm): emulated from a colour source it detects exactly the light that source recorded."""
+        if channel in self.band_edges_m:
+            lo, hi = self.band_edges_m[channel]
+        elif channel == "L":
+            lo, hi = min(DEFAULT_BANDS_M[c][0] for c in "RGB"), max(DEFAULT_BANDS_M[c][1] for c in "RGB")
+        else:
+            lo, hi = DEFAULT_BANDS_M[channel]
         return float(lo), float(hi)
 
     def profile(self) -> CalibrationProfile:

@@ -19,17 +19,9 @@ import math
 
 import numpy as np
 
+from metraw.atmosphere import pixel_etendue_m2_sr
 from metraw.daylight import C_LIGHT_M_PER_S, H_PLANCK_J_S, ground_irradiance_w_m2_m
-from metraw.errors import MetrawError
 from metraw.profile import CalibrationProfile
-
-
-def pixel_etendue_m2_sr(camera: CalibrationProfile) -> float:
-    """A_aperture * Omega_pixel [m^2 sr] of one pixel (needs pitch, focal length, aperture)."""
-    if None in (camera.pixel_pitch_m, camera.focal_length_m, camera.aperture_diameter_m):
-        raise MetrawError("the source camera profile needs pixel_pitch_m, focal_length_m and aperture_diameter_m")
-    area = math.pi * camera.aperture_diameter_m**2 / 4 * (1 - camera.obscuration_ratio**2)
-    return area * (camera.pixel_pitch_m / camera.focal_length_m) ** 2
 
 
 def electrons_per_reflectance(camera: CalibrationProfile, sun_elevation_deg: float, exposure_s: float,
