@@ -29,6 +29,7 @@ def tiny_params() -> dict:
     params["source"]["dataset"] = "synthetic"
     params["source"]["synthetic"].update(n_scenes=4, size_px=160, seed=0)
     params["target"]["sweeps"] = {"focal_length_m": [1.2], "diameter_m": [0.35], "exposure_s": [300.0e-6]}
+    params["target"].pop("grids", None)
     params["training"]["profile"] = "default"
     params["training"]["profiles"]["default"].update(epochs=1, batch_size=4, crop_px=4, base_channels=4, depth=2,
                                                      min_grid_px=0, crops_per_image=1)

@@ -6,6 +6,11 @@
   measured points (error bars: the per-point measurement sd) and optional tolerance interval, and
   optionally a second measured series (the sim-to-real benchmark's IoU on emulated real images,
   joined by a line, with its own error bars; not part of the GP);
+- ``grid_map``: the IoU map of a cross grid from its *measured* points (left) and its 2-D GP's
+  lower band with the tolerance region (right);
+- ``channel_lines``: Fig. 8, a measured outcome per colour channel against one parameter, with
+  error bars over images;
+- ``categorical_bars``: a measured outcome per value of a categorical parameter (e.g. CFA pattern);
 - ``example_images``: Fig. 6, the same scene at several parameter points.
 Each function writes one PNG atomically and returns nothing; ``line_table`` gives the numbers
 behind a line plot (for CSV / ``dvc plots``).
@@ -22,7 +27,10 @@ from metraw.atomic import atomic_path
 from metraw.tolerance import ResponseGP, Tolerance
 
 LABELS = {"focal_length_m": "focal length [m]", "diameter_m": "mirror diameter [m]", "exposure_s": "exposure time [s]",
-          "pixel_pitch_m": "pixel pitch [m]", "haze_e": "haze [e-]"}
+          "pixel_pitch_m": "pixel pitch [m]", "haze_e": "haze [e-]",
+          "path_radiance_w_m2_sr_m": "path radiance at 550 nm [W m$^{-2}$ sr$^{-1}$ m$^{-1}$]",
+          "atmospheric_transmission": "atmospheric transmission", "cfa_pattern": "CFA pattern"}
+CHANNEL_COLOURS = {"R": "tab:red", "G": "tab:green", "B": "tab:blue", "L": "0.3"}
 
 
 def _plt():
@@ -122,6 +130,97 @@ def response_map(model: ResponseGP, xname: str, yname: str, at: Mapping[str, flo
         ax.set_title(title, fontsize=9)
     _save(fig, path)
     return {"x": gx, "y": gy, "mean": mean, "lower": lower}
+
+
+def grid_map(model: ResponseGP, summary: Mapping[str, Any], path: str | Path, *, required: float,
+             title: str = "") -> None:
+    """Left: measured IoU at the grid points (cells in grid order, value and 2 sd written in each; a
+    frame marks points whose measured lower bound meets ``required``). Right: the 2-D GP's lower 2-sigma
+    band on the mesh of ``summary`` (`metraw.tolerance.grid_region`), the region meeting ``required``
+    outlined, the measured points marked."""
+    plt = _plt()
+    a, b = summary["axes"]
+    pts = summary["points"]
+    va, vb = sorted({p[a] for p in pts}), sorted({p[b] for p in pts})
+    grid = np.full((len(vb), len(va)), np.nan)
+    for p in pts:
+        grid[vb.index(p[b]), va.index(p[a])] = p["iou"]
+    fig, (ax0, ax1) = plt.subplots(1, 2, figsize=(11.0, 4.4), layout="constrained")
+    im = ax0.imshow(grid, origin="lower", cmap="viridis", aspect="auto")
+    fig.colorbar(im, ax=ax0, label="IoU (measured)").formatter.set_useOffset(False)
+    for p in pts:
+        i, j = vb.index(p[b]), va.index(p[a])
+        ax0.text(j, i, f"{p['iou']:.3f}\n$\\pm${2 * p['iou_sd']:.3f}", ha="center", va="center", fontsize=7,
+                 color="w" if p["iou"] < np.nanmean(grid) else "k")
+        if p["meets_requirement"]:
+            ax0.add_patch(plt.Rectangle((j - 0.5, i - 0.5), 1, 1, fill=False, ec="tab:red", lw=2))
+    ax0.set_xticks(range(len(va)), [f"{v:g}" for v in va])
+    ax0.set_yticks(range(len(vb)), [f"{v:g}" for v in vb])
+    ax0.set_xlabel(LABELS.get(a, a))
+    ax0.set_ylabel(LABELS.get(b, b))
+    ax0.set_title(f"measured points (red frame: IoU - 2 sd >= {required:g})", fontsize=8)
+    A, B = np.meshgrid(summary["mesh"][a], summary["mesh"][b])
+    lower = model.predict(np.column_stack([A.ravel(), B.ravel()])).lower.reshape(A.shape)
+    im = ax1.pcolormesh(A, B, lower, shading="auto", cmap="viridis")
+    bar = fig.colorbar(im, ax=ax1, label="IoU, GP lower 2$\\sigma$")
+    bar.formatter.set_useOffset(False)
+    bar.update_ticks()
+    if lower.min() < required < lower.max():
+        ax1.contour(A, B, lower, levels=[required], colors="tab:red", linewidths=1.5)
+    ax1.plot([p[a] for p in pts], [p[b] for p in pts], "o", mfc="none", mec="w", ms=5)
+    for setter, nm in ((ax1.set_xscale, a), (ax1.set_yscale, b)):
+        if model.axes[model.names.index(nm)].kind == "log":
+            setter("log")
+    ax1.set_xlabel(LABELS.get(a, a))
+    ax1.set_ylabel(LABELS.get(b, b))
+    ax1.set_title(f"2-D GP: lower band >= {required:g} (red contour) on "
+                  f"{100 * summary['share_of_grid_ok']:.0f} % of the box", fontsize=8)
+    if title:
+        fig.suptitle(title, fontsize=9)
+    _save(fig, path)
+
+
+def channel_lines(name: str, series: Mapping[str, Sequence[tuple[float, float, float]]], path: str | Path, *,
+                  ylabel: str, log_x: bool = False, title: str = "") -> None:
+    """One measured curve per colour channel: ``series[channel]`` = [(x, y, sd), ...] (2 sd bars)."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(4.8, 3.4))
+    for c, pts in series.items():
+        if not pts:
+            continue
+        x, y, sd = (np.array(v, dtype=float) for v in zip(*sorted(pts)))
+        ax.errorbar(x, y, yerr=2 * sd, fmt="o-", color=CHANNEL_COLOURS.get(c, None), ms=4, lw=1.2, capsize=2,
+                    label=f"{c} (2 sd over images)")
+    if log_x:
+        ax.set_xscale("log")
+    ax.set_xlabel(LABELS.get(name, name))
+    ax.set_ylabel(ylabel)
+    if title:
+        ax.set_title(title, fontsize=9)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="best")
+    _save(fig, path)
+
+
+def categorical_bars(name: str, values: Mapping[str, tuple[float, float]], path: str | Path, *, ylabel: str,
+                     required: float | None = None, title: str = "") -> None:
+    """A measured outcome per category: ``values[label]`` = (y, sd), drawn with 2 sd bars."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(3.6, 3.2))
+    labels = list(values)
+    y = np.array([values[v][0] for v in labels], dtype=float)
+    sd = np.array([values[v][1] for v in labels], dtype=float)
+    ax.bar(range(len(labels)), y, yerr=2 * sd, capsize=3, color="tab:blue", alpha=0.7)
+    ax.set_xticks(range(len(labels)), labels)
+    if required is not None:
+        ax.axhline(required, color="tab:red", ls="--", lw=1, label=f"required {required:g}")
+        ax.legend(fontsize=7)
+    ax.set_xlabel(LABELS.get(name, name))
+    ax.set_ylabel(ylabel)
+    if title:
+        ax.set_title(title, fontsize=9)
+    ax.grid(alpha=0.3, axis="y")
+    _save(fig, path)
 
 
 def quicklook(image) -> np.ndarray:

@@ -1,6 +1,7 @@
 """Parameter points of the study, derived from params.yaml in one place.
 
-The nominal target point plus one-at-a-time sweeps (DESIGN.md section 6). Snakemake rules,
+The nominal target point, one-at-a-time sweeps (numbers, or words for the categorical CFA pattern) and
+cross grids (``target.grids``, e.g. focal length x diameter; DESIGN.md section 6). Snakemake rules,
 DVC stages and the aggregate all take the point list from here, never from a glob of
 existing outputs, so stale results are never picked up.
 """
@@ -51,8 +52,12 @@ def validate_params(params: dict[str, Any], origin: str | Path = "params", compl
     if error:
         raise MetrawError(f"{origin}: {error[0]}: {error[1]}")
     target = params.get("target") or {"nominal": {}}
-    for parameter, values in (target.get("sweeps") or {}).items():
-        where = f"target/sweeps/{parameter}"
+    checks = list((target.get("sweeps") or {}).items())
+    for i, grid in enumerate(target.get("grids") or []):
+        checks += [(f"grids/{i}/{k}", v if isinstance(v, list) else [v]) for k, v in grid.items()]
+    for parameter, values in checks:
+        where = f"target/sweeps/{parameter}" if "/" not in parameter else f"target/{parameter}"
+        parameter = parameter.rsplit("/", 1)[-1]
         if parameter not in target["nominal"]:
             raise MetrawError(f"{origin}: {where}: {parameter!r} is not a field of target.nominal "
                               f"(a sweep varies one of: {', '.join(target['nominal'])})")
@@ -62,6 +67,11 @@ def validate_params(params: dict[str, Any], origin: str | Path = "params", compl
             error = _first_error(trial, schema)
             if error:
                 raise MetrawError(f"{origin}: {where}/{i}: {error[1]} (the constraint of target/nominal/{parameter})")
+    if "nominal" in target and (target.get("sweeps") or target.get("grids")):
+        try:
+            parameter_points(params)
+        except MetrawError as exc:
+            raise MetrawError(f"{origin}: {exc}") from None
 
 
 def _first_error(params: dict[str, Any], schema: dict[str, Any]) -> tuple[str, str] | None:
@@ -98,30 +108,69 @@ def _schema_path() -> Path:
     raise MetrawError("params schema not found (workflow/schemas/params.schema.yaml)")
 
 
-def format_value(value: float | int) -> str:
+#: Sweep parameters whose values are words, not numbers (categorical axes of the study).
+CATEGORICAL = frozenset({"cfa_pattern"})
+#: Separator of the parts of a grid point's name (``focal_length_m-0.8+diameter_m-0.1``).
+GRID_SEPARATOR = "+"
+
+
+def format_value(value: float | int | str) -> str:
     """Text of a sweep value in point names: ``str`` of the value as YAML loaded it.
 
     This is exactly how DVC renders ``${item}`` of a params.yaml list in dvc.yaml (its
     ``to_str`` is ``str``), so Snakemake targets and DVC stage outputs name the same paths:
     ``0.8`` -> ``0.8``, ``2.0`` -> ``2.0``, ``2`` -> ``2``, ``100.0e-6`` -> ``0.0001``,
-    ``1.0e-5`` -> ``1e-05``. Floats are shortest-repr (round-trip exact), so two values
-    give the same name only if they are equal.
+    ``1.0e-5`` -> ``1e-05``, ``mono`` -> ``mono``. Floats are shortest-repr (round-trip exact), so
+    two values give the same name only if they are equal. Words (categorical values) must be
+    letters, digits and underscores.
     """
+    if isinstance(value, str):
+        if not value or not all(ch.isalnum() or ch == "_" for ch in value):
+            raise MetrawError(f"sweep value {value!r} must be a word of letters, digits and underscores")
+        return value
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise MetrawError(f"sweep value {value!r} is not a number")
+        raise MetrawError(f"sweep value {value!r} is not a number or a word")
     return str(int(value)) if isinstance(value, int) else repr(float(value))
 
 
-def point_name(parameter: str, value: float | int) -> str:
-    """``"<parameter>-<value>"`` (see `format_value`), e.g. ``focal_length_m-0.8``."""
+def same_value(a: Any, b: Any) -> bool:
+    """Whether two values of a target field are the same (numbers by value, words by text)."""
+    if isinstance(a, str) or isinstance(b, str):
+        return a == b
+    return float(a) == float(b)
+
+
+def point_name(parameter: str, value: float | int | str) -> str:
+    """``"<parameter>-<value>"`` (see `format_value`), e.g. ``focal_length_m-0.8``, ``cfa_pattern-mono``."""
     return f"{parameter}-{format_value(value)}"
+
+
+def grid_point_name(overrides: dict[str, Any]) -> str:
+    """A grid point's name: its overrides' `point_name` parts joined by ``+`` in the grid's key order."""
+    return GRID_SEPARATOR.join(point_name(k, v) for k, v in overrides.items())
+
+
+def grid_axes(grid: dict[str, Any]) -> tuple[list[str], dict[str, Any]]:
+    """(axis parameters in order, fixed values) of one ``target.grids`` entry: lists are axes."""
+    axes = [k for k, v in grid.items() if isinstance(v, list)]
+    fixed = {k: v for k, v in grid.items() if not isinstance(v, list)}
+    return axes, fixed
+
+
+def _check_categorical(parameter: str, value: Any, nominal: dict[str, Any]) -> None:
+    if parameter == "cfa_pattern" and value != "mono" and nominal.get("cfa_pattern", "mono") != "mono":
+        raise MetrawError(f"cfa_pattern value {value!r}: a different Bayer phase than the nominal "
+                          f"{nominal['cfa_pattern']!r} is not a different sensor (sweep mono against a Bayer pattern)")
 
 
 def parameter_points(params: dict[str, Any]) -> dict[str, dict[str, Any]]:
     """Ordered mapping point name -> target overrides relative to the nominal point.
 
-    ``nominal`` has no overrides; each sweep value gives ``"<parameter>-<value>"`` (e.g. ``diameter_m-0.5``). A sweep
-    value equal to the nominal value is the nominal point itself and is not repeated.
+    ``nominal`` has no overrides; each sweep value gives ``"<parameter>-<value>"`` (e.g. ``diameter_m-0.5``,
+    ``cfa_pattern-mono``). A sweep value equal to the nominal value is the nominal point itself and is not
+    repeated. Then each ``target.grids`` entry (two or more list-valued axes, other keys fixed) gives the
+    cross product of its axes; a grid point whose overrides (values equal to nominal dropped) are those of a
+    point already listed *is* that point, the others are named by `grid_point_name` of their overrides.
     """
     nominal = params["target"]["nominal"]
     points: dict[str, dict[str, Any]] = {NOMINAL: {}}
@@ -129,15 +178,74 @@ def parameter_points(params: dict[str, Any]) -> dict[str, dict[str, Any]]:
         if parameter not in nominal:
             raise MetrawError(f"sweep parameter {parameter!r} is not a field of target.nominal")
         for value in values:
-            if float(value) == float(nominal[parameter]):
+            if isinstance(value, str) != (parameter in CATEGORICAL):
+                kind = "a word" if parameter in CATEGORICAL else "a number"
+                raise MetrawError(f"target.sweeps.{parameter}: value {value!r} must be {kind}")
+            _check_categorical(parameter, value, nominal)
+            if same_value(value, nominal[parameter]):
                 continue
             points[point_name(parameter, value)] = {parameter: value}
+    for overrides in grid_overrides(params):
+        key = _override_key(overrides)
+        if any(_override_key(o) == key for o in points.values()):
+            continue
+        points[grid_point_name(overrides)] = overrides
     return points
 
 
+def grid_overrides(params: dict[str, Any]) -> list[dict[str, Any]]:
+    """Every point of every ``target.grids`` entry as overrides, in the grid's key order (axes vary
+    last-fastest), values equal to nominal dropped."""
+    import itertools
+
+    nominal = params["target"]["nominal"]
+    out = []
+    for i, grid in enumerate(params["target"].get("grids") or []):
+        axes, fixed = grid_axes(grid)
+        if len(axes) < 2:
+            raise MetrawError(f"target.grids[{i}] needs at least two list-valued axes, got {axes}")
+        for name in grid:
+            if name not in nominal:
+                raise MetrawError(f"target.grids[{i}]: {name!r} is not a field of target.nominal")
+            if name in CATEGORICAL:
+                raise MetrawError(f"target.grids[{i}]: {name!r} is categorical; grids span numeric parameters")
+        for combo in itertools.product(*(grid[a] for a in axes)):
+            values = {**fixed, **dict(zip(axes, combo))}
+            overrides = {k: values[k] for k in grid if not same_value(values[k], nominal[k])}
+            out.append(overrides)
+    return out
+
+
+def _override_key(overrides: dict[str, Any]) -> frozenset:
+    return frozenset((k, v if isinstance(v, str) else float(v)) for k, v in overrides.items())
+
+
+def pixel_scaled(params: dict[str, Any], values: dict[str, Any]) -> dict[str, Any]:
+    """Apply ``target.pixel_scaling`` to a point's full target parameters when its pixel pitch differs
+    from the nominal one. ``full_well: area`` (default): full-well capacity scales with the pixel area
+    (the same charge per unit area of silicon), ``fixed``: it stays. Read noise, gain and QE stay (a
+    stated model: they depend on the readout circuit and the silicon, not the pitch, to first order)."""
+    nominal = params["target"]["nominal"]
+    scaling = (params["target"].get("pixel_scaling") or {}).get("full_well", "area")
+    ratio = float(values["pixel_pitch_m"]) / float(nominal["pixel_pitch_m"])
+    if ratio == 1.0 or scaling == "fixed" or values.get("full_well_e") is None:
+        return values
+    if "full_well_e" in values and not same_value(values["full_well_e"], nominal.get("full_well_e", values["full_well_e"])):
+        return values  # the point sets its own full well
+    return {**values, "full_well_e": float(values["full_well_e"]) * ratio**2}
+
+
 def target_params(params: dict[str, Any], point: str) -> dict[str, Any]:
-    """The full target parameter set of a point (nominal updated with its overrides)."""
+    """The full target parameter set of a point (nominal updated with its overrides, then `pixel_scaled`)."""
     points = parameter_points(params)
     if point not in points:
         raise MetrawError(f"unknown parameter point {point!r}; known: {', '.join(points)}")
-    return {**params["target"]["nominal"], **points[point]}
+    return pixel_scaled(params, {**params["target"]["nominal"], **points[point]})
+
+
+def swept_parameters(params: dict[str, Any]) -> list[str]:
+    """Every target field the study varies: the sweeps' parameters, then the grids' (first-seen order)."""
+    names = list(params["target"].get("sweeps") or {})
+    for grid in params["target"].get("grids") or []:
+        names += [k for k in grid if k not in names]
+    return names

@@ -53,9 +53,10 @@ NOISE_Z_LIMIT = 3.0
 NOISE_REL_LIMIT = 0.10
 
 UNITS = {"focal_length_m": "m", "diameter_m": "m", "exposure_s": "s", "pixel_pitch_m": "m",
-         "altitude_m": "m", "gsd_m": "m", "diffraction_m": "m", "smear_m": "m", "signal_e": "e-", "haze_e": "e-"}
+         "altitude_m": "m", "gsd_m": "m", "diffraction_m": "m", "smear_m": "m", "signal_e": "e-", "haze_e": "e-",
+         "path_radiance_w_m2_sr_m": "W m-2 sr-1 m-1", "atmospheric_transmission": ""}
 #: Which direction is "better" for an image property.
-BETTER = {"gsd_m": "lower", "diffraction_m": "lower", "smear_m": "lower", "signal_e": "higher"}
+BETTER = {"gsd_m": "lower", "diffraction_m": "lower", "smear_m": "lower", "signal_e": "higher", "haze_e": "lower"}
 
 
 @dataclass
@@ -88,12 +89,40 @@ class Limit:
                    {k: v for k, v in d.items() if k not in ("optimal", "min", "max", "unit")})
 
 
+def cfa_family(pattern: str) -> str:
+    """``bayer`` for any Bayer phase (a different phase is not a different sensor), else the pattern."""
+    return "mono" if pattern == "mono" else "bayer"
+
+
+@dataclass
+class Choice:
+    """A categorical line of the spec: the allowed values, the optimal one (+ free-form details)."""
+
+    optimal: str
+    allowed: list[str]
+    unit: str = ""
+    details: dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"optimal": self.optimal, "allowed": list(self.allowed), "unit": self.unit,
+                **{k: _plain(v) for k, v in self.details.items()}}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any], name: str = "entry") -> "Choice":
+        if not isinstance(d.get("allowed"), list) or not all(isinstance(v, str) for v in d["allowed"]):
+            raise MetrawError(f"spec {name}: allowed must be a list of words, got {d.get('allowed')!r}")
+        if not isinstance(d.get("optimal"), str):
+            raise MetrawError(f"spec {name}: optimal must be a word, got {d.get('optimal')!r}")
+        return cls(d["optimal"], list(d["allowed"]), str(d.get("unit", "")),
+                   {k: v for k, v in d.items() if k not in ("optimal", "allowed", "unit")})
+
+
 @dataclass
 class Specification:
     """Parameters (system, Fig. 2 form) and image properties with their limits."""
 
     required_iou: float
-    parameters: dict[str, Limit]
+    parameters: dict[str, Limit | Choice]
     properties: dict[str, Limit]
     context: dict[str, Any] = field(default_factory=dict)
 
@@ -118,7 +147,8 @@ class Specification:
         for section in ("parameters", "image_properties"):
             if not isinstance(d[section], Mapping):
                 raise MetrawError(f"spec {section} must be a mapping, got {d[section]!r}")
-            sections[section] = {k: Limit.from_dict(v, f"{section}.{k}") for k, v in d[section].items()}
+            sections[section] = {k: (Choice if isinstance(v, Mapping) and "allowed" in v and section == "parameters"
+                                     else Limit).from_dict(v, f"{section}.{k}") for k, v in d[section].items()}
         for k, lim in sections["image_properties"].items():
             if None in (lim.optimal, lim.min, lim.max):
                 raise MetrawError(f"spec image_properties.{k}: optimal, min and max must be numbers")
@@ -168,14 +198,22 @@ def _plain(v):
 
 
 # ---------------------------------------------------------------------- building the spec
+#: Parameters that move the scene's photoelectrons per pixel (`photon_budget`).
+BUDGET_PARAMETERS = ("focal_length_m", "diameter_m", "exposure_s", "pixel_pitch_m", "atmospheric_transmission")
+
+
 def photon_budget(values: Mapping[str, float], nominal: Mapping[str, float]) -> float:
-    """Photoelectrons per pixel relative to nominal: (D^2 (1 - eps^2)) t / f^2 (pitch, altitude fixed)."""
-    def g(name):
-        return float(values.get(name, nominal[name]))
-    eps, eps0 = g("obscuration_ratio") if "obscuration_ratio" in nominal else 0.0, nominal.get("obscuration_ratio", 0.0)
-    num = g("diameter_m") ** 2 * (1 - eps**2) * g("exposure_s") / g("focal_length_m") ** 2
-    den = nominal["diameter_m"] ** 2 * (1 - eps0**2) * nominal["exposure_s"] / nominal["focal_length_m"] ** 2
-    return num / den
+    """Scene photoelectrons per pixel relative to nominal: D^2 (1 - eps^2) t p^2 T / f^2 (altitude fixed;
+    pitch p and atmospheric transmission T count when the nominal states them)."""
+    def g(name, default=1.0):
+        return float(values.get(name, nominal.get(name, default)))
+
+    def budget(v):
+        eps = v("obscuration_ratio", 0.0)
+        return (v("diameter_m") ** 2 * (1 - eps**2) * v("exposure_s") * v("pixel_pitch_m") ** 2
+                * v("atmospheric_transmission") / v("focal_length_m") ** 2)
+
+    return budget(g) / budget(lambda name, default=1.0: float(nominal.get(name, default)))
 
 
 def image_properties_of(values: Mapping[str, float]) -> dict[str, float]:
@@ -188,15 +226,16 @@ def image_properties_of(values: Mapping[str, float]) -> dict[str, float]:
 
 def build_spec(tolerances: Mapping[str, Any], nominal: Mapping[str, Any], required_iou: float,
                signal_reference_e: Mapping[str, float] | None = None, context: Mapping[str, Any] | None = None,
-               ) -> Specification:
+               choices: Mapping[str, Mapping[str, Any]] | None = None) -> Specification:
     """The specification from `metraw.tolerance.Tolerance` objects (keyed by parameter name).
 
     ``nominal``: full nominal target parameters (altitude_m, pixel_pitch_m, ...).
     ``signal_reference_e``: ``{"median": ..., "p05": ..., "p95": ...}`` per-image median
     photoelectrons per pixel over the nominal point's images (scene spread); without it the
-    spec has no ``signal_e`` line.
+    spec has no ``signal_e`` line. ``choices``: categorical parameters
+    (`metraw.tolerance.categorical_choice`), written as `Choice` lines (allowed values, optimal one).
     """
-    params: dict[str, Limit] = {}
+    params: dict[str, Limit | Choice] = {}
     for name, t in tolerances.items():
         params[name] = Limit(t.optimal, t.min, t.max, UNITS.get(name, ""), {
             "iou_at_optimal": t.mean_at_optimal, "iou_lower_2sigma_at_optimal": t.lower_at_optimal,
@@ -207,6 +246,11 @@ def build_spec(tolerances: Mapping[str, Any], nominal: Mapping[str, Any], requir
             "sampled_range": [t.sampled_min, t.sampled_max]})
     nominal_f = {k: v for k, v in nominal.items() if isinstance(v, (int, float))}
     optimum = {**nominal_f, **{k: v.optimal for k, v in params.items()}}
+    for name, c in (choices or {}).items():
+        params[name] = Choice(c["optimal"], list(c["allowed"]), "", {
+            "nominal": c["nominal"], "rule": c["rule"], "required_iou": required_iou,
+            "allowed_families": sorted({cfa_family(v) for v in c["allowed"]}) if name == "cfa_pattern" else None,
+            "measured": {v: {"iou": r["iou"], "iou_sd": r["iou_sd"]} for v, r in c["values"].items()}})
     props: dict[str, Limit] = {}
     which = {"gsd_m": "focal_length_m", "diffraction_m": "diameter_m", "smear_m": "exposure_s"}
     for prop, par in which.items():
@@ -218,10 +262,21 @@ def build_spec(tolerances: Mapping[str, Any], nominal: Mapping[str, Any], requir
             continue
         props[prop] = Limit(image_properties_of(optimum)[prop], min(ends), max(ends), "m",
                             {"better": BETTER[prop], "from_parameter": par})
-    if signal_reference_e and all(p in params and params[p].min is not None
-                                  for p in ("focal_length_m", "diameter_m", "exposure_s")):
-        factors = [photon_budget({p: v}, nominal_f) for p in ("focal_length_m", "diameter_m", "exposure_s")
-                   for v in (params[p].min, params[p].max)]
+    path = params.get("path_radiance_w_m2_sr_m")
+    if isinstance(path, Limit) and path.min is not None:
+        from metraw.target import TargetSystem
+
+        def haze(radiance):
+            e = TargetSystem.from_dict({**nominal, "path_radiance_w_m2_sr_m": radiance}).path_radiance_electrons()
+            return float(np.mean(list(e.values())))
+
+        props["haze_e"] = Limit(haze(path.optimal), haze(path.min), haze(path.max), "e-",
+                                {"better": "lower", "from_parameter": "path_radiance_w_m2_sr_m (nominal payload)",
+                                 "note": "mean path-radiance e- per pixel over the channels, as the image's "
+                                         "provenance states it (emulate / atmosphere)"})
+    budget = [p for p in BUDGET_PARAMETERS if isinstance(params.get(p), Limit) and params[p].min is not None]
+    if signal_reference_e and all(p in budget for p in ("focal_length_m", "diameter_m", "exposure_s")):
+        factors = [photon_budget({p: v}, nominal_f) for p in budget for v in (params[p].min, params[p].max)]
         lo, hi = signal_reference_e["p05"] * min(factors), signal_reference_e["p95"] * max(factors)
         # The optimum combines every parameter's optimal value, a corner that the one-at-a-time lines
         # need not reach: its signal can lie outside [lo, hi]. The spec's optimal signal is clipped into
@@ -230,7 +285,7 @@ def build_spec(tolerances: Mapping[str, Any], nominal: Mapping[str, Any], requir
         optimal = min(max(joint, lo), hi)
         props["signal_e"] = Limit(
             optimal, lo, hi, "e-",
-            {"better": "higher", "from_parameter": "focal_length_m, diameter_m, exposure_s (photon budget)",
+            {"better": "higher", "from_parameter": ", ".join(budget) + " (photon budget)",
              "nominal_scene_median_e": signal_reference_e["median"],
              "nominal_scene_p05_e": signal_reference_e["p05"], "nominal_scene_p95_e": signal_reference_e["p95"],
              "optimum_system_median_e": joint, "light_scale": optimal / joint})
@@ -365,14 +420,28 @@ def check(image: RawImage, spec: Specification, measure_noise: bool = True) -> D
             values["signal_e"] *= bin_factor**2
             reasons.append(f"signal_e judged after the planned {bin_factor} x {bin_factor} binning "
                            f"(x{bin_factor**2} per pixel)")
-    pattern = spec.context.get("cfa_pattern")
-    if pattern and image.profile.cfa_pattern != pattern:
-        reject.append(f"CFA pattern {image.profile.cfa_pattern} differs from the spec's {pattern}")
+    have = image.profile.cfa_pattern
+    choice = spec.parameters.get("cfa_pattern")
+    if isinstance(choice, Choice):
+        families = sorted({cfa_family(v) for v in choice.allowed})
+    else:
+        families = [cfa_family(spec.context["cfa_pattern"])] if spec.context.get("cfa_pattern") else None
+    if families is not None and cfa_family(have) not in families:
+        reject.append(f"CFA pattern {have} ({cfa_family(have)}) is not among the spec's allowed "
+                      f"{', '.join(families) or '(none meets the required IoU)'}: no raw function turns one "
+                      "filter array into another")
+    if "haze_e" in spec.properties:
+        values["haze_e"] = stated_haze_e(image)
+        if bin_factor and values["haze_e"] is not None:
+            values["haze_e"] *= bin_factor**2  # judged at the binned GSD, like signal_e
     better_side: dict[str, float] = {}
     for prop, lim in spec.properties.items():
         v = values.get(prop)
         status = "pass"
-        if v is None:
+        if v is None and prop == "haze_e":
+            status = "unknown"
+            reasons.append("haze_e not stated by the image's provenance (emulate / atmosphere): not checked")
+        elif v is None:
             status = "unknown"
             reject.append(f"{prop} cannot be determined ({signal_source if prop == 'signal_e' else _missing_geometry(image.profile, prop)})")
         else:
@@ -381,7 +450,8 @@ def check(image: RawImage, spec: Specification, measure_noise: bool = True) -> D
             if (below and not lower_is_better) or (above and lower_is_better):
                 status = "worse"
                 reject.append(f"{prop} = {_fmt(v, lim.unit)} is worse than the spec limit "
-                              f"{_fmt(lim.max if lower_is_better else lim.min, lim.unit)}")
+                              f"{_fmt(lim.max if lower_is_better else lim.min, lim.unit)}"
+                              + (": path radiance cannot be removed without adding noise" if prop == "haze_e" else ""))
             elif below or above:
                 status = "better"
                 better_side[prop] = v
@@ -389,7 +459,7 @@ def check(image: RawImage, spec: Specification, measure_noise: bool = True) -> D
                                f"[{_fmt(lim.min, lim.unit)}, {_fmt(lim.max, lim.unit)}]: normalise to "
                                f"{_fmt(lim.optimal, lim.unit)}")
         found[prop] = {"value": v, "min": lim.min, "max": lim.max, "optimal": lim.optimal, "unit": lim.unit,
-                       "status": status, "source": signal_source if prop == "signal_e" else "profile"}
+                       "status": status, "source": {"signal_e": signal_source, "haze_e": "provenance"}.get(prop, "profile")}
     if noise and noise.get("consistent") is False:
         for name, c in noise["checks"].items():
             if c["contradicts"]:
@@ -483,7 +553,33 @@ def plan_normalisation(image: RawImage, spec: Specification, values: Mapping[str
         else:
             chain.append({"function": "thin", "params": {"p": p},
                           "effect": f"signal_e {signal:.4g} -> {signal * p:.4g} e- per pixel (p = {basis})"})
+    haze = values.get("haze_e")  # already judged at the binned GSD by `check`
+    if haze is not None and chain and chain[-1]["function"] == "thin":
+        haze *= chain[-1]["params"]["p"]  # thinning removes path-radiance photons with the scene's
+    if "haze_e" in props and haze is not None and haze < props["haze_e"].min:
+        # less path radiance than the spec: add the missing light as independent Poisson counts (exact)
+        add = props["haze_e"].optimal - haze
+        chain.append({"function": "add_poisson", "params": {"mean_e": add, "label": "haze"},
+                      "effect": f"haze_e {haze:.4g} -> {props['haze_e'].optimal:.4g} e- per pixel"})
     return chain, problems
+
+
+def stated_haze_e(image: RawImage) -> float | None:
+    """Mean path-radiance photoelectrons per pixel the image's provenance states (the last emulation's
+    haze plus later `atmosphere` / haze `add_poisson` steps; None when no step states it)."""
+    total = None
+    for step in image.provenance:
+        par = step.get("params") or {}
+        fn = step.get("function")
+        if fn in ("emulate", "atmosphere") and "haze_e" in par:
+            h = par["haze_e"]
+            mean = float(np.mean(list(h.values()))) if isinstance(h, Mapping) else float(h)
+            total = mean if fn == "emulate" else (total or 0.0) * float(par.get("transmission", 1.0)) + mean
+        elif fn == "add_poisson" and par.get("label") == "haze" and total is not None:
+            total += float(par.get("mean_e", 0.0))
+        elif fn == "bin_same_colour" and total is not None:
+            total *= int(par.get("factor", 1)) ** 2
+    return total
 
 
 def light_ratio(profile, optimum: Mapping[str, Any], bin_factor: int = 1) -> float | None:
@@ -598,6 +694,8 @@ def apply_chain(image: RawImage, chain: list[dict[str, Any]], seed: int = 0) -> 
                 out.provenance[-1]["params"]["profile_changes"] = dict(step["profile_changes"])
         elif fn == "thin":
             out = rawfunc.thin(out, float(par["p"]), seed=rng)
+        elif fn == "add_poisson":
+            out = rawfunc.add_poisson(out, float(par["mean_e"]), seed=rng, label=str(par.get("label", "poisson")))
         else:
             raise MetrawError(f"unknown normalisation step {fn!r}")
     return out

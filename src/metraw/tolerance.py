@@ -37,7 +37,7 @@ import numpy as np
 from metraw.errors import MetrawError
 
 #: Working-axis transform per known parameter (everything else: linear).
-LOG_PARAMETERS = frozenset({"diameter_m", "exposure_s", "pixel_pitch_m", "haze_e"})
+LOG_PARAMETERS = frozenset({"diameter_m", "exposure_s", "pixel_pitch_m", "haze_e", "path_radiance_w_m2_sr_m"})
 #: Band half-width in standard deviations (the seed study shows 2 sigma).
 BAND_SIGMA = 2.0
 
@@ -270,27 +270,84 @@ def _crossing(grid: np.ndarray, lower: np.ndarray, i_in: int, i_out: int, requir
 
 
 def joint_region(model: ResponseGP, required: float, tolerances: Mapping[str, Tolerance], n_per_axis: int = 21,
-                 k: float = BAND_SIGMA) -> dict[str, Any]:
+                 k: float = BAND_SIGMA, max_points: int = 200_000, seed: int = 0) -> dict[str, Any]:
     """The joint acceptable region on a grid over the box of the one-at-a-time intervals.
 
-    Returns the share of the box (grid points, uniform on the working axes) where the lower
+    Returns the share of the box (grid points, uniform on the working axes; a scrambled Sobol
+    sample when the grid would exceed ``max_points``) where the lower
     bound meets ``required`` with *all* parameters varied together, the worst lower bound in
     the box and where it occurs. A share below 1 says the one-at-a-time box is not jointly
     safe: the spec's box must then be read as a set of independent limits only near nominal.
     """
     names = model.names
-    axes_vals = []
+    bounds = []
     for j, nm in enumerate(names):
         t = tolerances.get(nm)
         if t is None or not t.meets_requirement:
             return {"share_of_box_ok": None, "reason": f"parameter {nm} has no tolerance interval"}
         ax = model.axes[j]
-        axes_vals.append(ax.from_unit(np.linspace(ax.to_unit(t.min), ax.to_unit(t.max), n_per_axis)))
-    mesh = np.meshgrid(*axes_vals, indexing="ij")
-    X = np.column_stack([m.ravel() for m in mesh])
+        bounds.append((ax, ax.to_unit(t.min), ax.to_unit(t.max)))
+    if n_per_axis ** len(names) <= max_points:
+        sampling = f"grid of {n_per_axis} per axis"
+        mesh = np.meshgrid(*(np.linspace(lo, hi, n_per_axis) for _, lo, hi in bounds), indexing="ij")
+        U = np.column_stack([m.ravel() for m in mesh])
+    else:  # many parameters: a scrambled Sobol sample of the box (a full grid would be n^d points)
+        from scipy.stats import qmc
+
+        m = int(math.ceil(math.log2(max_points)))
+        sampling = f"Sobol sample of 2^{m} points"
+        lo = np.array([b[1] for b in bounds])
+        hi = np.array([b[2] for b in bounds])
+        U = lo + qmc.Sobol(len(names), scramble=True, seed=seed).random_base2(m) * (hi - lo)
+    X = np.column_stack([ax.from_unit(U[:, j]) for j, (ax, _, _) in enumerate(bounds)])
     p = model.predict(X, k)
     ok = p.lower >= required
     worst = int(np.argmin(p.lower))
-    return {"share_of_box_ok": float(ok.mean()), "n_grid": int(X.shape[0]),
+    return {"share_of_box_ok": float(ok.mean()), "n_grid": int(X.shape[0]), "sampling": sampling,
             "worst_lower": float(p.lower[worst]),
             "worst_at": {nm: float(X[worst, j]) for j, nm in enumerate(names)}}
+
+
+# ---------------------------------------------------------------------- categorical parameters and grids
+def categorical_choice(measured: Mapping[str, tuple[float, float]], nominal_value: str, required: float,
+                       k: float = BAND_SIGMA) -> dict[str, Any]:
+    """Allowed values of a categorical parameter from direct measurements (no GP across categories).
+
+    ``measured``: value -> (IoU, sd) with every other parameter at nominal. A value is allowed when
+    its measured lower bound ``IoU - k sd`` meets ``required``; the optimal value has the highest IoU.
+    """
+    values = {v: {"iou": float(m), "iou_sd": float(sd), "lower": float(m - k * sd),
+                  "meets_requirement": bool(m - k * sd >= required)} for v, (m, sd) in measured.items()}
+    best = max(values, key=lambda v: values[v]["iou"])
+    return {"nominal": nominal_value, "optimal": best, "allowed": [v for v, r in values.items() if r["meets_requirement"]],
+            "values": values, "k": k, "rule": f"allowed: measured IoU - {k:g} sd >= required (others nominal)"}
+
+
+def grid_region(names: Sequence[str], X: np.ndarray, y: np.ndarray, y_var: np.ndarray, required: float,
+                n_mesh: int = 41, k: float = BAND_SIGMA, seed: int = 0) -> tuple[ResponseGP, dict[str, Any]]:
+    """2-D GP over a cross grid's measured points and its tolerance region.
+
+    Returns (model, summary): per measured point its lower bound and whether it meets ``required``;
+    on an ``n_mesh`` x ``n_mesh`` mesh over the sampled box (working axes) the share where the GP's
+    lower k-sigma band meets it, the region's bounding box and the mask (rows: second axis)."""
+    if len(names) != 2:
+        raise MetrawError(f"a grid region needs exactly two axes, got {list(names)}")
+    model = ResponseGP(names, X, y, y_var, seed=seed)
+    ua = np.linspace(0.0, 1.0, n_mesh)
+    ax0, ax1 = model.axes
+    va, vb = ax0.from_unit(ua), ax1.from_unit(ua)
+    A, B = np.meshgrid(va, vb)
+    p = model.predict(np.column_stack([A.ravel(), B.ravel()]), k)
+    ok = (p.lower >= required).reshape(A.shape)
+    box = None
+    if ok.any():
+        box = {names[0]: [float(A[ok].min()), float(A[ok].max())], names[1]: [float(B[ok].min()), float(B[ok].max())]}
+    loo = model.leave_one_out(k) if len(y) >= 4 else None
+    points = [{names[0]: float(X[i, 0]), names[1]: float(X[i, 1]), "iou": float(y[i]), "iou_sd": math.sqrt(y_var[i]),
+               "lower_measured": float(y[i] - k * math.sqrt(y_var[i])),
+               "meets_requirement": bool(y[i] - k * math.sqrt(y_var[i]) >= required)} for i in range(len(y))]
+    return model, {"axes": list(names), "kernel": model.kernel_description(), "white_sd": math.sqrt(model.white_variance),
+                   "points": points, "share_of_grid_ok": float(ok.mean()), "n_mesh": n_mesh,
+                   "bounding_box_ok": box, "mesh": {names[0]: va.tolist(), names[1]: vb.tolist()},
+                   "mask_ok": ok.astype(int).tolist(),
+                   "leave_one_out_share_inside": None if loo is None else loo["share_inside"]}

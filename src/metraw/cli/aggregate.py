@@ -108,10 +108,10 @@ def load_point_results(params: dict[str, Any], results: str, metrics_pattern: st
                        real_pattern: str = "", gap_tolerance: float | None = None) -> list[dict[str, Any]]:
     """One record per point of params.yaml: parameters, IoU (+variance), compression (+variance) and, with
     ``real_pattern``, the real-image columns (``metraw.sim_to_real.real_columns``)."""
-    from metraw.points import parameter_points, target_params
+    from metraw.points import CATEGORICAL, parameter_points, swept_parameters, target_params
     from metraw.sim_to_real import GAP_TOLERANCE, real_columns
 
-    names = list((params["target"].get("sweeps") or {}))
+    names = swept_parameters(params)
     if not names:
         raise MetrawError("params.yaml has no target.sweeps: nothing to fit")
     rows = []
@@ -128,7 +128,7 @@ def load_point_results(params: dict[str, Any], results: str, metrics_pattern: st
         metrics = _read_json(mpath, "metrics file")
         iou, iou_var = iou_measurement(metrics, str(mpath))
         tp = target_params(params, point)
-        row = {"point": point, **{n: float(tp[n]) for n in names}, "iou": iou, "iou_sd": math.sqrt(iou_var),
+        row = {"point": point, **{n: tp[n] if n in CATEGORICAL else float(tp[n]) for n in names}, "iou": iou, "iou_sd": math.sqrt(iou_var),
                "precision": metrics.get("precision"), "recall": metrics.get("recall"),
                "n_test_images": metrics.get("n_images"), "epochs": metrics.get("epochs"),
                "n_replicates": metrics.get("n_replicates", 1), "iou_replicate_sd": metrics.get("iou_replicate_sd"),
@@ -141,6 +141,8 @@ def load_point_results(params: dict[str, Any], results: str, metrics_pattern: st
                         "ratio_sd": float(ratios.std(ddof=1) / math.sqrt(ratios.size)) if ratios.size > 1 else 0.0,
                         "bits_per_pixel": float(comp["overall"]["bits_per_pixel"]),
                         **{f"ratio_{c}": v["ratio"] for c, v in comp["channels"].items()},
+                        **{f"ratio_{c}_sd": _sd_of_mean([im["channels"][c]["ratio"] for im in comp["images"]
+                                                         if c in im.get("channels", {})]) for c in comp["channels"]},
                         "_signal": comp.get("signal_e")})
         if rpath is not None:
             real = _read_json(rpath, "real-image metrics file")
@@ -151,6 +153,12 @@ def load_point_results(params: dict[str, Any], results: str, metrics_pattern: st
     if missing:
         raise MetrawError(f"{len(missing)} per-point result file(s) missing, e.g. {missing[0]}")
     return rows
+
+
+def _sd_of_mean(values: list[float]) -> float:
+    """Standard error of the mean of per-image values (0 for fewer than two)."""
+    v = np.asarray(values, dtype=np.float64)
+    return float(v.std(ddof=1) / math.sqrt(v.size)) if v.size > 1 else 0.0
 
 
 def _sim_to_real(args, rows: list[dict[str, Any]]) -> dict[str, Any] | None:
@@ -193,9 +201,9 @@ def _write_text(path: Path, text: str) -> None:
 
 def run(args) -> int:
     from metraw import figures
-    from metraw.points import NOMINAL, load_params, target_params
+    from metraw.points import CATEGORICAL, NOMINAL, load_params, swept_parameters, target_params
     from metraw.spec import build_spec
-    from metraw.tolerance import BAND_SIGMA, ResponseGP, joint_region, tolerance_interval
+    from metraw.tolerance import BAND_SIGMA, ResponseGP, categorical_choice, joint_region, tolerance_interval
 
     params = load_params(args.params)
     required = float(params.get("spec", {}).get("required_iou", math.nan))
@@ -204,25 +212,34 @@ def run(args) -> int:
     rows = load_point_results(params, args.results, args.metrics_pattern, args.compression_pattern,
                               args.real_metrics_pattern, args.gap_tolerance)
     real = _sim_to_real(args, rows)
-    names = list(params["target"]["sweeps"])
+    all_names = swept_parameters(params)
+    names = [n for n in all_names if n not in CATEGORICAL]  # the GP's axes
+    categorical = [n for n in all_names if n in CATEGORICAL]
     nominal = target_params(params, NOMINAL)
     at = {n: float(nominal[n]) for n in names}
-    X = np.array([[r[n] for n in names] for r in rows])
+    # the GP spans the numeric parameters at the nominal category; categories are compared by measurement
+    gp_rows = [r for r in rows if all(r[c] == nominal[c] for c in categorical)]
+    X = np.array([[r[n] for n in names] for r in gp_rows])
 
-    iou_gp = ResponseGP(names, X, [r["iou"] for r in rows], [r["iou_sd"] ** 2 for r in rows], seed=args.seed)
+    iou_gp = ResponseGP(names, X, [r["iou"] for r in gp_rows], [r["iou_sd"] ** 2 for r in gp_rows], seed=args.seed)
     iou_loo = iou_gp.leave_one_out()
     tols = {n: tolerance_interval(iou_gp, n, required, at, extrapolate=args.extrapolate) for n in names}
-    joint = joint_region(iou_gp, required, tols)
+    joint = joint_region(iou_gp, required, tols, seed=args.seed)
+    choices = {c: categorical_choice({r[c]: (r["iou"], r["iou_sd"]) for r in rows if _on_line(r, c, nominal, all_names)},
+                                     nominal[c], required) for c in categorical}
     has_ratio = bool(args.compression_pattern)
     ratio_gp = ratio_loo = None
     if has_ratio:
-        ratio_gp = ResponseGP(names, X, [r["ratio"] for r in rows], [r["ratio_sd"] ** 2 for r in rows], seed=args.seed)
+        ratio_gp = ResponseGP(names, X, [r["ratio"] for r in gp_rows], [r["ratio_sd"] ** 2 for r in gp_rows],
+                              seed=args.seed)
         ratio_loo = ratio_gp.leave_one_out()
+    grids = [_grid_summary(params, grid, rows, nominal, all_names, required, args.seed)
+             for grid in params["target"].get("grids") or []]
     nominal_row = next(r for r in rows if r["point"] == NOMINAL)
-    spec = build_spec(tols, nominal, required, nominal_row.get("_signal"),
+    spec = build_spec(tols, nominal, required, nominal_row.get("_signal"), choices=choices,
                       context={"params_file": str(args.params), "loo_share_inside_2sigma": iou_loo["share_inside"]})
 
-    for r, rec in zip(rows, iou_loo["points"]):
+    for r, rec in zip(gp_rows, iou_loo["points"]):
         r["iou_loo_pred"], r["iou_loo_sd"], r["iou_loo_inside"] = rec["predicted"], rec["sd"], rec["inside"]
     examples = []
     if args.stores_pattern:
@@ -241,7 +258,8 @@ def run(args) -> int:
     out = Path(args.out)
     figdir, plotdir = out / "figures", out / "plots"
     summary = {
-        "required_iou": required, "band_sigma": BAND_SIGMA, "parameters": names, "nominal": at,
+        "required_iou": required, "band_sigma": BAND_SIGMA, "parameters": all_names, "gp_parameters": names,
+        "nominal": {**at, **{c: nominal[c] for c in categorical}},
         "points": [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows],
         "iou_gp": {"kernel": iou_gp.kernel_description(), "white_sd": math.sqrt(iou_gp.white_variance),
                    "leave_one_out": iou_loo},
@@ -250,12 +268,14 @@ def run(args) -> int:
             "leave_one_out": ratio_loo},
         "tolerances": {n: {k: v for k, v in t.__dict__.items()} for n, t in tols.items()},
         "joint_region": joint,
+        "categorical": choices,
+        "grids": [g for _, g in grids],
     }
     if real is not None:
         summary["sim_to_real"] = real
     spec.save(out / "spec.yaml")
     _write_text(out / "aggregate.json", json.dumps(summary, indent=2, default=float) + "\n")
-    pcols = ["point", *names, "iou", "iou_sd", "iou_loo_pred", "iou_loo_sd", "iou_loo_inside", "precision", "recall",
+    pcols = ["point", *all_names, "iou", "iou_sd", "iou_loo_pred", "iou_loo_sd", "iou_loo_inside", "precision", "recall",
              "object_f1", "n_replicates", "iou_replicate_sd"]
     if real is not None:
         pcols += ["real_iou", "real_iou_sd", "real_precision", "real_recall", "sim_to_real_gap", "sim_to_real_gap_sd"]
@@ -264,7 +284,7 @@ def run(args) -> int:
                                                                    and k != "ratio_sd")
     _write_text(plotdir / "points.csv", _csv(rows, pcols))
     for n in names:
-        on_line = [r for r in rows if all(r[m] == at[m] for m in names if m != n)]
+        on_line = [r for r in rows if _on_line(r, n, nominal, all_names)]
         t = figures.line_table(iou_gp, n, at)
         _write_text(plotdir / f"iou_{n}.csv", _csv([dict(zip(t, v)) for v in zip(*t.values())], list(t)))
         figures.response_line(iou_gp, n, at, figdir / IOU_FIGS.get(n, f"iou_{n}.png"),
@@ -281,7 +301,23 @@ def run(args) -> int:
                                   ylabel="compression ratio vs 16 bit",
                                   points=[(r[n], r["ratio"], r["ratio_sd"]) for r in on_line],
                                   title=f"compression ratio vs {n} (others nominal)")
-    if "focal_length_m" in names and "diameter_m" in names:
+            figures.channel_lines(n, _channel_series(on_line, n), figdir / f"fig8_ratio_channels_{n}.png",
+                                  ylabel="compression ratio vs 16 bit", log_x=iou_gp.axes[names.index(n)].kind == "log",
+                                  title=f"compression ratio per channel vs {n} (others nominal)")
+    for c, choice in choices.items():
+        figures.categorical_bars(c, {v: (r["iou"], r["iou_sd"]) for v, r in choice["values"].items()},
+                                 figdir / f"iou_{c}.png", ylabel="IoU (test split)", required=required,
+                                 title=f"IoU per {c} (others nominal)")
+        if has_ratio:
+            on_line = [r for r in rows if _on_line(r, c, nominal, all_names)]
+            figures.categorical_bars(c, {r[c]: (r["ratio"], r["ratio_sd"]) for r in on_line},
+                                     figdir / f"ratio_{c}.png", ylabel="compression ratio vs 16 bit",
+                                     title=f"compression ratio per {c} (others nominal)")
+    for model, g in grids:
+        a, b = g["axes"]
+        figures.grid_map(model, g, figdir / f"fig7b_iou_grid_{a}_{b}.png", required=required,
+                         title=f"IoU over {a} x {b} (measured grid; fixed: {g['fixed'] or 'others nominal'})")
+    if "focal_length_m" in names and "diameter_m" in names and not grids:
         figures.response_map(iou_gp, "focal_length_m", "diameter_m", at, figdir / "fig7b_iou_map.png",
                              label="IoU (GP mean)", required=required,
                              points=[(r["focal_length_m"], r["diameter_m"]) for r in rows],
@@ -303,5 +339,53 @@ def run(args) -> int:
         else:
             print(f"  {n}: lower 2-sigma bound {t.lower_at_optimal:.3f} < required {required} even at the optimum")
     print(f"  joint region: share of the tolerance box meeting the requirement = {joint.get('share_of_box_ok')}")
+    for c, choice in choices.items():
+        print(f"  {c}: allowed {choice['allowed'] or 'none'}; " + ", ".join(
+            f"{v} IoU {r['iou']:.3f} +- {r['iou_sd']:.3f}" for v, r in choice["values"].items()))
+    for _, g in grids:
+        print(f"  grid {' x '.join(g['axes'])}: {len(g['points'])} measured points, "
+              f"{sum(p['meets_requirement'] for p in g['points'])} meet {required:g}; GP region "
+              f"{100 * g['share_of_grid_ok']:.0f} % of the grid box")
     print(f"wrote {out / 'spec.yaml'}, {out / 'aggregate.json'}, {figdir}/, {plotdir}/")
     return 0
+
+
+def _on_line(row: dict[str, Any], name: str, nominal: dict[str, Any], names: list[str]) -> bool:
+    """Whether ``row`` lies on the one-at-a-time line of ``name``: every other swept parameter nominal."""
+    from metraw.points import same_value
+
+    return all(same_value(row[m], nominal[m]) for m in names if m != name)
+
+
+def _channel_series(rows: list[dict[str, Any]], name: str) -> dict[str, list[tuple[float, float, float]]]:
+    """Per colour channel: (parameter value, compression ratio, its sd over images) of ``rows``."""
+    out: dict[str, list[tuple[float, float, float]]] = {}
+    for r in rows:
+        for key in r:
+            if key.startswith("ratio_") and not key.endswith("_sd") and f"{key}_sd" in r:
+                out.setdefault(key[len("ratio_"):], []).append((r[name], r[key], r[f"{key}_sd"]))
+    return out
+
+
+def _grid_summary(params: dict[str, Any], grid: dict[str, Any], rows: list[dict[str, Any]], nominal: dict[str, Any],
+                  names: list[str], required: float, seed: int):
+    """(2-D GP, summary) of one ``target.grids`` entry from its measured points (`metraw.tolerance.grid_region`)."""
+    from metraw.points import grid_axes, same_value
+    from metraw.tolerance import grid_region
+
+    axes, fixed = grid_axes(grid)
+    if len(axes) != 2:
+        raise MetrawError(f"target.grids entry {grid} must have exactly two list-valued axes for its IoU map")
+    want = {m: fixed.get(m, nominal[m]) for m in names if m not in axes}
+    members = [r for r in rows if all(same_value(r[m], v) for m, v in want.items())
+               and any(same_value(r[axes[0]], v) for v in grid[axes[0]])
+               and any(same_value(r[axes[1]], v) for v in grid[axes[1]])]
+    if len(members) < 3:
+        raise MetrawError(f"grid {' x '.join(axes)} has {len(members)} measured points; a 2-D GP needs >= 3")
+    X = np.array([[r[axes[0]], r[axes[1]]] for r in members])
+    model, summary = grid_region(axes, X, np.array([r["iou"] for r in members]),
+                                 np.array([r["iou_sd"] ** 2 for r in members]), required, seed=seed)
+    summary["fixed"] = fixed
+    for p, r in zip(summary["points"], members):
+        p["point"] = r["point"]
+    return model, summary
