@@ -89,7 +89,12 @@ def response_line(model: ResponseGP, name: str, at: Mapping[str, float], path: s
     if tolerance is not None and tolerance.meets_requirement:
         ax.axvspan(tolerance.min, tolerance.max, color="tab:green", alpha=0.10, label="tolerance")
         ax.axvline(tolerance.optimal, color="tab:green", lw=1, ls=":")
-    if model.axes[model.names.index(name)].kind == "log":
+    _finish_line(fig, ax, path, name, ylabel, title, model.axes[model.names.index(name)].kind == "log")
+
+
+def _finish_line(fig, ax, path: str | Path, name: str, ylabel: str, title: str, log_x: bool) -> None:
+    """Axis scale, labels, title, grid and legend of a line figure; save it."""
+    if log_x:
         ax.set_xscale("log")
     ax.set_xlabel(LABELS.get(name, name))
     ax.set_ylabel(ylabel)
@@ -182,7 +187,8 @@ def grid_map(model: ResponseGP, summary: Mapping[str, Any], path: str | Path, *,
 
 def channel_lines(name: str, series: Mapping[str, Sequence[tuple[float, float, float]]], path: str | Path, *,
                   ylabel: str, log_x: bool = False, title: str = "") -> None:
-    """One measured curve per colour channel: ``series[channel]`` = [(x, y, sd), ...] (2 sd bars)."""
+    """One measured curve per colour channel: ``series[channel]`` = [(x, y, se), ...] (bars: 2 standard errors
+    of the mean over the point's images)."""
     plt = _plt()
     fig, ax = plt.subplots(figsize=(4.8, 3.4))
     for c, pts in series.items():
@@ -190,16 +196,8 @@ def channel_lines(name: str, series: Mapping[str, Sequence[tuple[float, float, f
             continue
         x, y, sd = (np.array(v, dtype=float) for v in zip(*sorted(pts)))
         ax.errorbar(x, y, yerr=2 * sd, fmt="o-", color=CHANNEL_COLOURS.get(c, None), ms=4, lw=1.2, capsize=2,
-                    label=f"{c} (2 sd over images)")
-    if log_x:
-        ax.set_xscale("log")
-    ax.set_xlabel(LABELS.get(name, name))
-    ax.set_ylabel(ylabel)
-    if title:
-        ax.set_title(title, fontsize=9)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, loc="best")
-    _save(fig, path)
+                    label=f"{c} (2 se over images)")
+    _finish_line(fig, ax, path, name, ylabel, title, log_x)
 
 
 def categorical_bars(name: str, values: Mapping[str, tuple[float, float]], path: str | Path, *, ylabel: str,
