@@ -4,7 +4,9 @@ haze sweeps, cross grids (2-D GP and tolerance region), compression per channel,
 from __future__ import annotations
 
 import copy
+import csv
 import importlib.util
+import io
 import json
 import math
 from pathlib import Path
@@ -185,7 +187,14 @@ def test_aggregate_writes_categorical_grid_and_per_channel_results(tmp_path, cap
     assert isinstance(back.parameters["cfa_pattern"], Choice)
     figs = {p.name for p in (tmp_path / "out" / "figures").iterdir()}
     assert {"fig7b_iou_grid_focal_length_m_diameter_m.png", "iou_cfa_pattern.png", "ratio_cfa_pattern.png",
-            "fig8_ratio_channels_exposure_s.png", "fig8_ratio_channels_path_radiance_w_m2_sr_m.png"} <= figs
+            "fig8_ratio_channels_exposure_s.png", "fig8_ratio_channels_path_radiance_w_m2_sr_m.png",
+            "fig8_ratio_channels_cfa_pattern.png"} <= figs
+    # every point's per-channel ratios reach points.csv: the mono point's L as well as the Bayer points' R, G, B
+    csv_rows = list(csv.DictReader(io.StringIO((tmp_path / "out" / "plots" / "points.csv").read_text())))
+    by_point = {r["point"]: r for r in csv_rows}
+    assert float(by_point["cfa_pattern-mono"]["ratio_L"]) == pytest.approx(mono["ratio_L"])
+    assert float(by_point["cfa_pattern-mono"]["ratio_L_sd"]) > 0 and by_point["cfa_pattern-mono"]["ratio_G"] == ""
+    assert float(by_point["nominal"]["ratio_G"]) == pytest.approx(nominal["ratio_G"]) and by_point["nominal"]["ratio_L"] == ""
 
 
 # --------------------------------------------------------------------------- check / normalise

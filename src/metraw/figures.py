@@ -221,6 +221,29 @@ def categorical_bars(name: str, values: Mapping[str, tuple[float, float]], path:
     _save(fig, path)
 
 
+def categorical_channel_bars(name: str, values: Mapping[str, Mapping[str, tuple[float, float]]], path: str | Path, *,
+                             ylabel: str, title: str = "") -> None:
+    """A measured outcome per category and colour channel: ``values[label][channel]`` = (y, se), grouped bars per
+    category (a mono sensor has one channel, L; a Bayer one R, G, B), with bars of 2 standard errors."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(4.2, 3.2))
+    labels = list(values)
+    width = 0.8 / max(len(v) for v in values.values())
+    for i, label in enumerate(labels):
+        chans = values[label]
+        for j, (c, (y, se)) in enumerate(chans.items()):
+            x = i + (j - (len(chans) - 1) / 2) * width
+            ax.bar(x, y, width=width * 0.9, yerr=2 * se, capsize=2, color=CHANNEL_COLOURS.get(c, "tab:grey"),
+                   alpha=0.8)
+            ax.text(x, 0.02 * y, c, ha="center", va="bottom", fontsize=7, color="white")
+    ax.set_xticks(range(len(labels)), labels)
+    ax.set_xlabel(LABELS.get(name, name))
+    ax.set_ylabel(ylabel)
+    ax.set_title((title + "\n" if title else "") + "bars: 2 se over images", fontsize=8)
+    ax.grid(alpha=0.3, axis="y")
+    _save(fig, path)
+
+
 def quicklook(image) -> np.ndarray:
     """A display image (grey, 0..1) of a raw: electrons averaged over each CFA cell, 1-99 % stretch."""
     from metraw.cfa import cell_size

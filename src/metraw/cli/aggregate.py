@@ -280,8 +280,9 @@ def run(args) -> int:
     if real is not None:
         pcols += ["real_iou", "real_iou_sd", "real_precision", "real_recall", "sim_to_real_gap", "sim_to_real_gap_sd"]
     if has_ratio:
-        pcols += ["ratio", "ratio_sd", "bits_per_pixel"] + sorted(k for k in rows[0] if k.startswith("ratio_")
-                                                                   and k != "ratio_sd")
+        # per-channel columns of every point (a mono point has L, a Bayer point R, G, B): the union, not the first row's
+        pcols += ["ratio", "ratio_sd", "bits_per_pixel"] + sorted({k for r in rows for k in r if k.startswith("ratio_")
+                                                                   and k != "ratio_sd"})
     _write_text(plotdir / "points.csv", _csv(rows, pcols))
     for n in names:
         on_line = [r for r in rows if _on_line(r, n, nominal, all_names)]
@@ -313,6 +314,11 @@ def run(args) -> int:
             figures.categorical_bars(c, {r[c]: (r["ratio"], r["ratio_sd"]) for r in on_line},
                                      figdir / f"ratio_{c}.png", ylabel="compression ratio vs 16 bit",
                                      title=f"compression ratio per {c} (others nominal)")
+            per_value = {r[c]: {ch: pts[0][1:] for ch, pts in _channel_series([r], c).items()} for r in on_line}
+            figures.categorical_channel_bars(c, per_value,
+                                             figdir / f"fig8_ratio_channels_{c}.png",
+                                             ylabel="compression ratio vs 16 bit",
+                                             title=f"compression ratio per channel per {c} (others nominal)")
     for model, g in grids:
         a, b = g["axes"]
         figures.grid_map(model, g, figdir / f"fig7b_iou_grid_{a}_{b}.png", required=required,
