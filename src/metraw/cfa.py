@@ -15,6 +15,11 @@ BAYER_PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
 PATTERNS = BAYER_PATTERNS + ("mono",)
 
 
+def cfa_family(pattern: str) -> str:
+    """``bayer`` for any Bayer phase (a different phase is not a different sensor), else the pattern."""
+    return "mono" if pattern == "mono" else "bayer"
+
+
 def validate_pattern(pattern: str) -> str:
     if pattern not in PATTERNS:
         raise MetrawError(f"unsupported CFA pattern {pattern!r}; expected one of {', '.join(PATTERNS)}")

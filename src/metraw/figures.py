@@ -209,16 +209,10 @@ def categorical_bars(name: str, values: Mapping[str, tuple[float, float]], path:
     y = np.array([values[v][0] for v in labels], dtype=float)
     sd = np.array([values[v][1] for v in labels], dtype=float)
     ax.bar(range(len(labels)), y, yerr=2 * sd, capsize=3, color="tab:blue", alpha=0.7)
-    ax.set_xticks(range(len(labels)), labels)
     if required is not None:
         ax.axhline(required, color="tab:red", ls="--", lw=1, label=f"required {required:g}")
         ax.legend(fontsize=7)
-    ax.set_xlabel(LABELS.get(name, name))
-    ax.set_ylabel(ylabel)
-    if title:
-        ax.set_title(title, fontsize=9)
-    ax.grid(alpha=0.3, axis="y")
-    _save(fig, path)
+    _finish_bars(fig, ax, path, name, labels, ylabel, title, fontsize=9)
 
 
 def categorical_channel_bars(name: str, values: Mapping[str, Mapping[str, tuple[float, float]]], path: str | Path, *,
@@ -236,10 +230,18 @@ def categorical_channel_bars(name: str, values: Mapping[str, Mapping[str, tuple[
             ax.bar(x, y, width=width * 0.9, yerr=2 * se, capsize=2, color=CHANNEL_COLOURS.get(c, "tab:grey"),
                    alpha=0.8)
             ax.text(x, 0.02 * y, c, ha="center", va="bottom", fontsize=7, color="white")
+    _finish_bars(fig, ax, path, name, labels, ylabel, (title + "\n" if title else "") + "bars: 2 se over images",
+                 fontsize=8)
+
+
+def _finish_bars(fig, ax, path: str | Path, name: str, labels: Sequence[str], ylabel: str, title: str,
+                 fontsize: int) -> None:
+    """Category ticks, labels, title and grid of a bar figure; save it."""
     ax.set_xticks(range(len(labels)), labels)
     ax.set_xlabel(LABELS.get(name, name))
     ax.set_ylabel(ylabel)
-    ax.set_title((title + "\n" if title else "") + "bars: 2 se over images", fontsize=8)
+    if title:
+        ax.set_title(title, fontsize=fontsize)
     ax.grid(alpha=0.3, axis="y")
     _save(fig, path)
 

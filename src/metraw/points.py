@@ -158,7 +158,9 @@ def grid_axes(grid: dict[str, Any]) -> tuple[list[str], dict[str, Any]]:
 
 
 def _check_categorical(parameter: str, value: Any, nominal: dict[str, Any]) -> None:
-    if parameter == "cfa_pattern" and value != "mono" and nominal.get("cfa_pattern", "mono") != "mono":
+    from metraw.cfa import cfa_family
+
+    if parameter == "cfa_pattern" and cfa_family(value) == cfa_family(nominal.get("cfa_pattern", "mono")) == "bayer":
         raise MetrawError(f"cfa_pattern value {value!r}: a different Bayer phase than the nominal "
                           f"{nominal['cfa_pattern']!r} is not a different sensor (sweep mono against a Bayer pattern)")
 

@@ -200,6 +200,11 @@ def bin_same_colour(image: RawImage, factor: int) -> RawImage:
                                 "deviation": deviation}, mask=mask, flags=flags)
 
 
+def _per_pixel(image: RawImage, values: dict[str, float]) -> np.ndarray:
+    """A per-channel value laid out on the image's CFA (one value per pixel)."""
+    return np.take(np.array([values[c] for c in image.profile.channels]), image.color_index())
+
+
 def thin(image: RawImage, p: float | dict[str, float], seed: int | np.random.Generator = 0,
          profile_changes: dict[str, Any] | None = None) -> RawImage:
     """Binomial thinning: keep each photoelectron with probability ``p`` (one value or per channel).
@@ -216,8 +221,7 @@ def thin(image: RawImage, p: float | dict[str, float], seed: int | np.random.Gen
     channels = channel_names(prof.cfa_pattern)
     pmap = {c: float(p) for c in channels} if not isinstance(p, dict) else {c: float(p[c]) for c in channels}
     n, info = _counts_estimate(image, rng)
-    prob = np.take(np.array([pmap[c] for c in channels]), image.color_index())
-    kept = thin_counts(n, prob, rng)
+    kept = thin_counts(n, _per_pixel(image, pmap), rng)
     new_profile = prof.replace(**(profile_changes or {}))
     pmax = max(pmap.values())
     info["deviation"] = (f"source read noise and rounding thinned with the signal: excess variance <= "
@@ -244,7 +248,7 @@ def atmosphere(image: RawImage, transmission: float, path_radiance_w_m2_sr_m: fl
     haze = path_radiance_electrons(prof, float(path_radiance_w_m2_sr_m), float(exponent))
     n, info = _counts_estimate(image, rng)
     kept = thin_counts(n, float(transmission), rng)
-    added = rng.poisson(np.take(np.array([haze[c] for c in prof.channels]), image.color_index()))
+    added = rng.poisson(_per_pixel(image, haze))
     info["deviation"] = (f"source read noise and rounding thinned with the signal: excess variance <= "
                          f"{transmission**2 * (prof.read_noise_e**2 + 0.25):.3g} e-^2 per pixel")
     return read_out(kept + added, image, prof, rng, function="atmosphere",

@@ -39,6 +39,7 @@ import numpy as np
 import yaml
 
 from metraw.atomic import atomic_path
+from metraw.cfa import cfa_family
 from metraw.errors import MetrawError
 from metraw.image import RawImage
 
@@ -87,11 +88,6 @@ class Limit:
             raise MetrawError(f"spec {name}: min {d['min']} > max {d['max']}")
         return cls(d["optimal"], d["min"], d["max"], d["unit"],
                    {k: v for k, v in d.items() if k not in ("optimal", "min", "max", "unit")})
-
-
-def cfa_family(pattern: str) -> str:
-    """``bayer`` for any Bayer phase (a different phase is not a different sensor), else the pattern."""
-    return "mono" if pattern == "mono" else "bayer"
 
 
 @dataclass

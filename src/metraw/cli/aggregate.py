@@ -136,9 +136,8 @@ def load_point_results(params: dict[str, Any], results: str, metrics_pattern: st
                "replicate_ious": [q["iou"] for q in metrics.get("replicates", []) if q.get("iou") is not None]}
         if cpath is not None:
             comp = _read_json(cpath, "compression file")
-            ratios = np.array([im["ratio"] for im in comp["images"]], dtype=np.float64)
             row.update({"ratio": float(comp["overall"]["ratio"]),
-                        "ratio_sd": float(ratios.std(ddof=1) / math.sqrt(ratios.size)) if ratios.size > 1 else 0.0,
+                        "ratio_sd": _sd_of_mean([im["ratio"] for im in comp["images"]]),
                         "bits_per_pixel": float(comp["overall"]["bits_per_pixel"]),
                         **{f"ratio_{c}": v["ratio"] for c, v in comp["channels"].items()},
                         **{f"ratio_{c}_sd": _sd_of_mean([im["channels"][c]["ratio"] for im in comp["images"]
@@ -314,8 +313,7 @@ def run(args) -> int:
             figures.categorical_bars(c, {r[c]: (r["ratio"], r["ratio_sd"]) for r in on_line},
                                      figdir / f"ratio_{c}.png", ylabel="compression ratio vs 16 bit",
                                      title=f"compression ratio per {c} (others nominal)")
-            per_value = {r[c]: {ch: pts[0][1:] for ch, pts in _channel_series([r], c).items()} for r in on_line}
-            figures.categorical_channel_bars(c, per_value,
+            figures.categorical_channel_bars(c, {r[c]: _channel_ratios(r) for r in on_line},
                                              figdir / f"fig8_ratio_channels_{c}.png",
                                              ylabel="compression ratio vs 16 bit",
                                              title=f"compression ratio per channel per {c} (others nominal)")
@@ -363,13 +361,18 @@ def _on_line(row: dict[str, Any], name: str, nominal: dict[str, Any], names: lis
     return all(same_value(row[m], nominal[m]) for m in names if m != name)
 
 
+def _channel_ratios(row: dict[str, Any]) -> dict[str, tuple[float, float]]:
+    """Per colour channel of one point: (compression ratio, its sd over images)."""
+    return {key[len("ratio_"):]: (row[key], row[f"{key}_sd"]) for key in row
+            if key.startswith("ratio_") and not key.endswith("_sd") and f"{key}_sd" in row}
+
+
 def _channel_series(rows: list[dict[str, Any]], name: str) -> dict[str, list[tuple[float, float, float]]]:
     """Per colour channel: (parameter value, compression ratio, its sd over images) of ``rows``."""
     out: dict[str, list[tuple[float, float, float]]] = {}
     for r in rows:
-        for key in r:
-            if key.startswith("ratio_") and not key.endswith("_sd") and f"{key}_sd" in r:
-                out.setdefault(key[len("ratio_"):], []).append((r[name], r[key], r[f"{key}_sd"]))
+        for c, (ratio, sd) in _channel_ratios(r).items():
+            out.setdefault(c, []).append((r[name], ratio, sd))
     return out
 
 
