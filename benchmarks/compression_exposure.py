@@ -28,6 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
+from metraw.atomic import atomic_path
+
 
 def measure(source, target, n: int, step: float, seed: int) -> dict[str, list[float]]:
     from metraw.cli.compress import measure_image
@@ -91,7 +93,7 @@ def main(argv: list[str] | None = None) -> int:
                   + f", median signal {signal:.0f} e- ({time.perf_counter() - t0:.1f} s)", flush=True)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    with open(out / "compression_exposure.csv", "w", newline="") as fh:
+    with atomic_path(out / "compression_exposure.csv", overwrite=True) as tmp, open(tmp, "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(rows[0]), lineterminator="\n")
         w.writeheader()
         w.writerows(rows)
@@ -123,7 +125,8 @@ def plot(rows: list[dict], path: Path) -> None:
     ax.set_title("codec ratio per channel vs exposure (nominal payload)", fontsize=9)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=6.5, ncol=2)
-    fig.savefig(path, dpi=120)
+    with atomic_path(path, overwrite=True) as tmp:
+        fig.savefig(tmp, dpi=120, format="png")
     plt.close(fig)
 
 
