@@ -42,6 +42,21 @@ def test_corrupt_png(tmp_path, capsys):
     assert "corrupt or truncated image" in _ingest_fails(tmp_path, capsys, [bad])
 
 
+def test_decoder_message_with_control_bytes_stays_one_line(tmp_path, capsys, monkeypatch):
+    """A decoder whose message echoes damaged bytes (line breaks, control characters; seen from libpng on a
+    corrupt PNG) still gives one printable error line."""
+    import imagecodecs
+
+    def broken(data):
+        raise RuntimeError("bad chunk (p\x13H\n\x0e\x7f)")
+
+    monkeypatch.setattr(imagecodecs, "png_decode", broken)
+    bad = tmp_path / "a.png"
+    bad.write_bytes(b"\x89PNG\r\n\x1a\n" + b"garbage" * 50)
+    line = _ingest_fails(tmp_path, capsys, [bad])
+    assert line.isprintable() and line.endswith("corrupt or truncated image (bad chunk (p H ))")
+
+
 def test_corrupt_tiff(tmp_path, capsys):
     bad = tmp_path / "a.tif"
     bad.write_bytes(b"II*\x00" + b"\xff" * 64)

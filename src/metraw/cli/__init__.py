@@ -34,6 +34,12 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def one_line(text: str) -> str:
+    """``text`` as one printable line: control characters and line breaks (e.g. a decoder's message that
+    echoes damaged bytes) become spaces, runs of whitespace one space."""
+    return " ".join("".join(ch if ch.isprintable() else " " for ch in text).split())
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -43,7 +49,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except MetrawError as exc:
-        print(f"metraw {args.command}: error: {exc}", file=sys.stderr)
+        print(f"metraw {args.command}: error: {one_line(str(exc))}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"metraw {args.command}: interrupted", file=sys.stderr)
