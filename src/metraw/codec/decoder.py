@@ -81,12 +81,12 @@ def _context_impl(act, thr, ctab):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _pixel(pf, b, ws, w_, ww, uv, thr, ctab, coef, bias, tab0, pshift, lut, fcum, alpha, amax, words, x, pos, esc,
-           epos):
+def _pixel(pf, b, ws, w_, ww, uv, thr, ctab, coef, tab0, pshift, lut, fcum, alpha, amax, words, x, pos, esc, epos):
     """Decode the pixel at flat index ``b`` of the padded buffer ``pf`` (row stride ``ws``; its left
     neighbours ``w_`` = pf[b - 1] and ``ww`` = pf[b - 2] passed in: a lane keeps them in registers, off
     the store-to-load path) from one lane, without checking the lane's word and escape positions;
-    returns (symbol, its buffer value pf[b], x, pos, epos)."""
+    returns (symbol, its buffer value pf[b], x, pos, epos). ``coef``: per context the 11 coefficients,
+    their sum and the bias."""
     half = np.int64(1 << 15)
     n_ = pf[_u(b - ws)]
     nw = pf[_u(b - ws - 1)]
@@ -94,14 +94,14 @@ def _pixel(pf, b, ws, w_, ww, uv, thr, ctab, coef, bias, tab0, pshift, lut, fcum
     nn = pf[_u(b - 2 * ws)]
     act = abs(w_ - nw) + abs(n_ - nw) + abs(n_ - ne) + abs(w_ - ww) + abs(n_ - nn)
     c = _context(act, thr, ctab)
-    o = c * 12
+    o = c * 13
     # sum_i k_i (n_i - W) = sum_i k_i n_i - W sum_i k_i (exact integers: the encoder's value)
     acc = (coef[_u(o)] * n_ + coef[_u(o + 1)] * nw + coef[_u(o + 2)] * ne + coef[_u(o + 3)] * ww
            + coef[_u(o + 4)] * nn + coef[_u(o + 5)] * pf[_u(b - ws - 2)] + coef[_u(o + 6)] * pf[_u(b - 2 * ws - 1)]
            + coef[_u(o + 7)] * pf[_u(b - 2 * ws + 1)] + coef[_u(o + 8)] * pf[_u(b - ws + 2)]
            + coef[_u(o + 9)] * pf[_u(b - 2 * ws - 2)] + coef[_u(o + 10)] * pf[_u(b - 2 * ws + 2)]
            - coef[_u(o + 11)] * w_)
-    mh = w_ + (acc >> 12) + bias[_u(c)] + uv + half
+    mh = w_ + (acc >> 12) + coef[_u(o + 12)] + uv + half
     sh = mh >> 16
     fr = mh & 0xFFFF
     f = 1 - (fr >> 15)
@@ -126,26 +126,40 @@ def _pixel(pf, b, ws, w_, ww, uv, thr, ctab, coef, bias, tab0, pshift, lut, fcum
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def decode_pixel(pf, b, ws, uv, thr, ctab, coef, bias, tab0, pshift, lut, fcum, alpha, amax, words, x, pos, pmin,
-                 esc, epos, eend):
+def decode_pixel(pf, b, ws, uv, thr, ctab, coef, tab0, pshift, lut, fcum, alpha, amax, words, x, pos, pmin, esc,
+                 epos, eend):
     """``_pixel`` with the lane's limits checked: returns (symbol, x, pos, epos, ok), ok false once the
     lane has used a word below ``pmin`` (its pad) or an escape at or past ``eend``."""
-    v, _, x, pos, epos = _pixel(pf, b, ws, pf[_u(b - 1)], pf[_u(b - 2)], uv, thr, ctab, coef, bias, tab0, pshift, lut,
-                                fcum, alpha, amax, words, x, pos, esc, epos)
+    v, _, x, pos, epos = _pixel(pf, b, ws, pf[_u(b - 1)], pf[_u(b - 2)], uv, thr, ctab, coef, tab0, pshift, lut, fcum,
+                                alpha, amax, words, x, pos, esc, epos)
     return v, x, pos, epos, (pos >= pmin) & (epos <= eend)
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
 def _u16(u, y, x):
-    """floor(u 2^16) of the dither at (y, x)."""
-    return np.int64(np.floor(u[_u(y), _u(x)] * 65536.0))
+    """floor(u 2^16) of the dither at (y, x), from the plane's ``fixed_dither``."""
+    return np.int64(u[_u(y), _u(x)])
 
 
 @nb.njit(cache=True, nogil=True)
-def decode_plane(p, u, sym, thr, ctab, coef, bias, tab0, pshift, lut, fcum, amax, words, xs, pos, pmin, esc, epos, eend):
+def fixed_dither(u):
+    """floor(u 2^16) of a dither plane (int32): the fixed-point dither the prediction uses."""
+    out = np.empty(u.shape, np.int32)
+    uf = u.reshape(-1)
+    of = out.reshape(-1)
+    for i in range(uf.size):
+        of[i] = np.int32(np.floor(uf[i] * 65536.0))
+    return out
+
+
+@nb.njit(cache=True, nogil=True)
+def decode_plane(p, u, sym, thr, ctab, coef, tab0, pshift, lut, fcum, amax, words, xs, pos, pmin, esc, epos, eend):
     """Decode one plane into the padded buffer ``p`` (h + 2, w + 4) and the symbols ``sym`` (the
-    plane's view of the tile); ``u`` is the plane's dither; ``thr`` the 7 activity thresholds (padded)
-    and ``ctab`` their ``context_table`` or None (compiled separately: compares instead of a lookup); ``lut`` (tables x 2^PROB_BITS) and
+    plane's view of the tile, filled from the buffer after the per-pixel loop); ``u`` is the plane's dither
+    in fixed point (``fixed_dither``: an integer load per pixel instead of float arithmetic); ``thr`` the 7 activity thresholds (padded)
+    and ``ctab`` their ``context_table`` or None (compiled separately: compares instead of a lookup); ``coef``
+    per context the 11 coefficients, their sum and the bias (one array: one base register less in the
+    steady loop); ``lut`` (tables x 2^PROB_BITS) and
     ``fcum`` (tables x alphabet) C-contiguous. Updates the per-lane state ``xs``, word positions
     ``pos`` (lower limits ``pmin``) and escape positions ``epos`` (limits ``eend``) in place;
     returns ok. ``words`` must hold at least w readable pad words below each lane's ``pmin`` and
@@ -180,24 +194,20 @@ def decode_plane(p, u, sym, thr, ctab, coef, bias, tab0, pshift, lut, fcum, amax
                 w3, ww3 = pf[_u(b + 3 * ws - 10)], pf[_u(b + 3 * ws - 11)]
                 for xs_ in range(10, w - 1):
                     b = b0 + xs_
-                    v, pv, a0, q0, e0 = _pixel(pf, b, ws, w0, ww0, _u16(u, y0, xs_), thr, ctab, coef, bias, tab0, pshift, lutf, fcf,
+                    _, pv, a0, q0, e0 = _pixel(pf, b, ws, w0, ww0, _u16(u, y0, xs_), thr, ctab, coef, tab0, pshift, lutf, fcf,
                                               alpha, amax, words, a0, q0, esc, e0)
-                    sym[_u(y0), _u(xs_)] = v
                     ww0 = w0
                     w0 = pv
-                    v, pv, a1, q1, e1 = _pixel(pf, b + ws - 3, ws, w1, ww1, _u16(u, y0 + 1, xs_ - 3), thr, ctab, coef, bias, tab0, pshift, lutf, fcf,
+                    _, pv, a1, q1, e1 = _pixel(pf, b + ws - 3, ws, w1, ww1, _u16(u, y0 + 1, xs_ - 3), thr, ctab, coef, tab0, pshift, lutf, fcf,
                                               alpha, amax, words, a1, q1, esc, e1)
-                    sym[_u(y0 + 1), _u(xs_ - 3)] = v
                     ww1 = w1
                     w1 = pv
-                    v, pv, a2, q2, e2 = _pixel(pf, b + 2 * ws - 6, ws, w2, ww2, _u16(u, y0 + 2, xs_ - 6), thr, ctab, coef, bias, tab0, pshift, lutf, fcf,
+                    _, pv, a2, q2, e2 = _pixel(pf, b + 2 * ws - 6, ws, w2, ww2, _u16(u, y0 + 2, xs_ - 6), thr, ctab, coef, tab0, pshift, lutf, fcf,
                                               alpha, amax, words, a2, q2, esc, e2)
-                    sym[_u(y0 + 2), _u(xs_ - 6)] = v
                     ww2 = w2
                     w2 = pv
-                    v, pv, a3, q3, e3 = _pixel(pf, b + 3 * ws - 9, ws, w3, ww3, _u16(u, y0 + 3, xs_ - 9), thr, ctab, coef, bias, tab0, pshift, lutf, fcf,
+                    _, pv, a3, q3, e3 = _pixel(pf, b + 3 * ws - 9, ws, w3, ww3, _u16(u, y0 + 3, xs_ - 9), thr, ctab, coef, tab0, pshift, lutf, fcf,
                                               alpha, amax, words, a3, q3, esc, e3)
-                    sym[_u(y0 + 3), _u(xs_ - 9)] = v
                     ww3 = w3
                     w3 = pv
                 # limits checked once per group: a lane uses at most one word and one escape per pixel, and
@@ -219,7 +229,7 @@ def decode_plane(p, u, sym, thr, ctab, coef, bias, tab0, pshift, lut, fcum, amax
                 if x0 == 0 and y > 0:
                     p[yy, 0] = p[yy - 1, 2]
                     p[yy, 1] = p[yy - 1, 2]
-                v, x, ps, ep, ok = decode_pixel(pf, yy * ws + x0 + 2, ws, _u16(u, y, x0), thr, ctab, coef, bias, tab0, pshift,
+                v, x, ps, ep, ok = decode_pixel(pf, yy * ws + x0 + 2, ws, _u16(u, y, x0), thr, ctab, coef, tab0, pshift,
                                                 lutf, fcf, alpha, amax, words, xs[j], pos[j], pmin[j], esc, epos[j],
                                                 eend[j])
                 if not ok:
@@ -227,10 +237,16 @@ def decode_plane(p, u, sym, thr, ctab, coef, bias, tab0, pshift, lut, fcum, amax
                 xs[j] = x
                 pos[j] = ps
                 epos[j] = ep
-                sym[y, x0] = v
                 if x0 == w - 1:
                     p[yy, w + 2] = p[yy, w + 1]
                     p[yy, w + 3] = p[yy, w + 1]
+    # the symbols from the buffer, in a pass that vectorises: pf = s 2^16 - u16 with u16 in [-2^15, 2^15)
+    for y in range(h):
+        row = p[y + 2, 2:w + 2]
+        uy = u[y]
+        sy = sym[y]
+        for x in range(w):
+            sy[x] = (row[x] + uy[x]) >> 16
     return True
 
 
@@ -413,11 +429,11 @@ def _decode(mv: memoryview, dithers: list[np.ndarray], outs) -> list[np.ndarray]
         thr, coef, bias = heads[g]
         thr7 = np.concatenate([thr, np.full(MAX_NACT - 1 - thr.size, np.iinfo(np.int64).max, np.int64)])
         c11 = coef.reshape(nact, NTAP - 1)
-        coef12 = np.concatenate([c11, c11.sum(1, keepdims=True)], 1).reshape(-1)
+        coef13 = np.concatenate([c11, c11.sum(1, keepdims=True), bias[:, None]], 1).reshape(-1)
         h, w = u.shape
         p = buf[:(h + 2) * (w + 4)].reshape(h + 2, w + 4)
         _init_front(p, np.int64(c0s[k]) << 16)
-        if not decode_plane(p, np.asarray(u, np.float64), outs[k], thr7, context_table(thr), coef12, bias, g * nact * nph, pshift, lut, fcum,
+        if not decode_plane(p, fixed_dither(np.ascontiguousarray(u, np.float64)), outs[k], thr7, context_table(thr), coef13, g * nact * nph, pshift, lut, fcum,
                              amax, words, xs, pos, pmin, esc, epos, eend):
             raise ValueError("coded data ran out")
     if np.any(pos != pmin) or np.any(xs != RANS_L) or np.any(epos != eend):
