@@ -43,6 +43,23 @@ The decoder is bound by each lane's dependency chain (neighbours -> activity con
 canon_dng 1.19-1.20 / 1.08-1.09 -> 0.84-0.88 / 0.90; micasense 0.81 / 1.54 -> 0.68-0.69 / 0.86-0.87;
 spacenet_pan 1.04-1.05 / 1.54-1.55 -> 0.81-0.82 / 0.89-0.90 (encode / decode); 20 MP frame
 1.35-1.50 / 1.16-1.24 -> 0.97-0.99 / 0.82-1.13 (7 rounds only: noisy).
+
+What bounds the per-core speed (session of 2026-11-25; 1-thread CPU / JPEG-LS, medians of 25 interleaved
+rounds, load ~2.5 from another user's training). The decoder's steady 4-lane loop compiles to 656
+instructions per step of 4 pixels: 164 per pixel, 36 of them stack loads and stores (4 lanes' states and
+~15 table and array pointers do not fit in 16 registers); the work itself is ~120 (10 neighbour and 13
+coefficient loads, 12 64-bit multiplies, 5 absolute differences, context lookup, phase fold, 2 table loads
+and the rANS update per pixel). Integer dither, one coefficient-and-bias array and the symbols read back
+after the loop took decode from 0.91-0.93 to 0.85-0.89 of JPEG-LS (same bytes). Tried and measured, not
+taken: an escape branch instead of the branch-free select (decode 1.26 of JPEG-LS: slower); fewer taps
+(5 taps: +2.6 / +3.9 % bits on canon_dng at steps 1 / 2, +5.0 / +6.8 % on the synthetic frame; 8 taps: +0.9 / +1.4 %
+and +3.4 / +4.9 %); an activity context from the rows above only, which would let a vectorised pass compute the
+context and 10 of the 12 taps before the sequential loop (+1.0 to +3.3 % bits on the shared frames); a
+sparser least-squares lattice in the encoder (the smallest odd stride with <= 16384 samples: +0.26 to
++0.90 % bits on canon_dng and spacenet_pan, for ~3 ms of canon_dng's 47); a gathered, per-tap vectorised prediction in the encoder (1.73 vs 1.41 ms a plane: slower).
+Every format-preserving step left is worth a few per cent; the 3x on two cores asks ~1.5x per core, i.e.
+a new stream version whose sequential loop does far less per pixel (a context that costs < 1 % bits yet
+is known before the row, or lanes that SIMD can run side by side).
 """
 
 from __future__ import annotations
