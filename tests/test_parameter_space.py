@@ -50,6 +50,20 @@ def test_points_cover_categorical_values_and_grids_without_repeats():
                                         "path_radiance_w_m2_sr_m", "atmospheric_transmission"]
 
 
+def test_cfa_sweep_holding_the_nominal_pattern_skips_it_like_a_numeric_sweep():
+    params = base_params()
+    params["target"]["sweeps"]["cfa_pattern"] = [params["target"]["nominal"]["cfa_pattern"], "mono"]
+    params["target"]["sweeps"]["diameter_m"] = [params["target"]["nominal"]["diameter_m"], 0.35]
+    points = parameter_points(params)
+    assert "cfa_pattern-mono" in points and "diameter_m-0.35" in points
+    assert not any(p.startswith("cfa_pattern-") and p != "cfa_pattern-mono" for p in points)
+    assert sum(p.startswith("diameter_m-") for p in points) == 1
+    # with a mono nominal one Bayer phase is a design point
+    params["target"]["nominal"]["cfa_pattern"] = "mono"
+    params["target"]["sweeps"]["cfa_pattern"] = ["mono", "GRBG"]
+    assert parameter_points(params)["cfa_pattern-GRBG"] == {"cfa_pattern": "GRBG"}
+
+
 def test_pixel_pitch_points_scale_the_full_well_with_the_pixel_area():
     params = base_params()
     nominal = params["target"]["nominal"]
@@ -63,6 +77,9 @@ def test_pixel_pitch_points_scale_the_full_well_with_the_pixel_area():
 
 @pytest.mark.parametrize("change, message", [
     (lambda p: p["target"]["sweeps"].update(cfa_pattern=["GRBG"]), "Bayer phase"),
+    (lambda p: p["target"]["sweeps"].update(cfa_pattern=["RGGB", "GRBG"]), "Bayer phase"),
+    (lambda p: (p["target"]["nominal"].update(cfa_pattern="mono"), p["target"]["sweeps"].update(
+        cfa_pattern=["RGGB", "BGGR"])), "two Bayer phases"),
     (lambda p: p["target"]["sweeps"].update(cfa_pattern=[3]), "is not of type 'string'"),
     (lambda p: p["target"]["sweeps"].update(focal_length_m=["long"]), "is not of type 'number'"),
     (lambda p: p["target"]["sweeps"].update(cfa_pattern=["Mono"]), "is not one of"),

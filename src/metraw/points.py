@@ -157,12 +157,23 @@ def grid_axes(grid: dict[str, Any]) -> tuple[list[str], dict[str, Any]]:
     return axes, fixed
 
 
-def _check_categorical(parameter: str, value: Any, nominal: dict[str, Any]) -> None:
+def _check_categorical(parameter: str, values: list, nominal: dict[str, Any]) -> None:
+    """A CFA sweep compares sensors: a Bayer phase other than the nominal's, or two Bayer phases in one sweep,
+    is the same sensor shifted by a pixel, not another design point (the nominal value itself is allowed:
+    like any sweep value equal to nominal, it is the nominal point)."""
     from metraw.cfa import cfa_family
 
-    if parameter == "cfa_pattern" and cfa_family(value) == cfa_family(nominal.get("cfa_pattern", "mono")) == "bayer":
-        raise MetrawError(f"cfa_pattern value {value!r}: a different Bayer phase than the nominal "
-                          f"{nominal['cfa_pattern']!r} is not a different sensor (sweep mono against a Bayer pattern)")
+    if parameter != "cfa_pattern":
+        return
+    nominal_cfa = nominal.get("cfa_pattern", "mono")
+    others = [v for v in values if v != nominal_cfa]
+    bayer = [v for v in others if cfa_family(v) == "bayer"]
+    if bayer and cfa_family(nominal_cfa) == "bayer":
+        raise MetrawError(f"cfa_pattern value {bayer[0]!r}: a different Bayer phase than the nominal "
+                          f"{nominal_cfa!r} is not a different sensor (sweep mono against a Bayer pattern)")
+    if len(set(bayer)) > 1:
+        raise MetrawError(f"cfa_pattern values {sorted(set(bayer))}: two Bayer phases are one sensor shifted by a "
+                          f"pixel, not two design points (keep one)")
 
 
 def parameter_points(params: dict[str, Any]) -> dict[str, dict[str, Any]]:
@@ -183,7 +194,8 @@ def parameter_points(params: dict[str, Any]) -> dict[str, dict[str, Any]]:
             if isinstance(value, str) != (parameter in CATEGORICAL):
                 kind = "a word" if parameter in CATEGORICAL else "a number"
                 raise MetrawError(f"target.sweeps.{parameter}: value {value!r} must be {kind}")
-            _check_categorical(parameter, value, nominal)
+        _check_categorical(parameter, values, nominal)
+        for value in values:
             if same_value(value, nominal[parameter]):
                 continue
             points[point_name(parameter, value)] = {parameter: value}
