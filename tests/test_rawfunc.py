@@ -99,10 +99,31 @@ def test_thin_scales_the_mean_and_keeps_poisson_variance():
     img = flat((400, 600), 4000.0, seed=5)
     out = thin(img, 0.05, seed=6, profile_changes={"exposure_s": 1e-3})
     assert out.profile.exposure_s == 1e-3
-    # p = 0.05: the source read noise (2 e-) leaks as p (sigma^2 + 1/4) = 0.11 e-^2 of a 200 e- variance
+    # p = 0.05: the source read noise (2 e-) leaks as p^2 (sigma^2 + 1/4) = 0.011 e-^2 of a 200 e- variance
     check_mean_var(out, 0.05 * 4000.0)
     assert abs(neighbour_corr(out)) <= 5 / math.sqrt(out.data.size)
     assert "excess variance" in out.provenance[-1]["params"]["deviation"]
+
+
+def test_thin_excess_variance_is_the_reported_p_squared_bound():
+    """Var(kept) = p lam + p^2 Var(source noise): at p = 0.3, read noise 3 e- and lam = 40 e- the excess over
+    Poisson(p lam) is p^2 (9 + 1/12) = 0.82 e-^2 (ADC rounding 1/12 DN^2 at K = 1; the counts are integers, so
+    no stochastic rounding). The reported bound p^2 (sigma_d^2 + 1/4) must hold and be tight, where the old
+    p (sigma_d^2 + 1/4) = 2.8 e-^2 was 3.4x loose."""
+    prof = CalibrationProfile(gain_dn_per_e=1.0, black_level_dn=100, read_noise_e=3.0, white_level_dn=16000,
+                              adc_bits=14, cfa_pattern="mono")
+    img = RawImage(expose(np.full((1200, 1200), 40.0), prof, rng_from_seed(1)), prof)
+    p = 0.3
+    out = thin(img, p, seed=2)
+    e = out.data.astype(np.float64) - prof.black_level_dn
+    n = e.size
+    var = e.var()
+    se = var * math.sqrt(2.0 / (n - 1))  # sd of a sample variance (near-Gaussian counts)
+    excess = var - (p * 40.0 + prof.read_noise_e**2 + 1 / 12)  # minus the target's Poisson, read and ADC parts
+    bound = p**2 * (prof.read_noise_e**2 + 0.25)
+    assert abs(excess - p**2 * (prof.read_noise_e**2 + 1 / 12)) < 4 * se
+    assert excess < bound + 4 * se
+    assert f"{bound:.3g} e-^2" in out.provenance[-1]["params"]["deviation"]
 
 
 def test_redistribute_conserves_flux_and_keeps_pixels_independent():

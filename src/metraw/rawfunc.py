@@ -212,9 +212,10 @@ def thin(image: RawImage, p: float | dict[str, float], seed: int | np.random.Gen
     Counts are estimated as (DN - black)/K, clipped at 0 and stochastically rounded; each is
     thinned with `thin_counts` and read out again with fresh read noise and dark current.
     ``profile_changes`` sets the new geometry (e.g. ``{"exposure_s": ...}``) that the thinning
-    stands for. Deviation (reported): the source's read noise and rounding are thinned with the
-    signal, an excess variance of at most p (sigma_d^2 + 1/4) e-^2 per pixel (relative order p);
-    clipping negative counts biases dark pixels by p times the reported clipping bias.
+    stands for. Deviation (reported): the source's read noise and rounding (variance at most
+    sigma_d^2 + 1/4 on the estimated counts) are thinned with the signal, Var = p lam + p^2 (sigma_d^2 + 1/4):
+    an excess variance of at most p^2 (sigma_d^2 + 1/4) e-^2 per pixel over Poisson(p lam) (relative order
+    p sigma_d^2 / lam); clipping negative counts biases dark pixels by p times the reported clipping bias.
     """
     rng = rng_from_seed(seed)
     prof = image.profile
@@ -225,7 +226,8 @@ def thin(image: RawImage, p: float | dict[str, float], seed: int | np.random.Gen
     new_profile = prof.replace(**(profile_changes or {}))
     pmax = max(pmap.values())
     info["deviation"] = (f"source read noise and rounding thinned with the signal: excess variance <= "
-                         f"{pmax * (prof.read_noise_e**2 + 0.25):.3g} e-^2 per pixel (relative order p = {pmax:.3g})")
+                         f"{pmax**2 * (prof.read_noise_e**2 + 0.25):.3g} e-^2 per pixel (p^2 (sigma_d^2 + 1/4), "
+                         f"p = {pmax:.3g})")
     return read_out(kept, image, new_profile, rng, function="thin",
                     params={"p": pmap, **info}, flags=_saturation_flags(image))
 
