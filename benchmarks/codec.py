@@ -51,7 +51,10 @@ instructions per step of 4 pixels: 164 per pixel, 36 of them stack loads and sto
 coefficient loads, 12 64-bit multiplies, 5 absolute differences, context lookup, phase fold, 2 table loads
 and the rANS update per pixel). Integer dither, one coefficient-and-bias array and the symbols read back
 after the loop took decode from 0.91-0.93 to 0.85-0.89 of JPEG-LS (same bytes). Tried and measured, not
-taken: an escape branch instead of the branch-free select (decode 1.26 of JPEG-LS: slower); fewer taps
+taken: an escape branch instead of the branch-free select (decode 1.26 of JPEG-LS: slower); two passes
+of two lanes instead of four lanes at once, to keep the lane states in registers (1.00 vs 0.88: the four
+dependency chains' overlap is worth more than the spills); the dither read from the buffer address the
+pixel is written to (one pointer for all lanes: no change); fewer taps
 (5 taps: +2.6 / +3.9 % bits on canon_dng at steps 1 / 2, +5.0 / +6.8 % on the synthetic frame; 8 taps: +0.9 / +1.4 %
 and +3.4 / +4.9 %); an activity context from the rows above only, which would let a vectorised pass compute the
 context and 10 of the 12 taps before the sequential loop (+1.0 to +3.3 % bits on the shared frames); a
