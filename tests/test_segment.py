@@ -148,6 +148,27 @@ def test_training_is_deterministic_and_evaluates(tiny_store, tmp_path):
     assert rec_c["loss_per_epoch"][0] != first["loss_per_epoch"][0]  # the seed matters
 
 
+def test_bfloat16_training_is_deterministic_learns_and_differs_from_float32(tiny_store):
+    import torch
+
+    from metraw.errors import MetrawError
+    from metraw.segment.data import prepare_store
+    from metraw.segment.train import TrainConfig, fit
+    from metraw.store import RawStore
+
+    images = prepare_store(RawStore.open(tiny_store), range(8), progress=False)
+    runs = [fit(images, _cfg(epochs=4, precision=prec), device="cpu", progress=False)
+            for prec in ("bfloat16", "bfloat16", "float32")]
+    weights = [torch.cat([p.detach().flatten() for p in m.parameters()]) for m, _ in runs]
+    assert torch.equal(weights[0], weights[1])  # same seed and data: the same weights
+    assert not torch.equal(weights[0], weights[2])  # the arithmetic really changed
+    assert weights[0].dtype == torch.float32  # autocast keeps float32 weights
+    losses = runs[0][1]["loss_per_epoch"]
+    assert losses[-1] < losses[0]
+    with pytest.raises(MetrawError, match="precision"):
+        TrainConfig.from_dict({"precision": "float16"})
+
+
 def test_training_reduces_loss_and_upsampling_keeps_native_grid(tiny_store):
     import torch
 

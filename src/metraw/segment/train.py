@@ -36,6 +36,8 @@ CHECKPOINT = "model.pt"
 TRAIN_METRICS = "train.json"
 #: Sub-directory of a model directory holding replicate ``r`` (seed + r), a model directory itself.
 REPLICATE_DIR = "replicate-{r}"
+#: ``TrainConfig.precision`` values.
+PRECISIONS = ("float32", "bfloat16")
 #: Wall-clock fields of the training record: returned by ``fit``/``train_store``, left out of train.json.
 TIMINGS = ("training_time_s", "preprocess_time_s", "draw_time_s", "replicate_training_time_s")
 
@@ -61,6 +63,9 @@ class TrainConfig:
     (``metraw.segment.onthefly``; ignored when training on a store's fixed images).
     ``threads``: torch CPU threads, fixed here and not taken from the machine or the workflow's
     ``--cores``: the thread count changes the kernels' summation order, hence the weights' bytes.
+    ``precision``: arithmetic of the training passes: "float32", or "bfloat16" (autocast: convolutions in
+    bfloat16 with float32 weights, optimiser and loss; on CPUs with AMX, or on a GPU, the steps run ~1.6x
+    faster). Evaluation and prediction always run in float32.
     """
 
     epochs: int = 8
@@ -79,6 +84,7 @@ class TrainConfig:
     draws_per_epoch: int = 1
     seed: int = 0
     threads: int = 2
+    precision: str = "float32"
     split_seed: int = 0
     test_fraction: float = 0.2
 
@@ -88,6 +94,8 @@ class TrainConfig:
         unknown = set(d) - known
         if unknown:
             raise MetrawError(f"unknown training parameter(s): {', '.join(sorted(unknown))}")
+        if d.get("precision", "float32") not in PRECISIONS:
+            raise MetrawError(f"training precision must be one of {', '.join(PRECISIONS)}, got {d['precision']!r}")
         return cls(**d)
 
 
@@ -221,6 +229,8 @@ def train_loop(model, epoch_batches, steps_per_epoch: int, config: TrainConfig, 
                                                 total_steps=steps_per_epoch * config.epochs, pct_start=0.15)
     losses = []
     bar = progress_bar(range(config.epochs), desc="train", disable=None if progress is None else not progress)
+    dev_type = torch.device(device).type
+    autocast = config.precision == "bfloat16"
     with flush_denormals():
         for epoch in bar:
             model.train()
@@ -228,7 +238,9 @@ def train_loop(model, epoch_batches, steps_per_epoch: int, config: TrainConfig, 
             for x, y in epoch_batches(epoch):
                 x = torch.as_tensor(x).to(device)
                 y = torch.as_tensor(y).to(device)
-                loss = segmentation_loss(model(x), y)
+                with torch.autocast(dev_type, dtype=torch.bfloat16, enabled=autocast):
+                    logits = model(x)
+                loss = segmentation_loss(logits.float(), y)
                 opt.zero_grad(set_to_none=True)
                 loss.backward()
                 opt.step()
