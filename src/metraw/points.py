@@ -166,8 +166,7 @@ def _check_categorical(parameter: str, values: list, nominal: dict[str, Any]) ->
     if parameter != "cfa_pattern":
         return
     nominal_cfa = nominal.get("cfa_pattern", "mono")
-    others = [v for v in values if v != nominal_cfa]
-    bayer = [v for v in others if cfa_family(v) == "bayer"]
+    bayer = [v for v in values if v != nominal_cfa and cfa_family(v) == "bayer"]
     if bayer and cfa_family(nominal_cfa) == "bayer":
         raise MetrawError(f"cfa_pattern value {bayer[0]!r}: a different Bayer phase than the nominal "
                           f"{nominal_cfa!r} is not a different sensor (sweep mono against a Bayer pattern)")
