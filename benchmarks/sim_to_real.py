@@ -42,11 +42,16 @@ KIT = ROOT.parent / "shared" / "data" / "real" / "kit_ais"
 
 
 def run(cmd: list[str]) -> None:
+    """Run a metraw CLI command (``cmd[0] == "metraw"``) through this interpreter's metraw package (the same
+    source tree as the imports here, e.g. a clone on PYTHONPATH, not whichever ``metraw`` is on PATH)."""
+    if cmd[0] == "metraw":
+        cmd = [sys.executable, "-m", "metraw", *cmd[1:]]
     print("+", " ".join(cmd), file=sys.stderr, flush=True)
     subprocess.run(cmd, check=True)
 
 
-def stores(work: Path, params_path: Path, kit: Path, n_synthetic: int, kit_gsd_m: float) -> dict[str, Path]:
+def stores(work: Path, params_path: Path, kit: Path, n_synthetic: int, kit_gsd_m: float, with_nominal: bool = True
+           ) -> dict[str, Path]:
     """The real and synthetic stores at KIT's GSD and at the nominal point (made once, cached in ``work``)."""
     params = yaml.safe_load(params_path.read_text())
     cam = params["source"]["camera"]
@@ -63,7 +68,7 @@ def stores(work: Path, params_path: Path, kit: Path, n_synthetic: int, kit_gsd_m
     if not out["synthetic"].exists():
         run(["metraw", "scenes", "--n", str(n_synthetic), "--seed", "0", "--size", str(size_px), "--camera", str(cam_file),
              "--workers", "2", "--out", str(out["synthetic"])])
-    for name in ("real", "synthetic"):
+    for name in ("real", "synthetic") if with_nominal else ():
         nominal = work / f"{out[name].stem}_nominal.zarr"
         if not nominal.exists():
             run(["metraw", "emulate", str(out[name]), str(nominal), "--params", str(params_path), "--workers", "2"])
@@ -85,8 +90,8 @@ def scores(model, images) -> dict[str, float]:
     return {k: None if r[k] is None else round(float(r[k]), 4) for k in ("iou", "precision", "recall")}
 
 
-def table_for(level: str, real_store: Path, syn_store: Path, config, real_test: int, real_weight: int, seed: int
-              ) -> list[dict]:
+def table_for(level: str, real_store: Path, syn_store: Path, config, real_test: int, real_weight: int, seed: int,
+              trainings: tuple[str, ...] = ("synthetic-only", "real-only", "mixed")) -> list[dict]:
     from metraw.segment.data import prepare_store, split_indices
     from metraw.segment.train import fit
     from metraw.store import RawStore
@@ -104,6 +109,8 @@ def table_for(level: str, real_store: Path, syn_store: Path, config, real_test: 
             "mixed": (st + rt * real_weight, config)}
     rows = []
     for name, (images, cfg) in runs.items():
+        if name not in trainings:
+            continue
         t0 = time.perf_counter()
         model, record = fit(images, cfg, "cpu", progress=False)
         rows.append({"level": level, "training": name, "n_train_images": len(images),
@@ -121,10 +128,16 @@ def main() -> None:
     ap.add_argument("--n-synthetic", type=int, default=480)
     ap.add_argument("--kit-gsd-m", type=float, default=0.135)
     ap.add_argument("--epochs", type=int, default=None, help="override the profile's epochs")
+    ap.add_argument("--profile", default=None,
+                    help="training profile of params.yaml (default: training.profile; 'source' = the drone-resolution "
+                         "reference's)")
     ap.add_argument("--real-test", type=int, default=20, help="real images held out for testing")
     ap.add_argument("--real-weight", type=int, default=4, help="times each real image is drawn per epoch (mixed)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--levels", default="source,nominal")
+    ap.add_argument("--trainings", default="synthetic-only,real-only,mixed",
+                    help="which trainings to run (comma-separated subset)")
+    ap.add_argument("--no-realism", action="store_true", help="skip the realism tables")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
     if not args.kit.is_dir():
@@ -134,22 +147,25 @@ def main() -> None:
     from metraw.segment.train import load_config
     from metraw.store import RawStore
 
-    paths = stores(args.work, args.params, args.kit, args.n_synthetic, args.kit_gsd_m)
-    syn = RawStore.open(paths["synthetic"])
-    first = [syn[i] for i in range(min(60, len(syn)))]
-    print("== realism: synthetic scenes (first 60, all kinds) vs KIT AIS")
-    print(format_table(summarise(first, args.kit)))
-    print("== realism: the urban ones among them (KIT AIS shows city streets only)")
-    print(format_table(summarise([im for im in first if im.meta.get("scene_type") == "urban"], args.kit)))
+    levels = args.levels.split(",")
+    paths = stores(args.work, args.params, args.kit, args.n_synthetic, args.kit_gsd_m, "nominal" in levels)
+    if not args.no_realism:
+        syn = RawStore.open(paths["synthetic"])
+        first = [syn[i] for i in range(min(60, len(syn)))]
+        print("== realism: synthetic scenes (first 60, all kinds) vs KIT AIS")
+        print(format_table(summarise(first, args.kit)))
+        print("== realism: the urban ones among them (KIT AIS shows city streets only)")
+        print(format_table(summarise([im for im in first if im.meta.get("scene_type") == "urban"], args.kit)))
 
-    config = load_config(args.params)
+    config = load_config(args.params, args.profile)
     if args.epochs:
         config = replace(config, epochs=args.epochs)
     rows = []
-    for level in args.levels.split(","):
+    trainings = tuple(args.trainings.split(","))
+    for level in levels:
         suffix = "" if level == "source" else f"_{level}"
         rows += table_for(level, paths[f"real{suffix}"], paths[f"synthetic{suffix}"], config, args.real_test,
-                          args.real_weight, args.seed)
+                          args.real_weight, args.seed, trainings)
     print("\n== training data vs test images (pooled IoU / precision / recall; real labels box-approximate)")
     print(f"{'level':8s} {'training':15s} {'real test':>24s} {'synthetic test':>24s}")
     for r in rows:
