@@ -50,8 +50,8 @@ def run(cmd: list[str]) -> None:
     subprocess.run(cmd, check=True)
 
 
-def stores(work: Path, params_path: Path, kit: Path, n_synthetic: int, kit_gsd_m: float, with_nominal: bool = True
-           ) -> dict[str, Path]:
+def stores(work: Path, params_path: Path, kit: Path, n_synthetic: int, kit_gsd_m: float, with_nominal: bool = True,
+           kinds: str = "urban,suburban,rural") -> dict[str, Path]:
     """The real and synthetic stores at KIT's GSD and at the nominal point (made once, cached in ``work``)."""
     params = yaml.safe_load(params_path.read_text())
     cam = params["source"]["camera"]
@@ -61,13 +61,14 @@ def stores(work: Path, params_path: Path, kit: Path, n_synthetic: int, kit_gsd_m
     work.mkdir(parents=True, exist_ok=True)
     cam_file = work / "camera_at_kit_gsd.yaml"
     cam_file.write_text(yaml.safe_dump(p_kit))
-    out = {"real": work / "real.zarr", "synthetic": work / f"synthetic_{n_synthetic}.zarr"}
+    tag = "" if kinds == "urban,suburban,rural" else "_" + kinds.replace(",", "_")
+    out = {"real": work / "real.zarr", "synthetic": work / f"synthetic_{n_synthetic}{tag}.zarr"}
     if not out["real"].exists():
         run(["metraw", "ingest", str(kit), "--labels", "yolo", "--gsd-m", str(kit_gsd_m), "--camera", str(params_path),
              "--out", str(out["real"])])
     if not out["synthetic"].exists():
         run(["metraw", "scenes", "--n", str(n_synthetic), "--seed", "0", "--size", str(size_px), "--camera", str(cam_file),
-             "--workers", "2", "--out", str(out["synthetic"])])
+             "--kinds", kinds, "--workers", "2", "--out", str(out["synthetic"])])
     for name in ("real", "synthetic") if with_nominal else ():
         nominal = work / f"{out[name].stem}_nominal.zarr"
         if not nominal.exists():
@@ -81,17 +82,42 @@ def real_split(n: int, n_test: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     return np.sort(perm[n_test:]), np.sort(perm[:n_test])
 
 
-def scores(model, images) -> dict[str, float]:
+def scores(model, images, overlays: Path | None = None) -> dict[str, float]:
+    """Pooled pixel IoU, precision, recall and object recall / precision (``metraw.segment.objects``); with
+    ``overlays``, one PNG per image there (green: hit, red: false alarm, blue: missed label)."""
     from metraw.segment.evaluate import evaluate_images
     from metraw.segment.train import flush_denormals
 
     with flush_denormals():
         r = evaluate_images(model, images, "cpu", progress=False)
-    return {k: None if r[k] is None else round(float(r[k]), 4) for k in ("iou", "precision", "recall")}
+        if overlays is not None:
+            write_overlays(model, images, overlays)
+    keys = ("iou", "precision", "recall", "object_recall", "object_precision")
+    return {k: None if r.get(k) is None else round(float(r[k]), 4) for k in keys}
+
+
+def write_overlays(model, images, folder: Path) -> None:
+    from PIL import Image
+
+    from metraw.segment.evaluate import car_probability, predict_logits
+
+    folder.mkdir(parents=True, exist_ok=True)
+    for img in images:
+        planes, frac = img.full()
+        pred = car_probability(predict_logits(model, planes, "cpu")) > 0.5
+        g = planes[1] if planes.shape[0] > 1 else planes[0]
+        grey = np.clip((g - np.percentile(g, 1)) / (np.ptp(np.percentile(g, [1, 99])) + 1e-9), 0, 1)
+        rgb = np.repeat((0.8 * grey)[..., None], 3, axis=-1)
+        truth, p = frac[1] >= 0.5, pred[1]
+        rgb[p & truth] = 0.5 * rgb[p & truth] + [0, 0.5, 0]
+        rgb[p & ~truth] = 0.5 * rgb[p & ~truth] + [0.5, 0, 0]
+        rgb[~p & truth] = 0.5 * rgb[~p & truth] + [0, 0, 0.5]
+        Image.fromarray((255 * rgb).astype(np.uint8)).save(folder / f"{img.index:04d}.png")
 
 
 def table_for(level: str, real_store: Path, syn_store: Path, config, real_test: int, real_weight: int, seed: int,
-              trainings: tuple[str, ...] = ("synthetic-only", "real-only", "mixed")) -> list[dict]:
+              trainings: tuple[str, ...] = ("synthetic-only", "real-only", "mixed"), overlays: Path | None = None
+              ) -> list[dict]:
     from metraw.segment.data import prepare_store, split_indices
     from metraw.segment.train import fit
     from metraw.store import RawStore
@@ -114,7 +140,8 @@ def table_for(level: str, real_store: Path, syn_store: Path, config, real_test: 
         t0 = time.perf_counter()
         model, record = fit(images, cfg, "cpu", progress=False)
         rows.append({"level": level, "training": name, "n_train_images": len(images),
-                     "real_test": scores(model, rs), "synthetic_test": scores(model, ss),
+                     "real_test": scores(model, rs, overlays and overlays / f"{level}_{name}_real"),
+                     "synthetic_test": scores(model, ss, overlays and overlays / f"{level}_{name}_synthetic"),
                      "train_s": round(time.perf_counter() - t0, 1)})
         print(json.dumps(rows[-1]), flush=True)
     return rows
@@ -131,13 +158,21 @@ def main() -> None:
     ap.add_argument("--profile", default=None,
                     help="training profile of params.yaml (default: training.profile; 'source' = the drone-resolution "
                          "reference's)")
+    ap.add_argument("--tone-gamma-range", type=float, default=None,
+                    help="override the profile's tone_gamma_range (tone-curve randomisation of training crops)")
+    ap.add_argument("--channel-gain-range", type=float, default=None,
+                    help="override the profile's channel_gain_range (white-balance randomisation of training crops)")
     ap.add_argument("--real-test", type=int, default=20, help="real images held out for testing")
     ap.add_argument("--real-weight", type=int, default=4, help="times each real image is drawn per epoch (mixed)")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--kinds", default="urban,suburban,rural",
+                    help="scene types of the synthetic store (KIT AIS shows city streets only: 'urban')")
     ap.add_argument("--levels", default="source,nominal")
     ap.add_argument("--trainings", default="synthetic-only,real-only,mixed",
                     help="which trainings to run (comma-separated subset)")
     ap.add_argument("--no-realism", action="store_true", help="skip the realism tables")
+    ap.add_argument("--overlays", type=Path, default=None,
+                    help="write each test image's prediction overlay (PNG) under this folder")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
     if not args.kit.is_dir():
@@ -148,7 +183,8 @@ def main() -> None:
     from metraw.store import RawStore
 
     levels = args.levels.split(",")
-    paths = stores(args.work, args.params, args.kit, args.n_synthetic, args.kit_gsd_m, "nominal" in levels)
+    paths = stores(args.work, args.params, args.kit, args.n_synthetic, args.kit_gsd_m, "nominal" in levels,
+                   args.kinds)
     if not args.no_realism:
         syn = RawStore.open(paths["synthetic"])
         first = [syn[i] for i in range(min(60, len(syn)))]
@@ -160,12 +196,16 @@ def main() -> None:
     config = load_config(args.params, args.profile)
     if args.epochs:
         config = replace(config, epochs=args.epochs)
+    if args.tone_gamma_range:
+        config = replace(config, tone_gamma_range=args.tone_gamma_range)
+    if args.channel_gain_range:
+        config = replace(config, channel_gain_range=args.channel_gain_range)
     rows = []
     trainings = tuple(args.trainings.split(","))
     for level in levels:
         suffix = "" if level == "source" else f"_{level}"
         rows += table_for(level, paths[f"real{suffix}"], paths[f"synthetic{suffix}"], config, args.real_test,
-                          args.real_weight, args.seed, trainings)
+                          args.real_weight, args.seed, trainings, args.overlays)
     print("\n== training data vs test images (pooled IoU / precision / recall; real labels box-approximate)")
     print(f"{'level':8s} {'training':15s} {'real test':>24s} {'synthetic test':>24s}")
     for r in rows:
