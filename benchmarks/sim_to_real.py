@@ -158,6 +158,7 @@ def main() -> None:
     ap.add_argument("--profile", default=None,
                     help="training profile of params.yaml (default: training.profile; 'source' = the drone-resolution "
                          "reference's)")
+    ap.add_argument("--train-seed", type=int, default=None, help="override the profile's training seed")
     ap.add_argument("--tone-gamma-range", type=float, default=None,
                     help="override the profile's tone_gamma_range (tone-curve randomisation of training crops)")
     ap.add_argument("--channel-gain-range", type=float, default=None,
@@ -196,6 +197,8 @@ def main() -> None:
     config = load_config(args.params, args.profile)
     if args.epochs:
         config = replace(config, epochs=args.epochs)
+    if args.train_seed is not None:
+        config = replace(config, seed=args.train_seed)
     if args.tone_gamma_range:
         config = replace(config, tone_gamma_range=args.tone_gamma_range)
     if args.channel_gain_range:
