@@ -99,6 +99,7 @@ def scores(model, images, overlays: Path | None = None) -> dict[str, float]:
 def write_overlays(model, images, folder: Path) -> None:
     from PIL import Image
 
+    from metraw.atomic import atomic_path
     from metraw.segment.evaluate import car_probability, predict_logits
 
     folder.mkdir(parents=True, exist_ok=True)
@@ -112,7 +113,8 @@ def write_overlays(model, images, folder: Path) -> None:
         rgb[p & truth] = 0.5 * rgb[p & truth] + [0, 0.5, 0]
         rgb[p & ~truth] = 0.5 * rgb[p & ~truth] + [0.5, 0, 0]
         rgb[~p & truth] = 0.5 * rgb[~p & truth] + [0, 0, 0.5]
-        Image.fromarray((255 * rgb).astype(np.uint8)).save(folder / f"{img.index:04d}.png")
+        with atomic_path(folder / f"{img.index:04d}.png", overwrite=True) as tmp:
+            Image.fromarray((255 * rgb).astype(np.uint8)).save(tmp, format="PNG")
 
 
 def table_for(level: str, real_store: Path, syn_store: Path, config, real_test: int, real_weight: int, seed: int,
