@@ -131,7 +131,9 @@ def test_training_is_deterministic_and_evaluates(tiny_store, tmp_path):
     out = []
     for run in ("a", "b"):
         rec = train_store(tiny_store, tmp_path / run, _cfg(), device="cpu", progress=False)
-        assert rec["training_time_s"] < 20
+        # ~3 s on 2 free cores; 60 s was seen with the cores shared by other training jobs: a bound for a
+        # runaway configuration, not a benchmark
+        assert rec["training_time_s"] < 120
         out.append(evaluate_store(tiny_store, tmp_path / run, device="cpu", progress=False))
     # same seed, data and thread count: the same bytes (checkpoint, training record, metrics); the
     # wall-clock timings stay in the returned record and out of the files
