@@ -64,8 +64,9 @@ class TrainConfig:
     ``threads``: torch CPU threads, fixed here and not taken from the machine or the workflow's
     ``--cores``: the thread count changes the kernels' summation order, hence the weights' bytes.
     ``precision``: arithmetic of the training passes: "float32", or "bfloat16" (autocast: convolutions in
-    bfloat16 with float32 weights, optimiser and loss; on CPUs with AMX, or on a GPU, the steps run ~1.6x
-    faster). Evaluation and prediction always run in float32.
+    bfloat16 with float32 weights, optimiser and loss; on CPUs with AMX, or on a GPU, the network's passes
+    run ~1.6x faster, which pays where they dominate a step: see the README). Evaluation and prediction
+    always run in float32.
     """
 
     epochs: int = 8
