@@ -85,8 +85,8 @@ def _pixel(pf, b, ws, w_, ww, uv, thr, ctab, coef, tab0, pshift, lut, fcum, alph
     """Decode the pixel at flat index ``b`` of the padded buffer ``pf`` (row stride ``ws``; its left
     neighbours ``w_`` = pf[b - 1] and ``ww`` = pf[b - 2] passed in: a lane keeps them in registers, off
     the store-to-load path) from one lane, without checking the lane's word and escape positions;
-    returns (symbol, its buffer value pf[b], x, pos, epos). ``coef``: per context the 11 coefficients,
-    their sum and the bias."""
+    returns (its buffer value pf[b], x, pos, epos). ``coef``: per context the 11 coefficients, their sum
+    and the bias."""
     half = np.int64(1 << 15)
     n_ = pf[_u(b - ws)]
     nw = pf[_u(b - ws - 1)]
@@ -122,17 +122,17 @@ def _pixel(pf, b, ws, w_, ww, uv, thr, ctab, coef, tab0, pshift, lut, fcum, alph
     v = sh + ((r ^ -f) + f)
     pv = (v << 16) - uv
     pf[_u(b)] = pv
-    return v, pv, x, pos, epos
+    return pv, x, pos, epos
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
 def decode_pixel(pf, b, ws, uv, thr, ctab, coef, tab0, pshift, lut, fcum, alpha, amax, words, x, pos, pmin, esc,
                  epos, eend):
-    """``_pixel`` with the lane's limits checked: returns (symbol, x, pos, epos, ok), ok false once the
-    lane has used a word below ``pmin`` (its pad) or an escape at or past ``eend``."""
-    v, _, x, pos, epos = _pixel(pf, b, ws, pf[_u(b - 1)], pf[_u(b - 2)], uv, thr, ctab, coef, tab0, pshift, lut, fcum,
+    """``_pixel`` with the lane's limits checked: returns (x, pos, epos, ok), ok false once the lane has
+    used a word below ``pmin`` (its pad) or an escape at or past ``eend``."""
+    _, x, pos, epos = _pixel(pf, b, ws, pf[_u(b - 1)], pf[_u(b - 2)], uv, thr, ctab, coef, tab0, pshift, lut, fcum,
                                 alpha, amax, words, x, pos, esc, epos)
-    return v, x, pos, epos, (pos >= pmin) & (epos <= eend)
+    return x, pos, epos, (pos >= pmin) & (epos <= eend)
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -141,14 +141,21 @@ def _u16(u, y, x):
     return np.int64(u[_u(y), _u(x)])
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def fixed_point(u):
+    """floor(u 2^16) of a dither value u in [-1/2, 1/2): the fixed-point dither of the stream's integer
+    prediction (encoder and decoder)."""
+    return np.int64(np.floor(u * 65536.0))
+
+
 @nb.njit(cache=True, nogil=True)
 def fixed_dither(u):
-    """floor(u 2^16) of a dither plane (int32): the fixed-point dither the prediction uses."""
+    """``fixed_point`` of a dither plane (int32)."""
     out = np.empty(u.shape, np.int32)
     uf = u.reshape(-1)
     of = out.reshape(-1)
     for i in range(uf.size):
-        of[i] = np.int32(np.floor(uf[i] * 65536.0))
+        of[i] = np.int32(fixed_point(uf[i]))
     return out
 
 
@@ -194,19 +201,19 @@ def decode_plane(p, u, sym, thr, ctab, coef, tab0, pshift, lut, fcum, amax, word
                 w3, ww3 = pf[_u(b + 3 * ws - 10)], pf[_u(b + 3 * ws - 11)]
                 for xs_ in range(10, w - 1):
                     b = b0 + xs_
-                    _, pv, a0, q0, e0 = _pixel(pf, b, ws, w0, ww0, _u16(u, y0, xs_), thr, ctab, coef, tab0, pshift, lutf, fcf,
+                    pv, a0, q0, e0 = _pixel(pf, b, ws, w0, ww0, _u16(u, y0, xs_), thr, ctab, coef, tab0, pshift, lutf, fcf,
                                               alpha, amax, words, a0, q0, esc, e0)
                     ww0 = w0
                     w0 = pv
-                    _, pv, a1, q1, e1 = _pixel(pf, b + ws - 3, ws, w1, ww1, _u16(u, y0 + 1, xs_ - 3), thr, ctab, coef, tab0, pshift, lutf, fcf,
+                    pv, a1, q1, e1 = _pixel(pf, b + ws - 3, ws, w1, ww1, _u16(u, y0 + 1, xs_ - 3), thr, ctab, coef, tab0, pshift, lutf, fcf,
                                               alpha, amax, words, a1, q1, esc, e1)
                     ww1 = w1
                     w1 = pv
-                    _, pv, a2, q2, e2 = _pixel(pf, b + 2 * ws - 6, ws, w2, ww2, _u16(u, y0 + 2, xs_ - 6), thr, ctab, coef, tab0, pshift, lutf, fcf,
+                    pv, a2, q2, e2 = _pixel(pf, b + 2 * ws - 6, ws, w2, ww2, _u16(u, y0 + 2, xs_ - 6), thr, ctab, coef, tab0, pshift, lutf, fcf,
                                               alpha, amax, words, a2, q2, esc, e2)
                     ww2 = w2
                     w2 = pv
-                    _, pv, a3, q3, e3 = _pixel(pf, b + 3 * ws - 9, ws, w3, ww3, _u16(u, y0 + 3, xs_ - 9), thr, ctab, coef, tab0, pshift, lutf, fcf,
+                    pv, a3, q3, e3 = _pixel(pf, b + 3 * ws - 9, ws, w3, ww3, _u16(u, y0 + 3, xs_ - 9), thr, ctab, coef, tab0, pshift, lutf, fcf,
                                               alpha, amax, words, a3, q3, esc, e3)
                     ww3 = w3
                     w3 = pv
@@ -229,7 +236,7 @@ def decode_plane(p, u, sym, thr, ctab, coef, tab0, pshift, lut, fcum, amax, word
                 if x0 == 0 and y > 0:
                     p[yy, 0] = p[yy - 1, 2]
                     p[yy, 1] = p[yy - 1, 2]
-                v, x, ps, ep, ok = decode_pixel(pf, yy * ws + x0 + 2, ws, _u16(u, y, x0), thr, ctab, coef, tab0, pshift,
+                x, ps, ep, ok = decode_pixel(pf, yy * ws + x0 + 2, ws, _u16(u, y, x0), thr, ctab, coef, tab0, pshift,
                                                 lutf, fcf, alpha, amax, words, xs[j], pos[j], pmin[j], esc, epos[j],
                                                 eend[j])
                 if not ok:

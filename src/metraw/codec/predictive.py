@@ -51,7 +51,8 @@ import numpy as np
 
 from metraw.codec.container import put_varint
 from metraw.codec.decoder import (  # noqa: F401  (the format's constants; decode_planes re-exported)
-    _HEAD, COEF_BITS, FRAC, MAX_NACT, MAX_RESID, NPH, NTAP, PROB_BITS, PROB_SCALE, RANS_L, _normalise, decode_planes)
+    _HEAD, COEF_BITS, FRAC, MAX_NACT, MAX_RESID, NPH, NTAP, PROB_BITS, PROB_SCALE, RANS_L, _normalise, decode_planes,
+    fixed_point)
 
 MIN_FIT = 64                   # fewer samples in a context: use the default predictor
 SHARED_BELOW = 1 << 16         # tiles with fewer pixels share one model across their planes
@@ -106,7 +107,7 @@ def _front(s, u, c0):
     p = np.full((h + 2, w + 4), c0, np.int64)
     for y in range(h):
         for x in range(w):
-            p[y + 2, x + 2] = (np.int64(s[y, x]) << 16) - np.int64(np.floor(u[y, x] * 65536.0))
+            p[y + 2, x + 2] = (np.int64(s[y, x]) << 16) - fixed_point(u[y, x])
         if y > 0:
             p[y + 2, 0] = p[y + 1, 2]
             p[y + 2, 1] = p[y + 1, 2]
