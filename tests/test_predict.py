@@ -17,6 +17,7 @@ from metraw.image import RawImage
 from metraw.segment.data import canonical_pack
 from metraw.segment.evaluate import confusion, gsd_scale, predict_logits, resample_to_gsd
 from metraw.segment.predict import load_prediction, packed_window, sites_to_mosaic
+from metraw.segment.objects import MIN_OBJECT_AREA_M2, drop_small_objects
 from metraw.segment.toy import toy_profile, toy_scene
 from metraw.sensor import rng_from_seed
 
@@ -212,9 +213,14 @@ def test_predict_writes_the_mosaic_grid_and_agrees_with_evaluate(data):
     for i in range(len(store)):
         p, mask, rec = load_prediction(out, i)
         assert p.dtype == np.float32 and mask.dtype == bool and p.shape == mask.shape == (81, 81)
-        assert np.all((p >= 0) & (p <= 1)) and np.array_equal(mask, p > 0.5)
         y0, y1, x0, x1 = rec["packed_window"]
         assert (y0, y1, x0, x1) == (1, 81, 0, 80)  # GBRG: shifted one row to R G / G B, whole cells
+        # the mask: probability > 0.5 less the objects under MIN_OBJECT_AREA_M2, judged inside the window
+        gsd_m = rec["packed_gsd_m"] / 2
+        inner = (p > 0.5)[y0:y1, x0:x1]
+        assert np.all((p >= 0) & (p <= 1)) and not np.any(mask & ~(p > 0.5))
+        np.testing.assert_array_equal(mask[y0:y1, x0:x1], drop_small_objects(inner, MIN_OBJECT_AREA_M2 / gsd_m ** 2))
+        np.testing.assert_array_equal(mask[0], mask[1])  # outside the window: the nearest pixel's decision
         np.testing.assert_array_equal(p[0], p[1])  # the dropped first row: its nearest neighbour's value
         counts = confusion(mask[y0:y1, x0:x1], store[i].mask[y0:y1, x0:x1])
         assert counts == pytest.approx(tuple(m["per_image"][i][k] for k in ("tp", "fp", "fn")))
@@ -224,6 +230,7 @@ def test_predict_writes_the_mosaic_grid_and_agrees_with_evaluate(data):
 
     attrs = zarr.open_group(str(out), mode="r").attrs["metraw_predict"]
     assert attrs["threshold"] == 0.5 and attrs["layout"] == "stacked" and attrs["gsd_scale"] == 1.0
+    assert attrs["min_object_area_m2"] == MIN_OBJECT_AREA_M2
     assert attrs["store"] == str(data["boxes"]) and attrs["model"] == str(data["model"])
     # an existing output is refused without --overwrite, replaced with it
     assert _cli("predict", data["boxes"], "--model", data["model"], "--out", out)[0] == 2
@@ -238,7 +245,7 @@ def test_predict_needs_no_labels_and_stores_unequal_shapes_per_image(data):
     shapes = []
     for i in range(2):
         p, mask, rec = load_prediction(out, i)
-        assert rec["labels"] is None and np.array_equal(mask, p > 0.5)
+        assert rec["labels"] is None and not np.any(mask & ~(p > 0.5))
         shapes.append(p.shape)
     assert shapes == [(48, 48), (64, 64)]
 

@@ -124,6 +124,52 @@ def _cfg(**kw):
     return TrainConfig(**base)
 
 
+def test_small_predicted_objects_are_dropped_by_ground_area():
+    from metraw.segment.evaluate import THRESHOLD, predicted_mask
+    from metraw.segment.objects import MIN_OBJECT_AREA_M2, drop_small_objects
+
+    prob = np.zeros((40, 40), np.float32)
+    prob[2:5, 2:5] = 0.9                               # 9 px
+    prob[20:26, 20:26] = 0.9                           # 36 px
+    for k in range(12):                                # a diagonal chain: one 8-connected object of 12 px
+        prob[10 + k, 30 + k % 2 + k // 2] = 0.8
+    prob[30, 5] = THRESHOLD                            # not above the threshold: never car
+    gsd_m = math.sqrt(MIN_OBJECT_AREA_M2 / 10.0)       # the smallest object: 10 pixels
+    mask = predicted_mask(prob, gsd_m)
+    assert not mask[2:5, 2:5].any() and mask[20:26, 20:26].all() and mask.sum() == 36 + 12
+    assert predicted_mask(prob, None).sum() == 9 + 36 + 12  # GSD unknown: nothing dropped
+    stack = np.stack([prob > THRESHOLD, np.zeros_like(prob, bool)])
+    assert drop_small_objects(stack, 10).sum(axis=(1, 2)).tolist() == [48, 0]  # leading axes: separate images
+
+
+def test_a_car_outline_scores_one_against_its_box_only_as_a_box():
+    """A perfect outline of a car at 45 degrees, scored against its axis-aligned box label: the pixel IoU is
+    the outline's share of the box, the box IoU (the predicted object's bounding box against the box) is 1."""
+    import torch
+
+    from metraw.segment.data import PreparedImage
+    from metraw.segment.evaluate import score_image
+    from metraw.segment.objects import object_boxes
+
+    y, x = np.mgrid[0:48, 0:48] + 0.5
+    u, v = (x - 24 + y - 24) / math.sqrt(2), (x - 24 - (y - 24)) / math.sqrt(2)
+    car = (np.abs(u) < 12) & (np.abs(v) < 5)
+    box = object_boxes(car)
+    assert box.sum() > car.sum()
+
+    class Fixed(torch.nn.Module):  # a "network" whose logits are the car outline
+        def forward(self, x):
+            return torch.from_numpy(np.where(car, 8.0, -8.0).astype(np.float32))[None, None]
+
+    img = PreparedImage(np.zeros((48, 48), np.float32), box.astype(np.float16), "mono", 0, gsd_m=0.1)
+    rec = score_image(Fixed(), img, boxes=True)
+    assert rec["iou"] == pytest.approx(car.sum() / box.sum()) and rec["precision"] == 1.0
+    assert (rec["box_tp"], rec["box_fp"], rec["box_fn"]) == (box.sum(), 0, 0)
+    pooled = summarise([rec, {**rec, "box_tp": 0.0, "box_fn": float(box.sum())}])
+    assert pooled["box_iou"] == pytest.approx(0.5) and pooled["box_precision"] == 1.0
+    assert "box_iou" not in summarise([score_image(Fixed(), img)])  # exact labels: no box scores
+
+
 def test_training_is_deterministic_and_evaluates(tiny_store, tmp_path):
     from metraw.segment.evaluate import evaluate_store
     from metraw.segment.train import CHECKPOINT, TIMINGS, TRAIN_METRICS, train_store

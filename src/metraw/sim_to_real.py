@@ -69,9 +69,11 @@ def real_columns(row: dict[str, Any], real: dict[str, Any], iou_var: float, real
 
 
 def _real_fields(real: dict[str, Any], real_var: float) -> dict[str, Any]:
-    """real_iou (+ sd), precision, recall, labels and image count of a real-image metrics record."""
+    """real_iou (+ sd), precision, recall, labels and image count of a real-image metrics record, and on box
+    labels the predicted objects' bounding boxes against them (real_box_iou, None when not scored)."""
     return {"real_iou": float(real["iou"]), "real_iou_sd": math.sqrt(max(real_var, 0.0)),
             "real_precision": real.get("precision"), "real_recall": real.get("recall"),
+            "real_box_iou": real.get("box_iou"), "real_box_precision": real.get("box_precision"),
             "real_labels": real.get("labels"), "real_n_images": real.get("n_images")}
 
 

@@ -6,8 +6,8 @@ every point's metrics (and compression) file must exist. Outputs under ``--out``
 
 Sim-to-real (``--real-metrics-pattern``, issue #16): each point's synthetic-trained model scored on the
 real images emulated through the same point. aggregate.json then holds per point ``real_iou`` (+ sd),
-``real_precision``, ``real_recall``, ``real_labels``, ``sim_to_real_gap`` (synthetic test IoU - real IoU,
-with its sd) and ``sim_to_real_note``, plus a top-level ``sim_to_real`` summary (nominal gap, whether it
+``real_precision``, ``real_recall``, ``real_box_iou`` (box labels: predicted objects as boxes),
+``real_labels``, ``sim_to_real_gap`` (synthetic test IoU - real IoU, with its sd) and ``sim_to_real_note``, plus a top-level ``sim_to_real`` summary (nominal gap, whether it
 is within ``--gap-tolerance``; ``--source-real-metrics``: the drone-resolution reference); the IoU
 figures draw the real points beside the synthetic ones. The GP, tolerances and spec.yaml are fitted
 to the synthetic test IoU only: the real images are a check of transfer, not the basis of the spec.
@@ -277,7 +277,8 @@ def run(args) -> int:
     pcols = ["point", *all_names, "iou", "iou_sd", "iou_loo_pred", "iou_loo_sd", "iou_loo_inside", "precision", "recall",
              "object_f1", "n_replicates", "iou_replicate_sd"]
     if real is not None:
-        pcols += ["real_iou", "real_iou_sd", "real_precision", "real_recall", "sim_to_real_gap", "sim_to_real_gap_sd"]
+        pcols += ["real_iou", "real_iou_sd", "real_precision", "real_recall", "real_box_iou", "sim_to_real_gap",
+                  "sim_to_real_gap_sd"]
     if has_ratio:
         # per-channel columns of every point (a mono point has L, a Bayer point R, G, B): the union, not the first row's
         pcols += ["ratio", "ratio_sd", "bits_per_pixel"] + sorted({k for r in rows for k in r if k.startswith("ratio_")

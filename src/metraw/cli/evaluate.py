@@ -50,6 +50,7 @@ def run(args) -> int:
     print(f"metraw evaluate: {metrics['n_images']} {what} in {time.perf_counter() - t0:.2f} s", file=sys.stderr)
     if not metrics["gsd_matched"]:
         print(f"metraw evaluate: note: {metrics['gsd_note']}", file=sys.stderr)
-    print(json.dumps({k: metrics[k] for k in ("iou", "precision", "recall", "mean_image_iou", "n_images", "split",
-                                              "labels")}))
+    keys = ("iou", "precision", "recall", "box_iou", "box_precision", "box_recall", "object_recall",
+            "object_precision", "mean_image_iou", "n_images", "split", "labels")
+    print(json.dumps({k: metrics[k] for k in keys if k in metrics}))
     return 0

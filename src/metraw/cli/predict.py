@@ -12,7 +12,8 @@ from metraw.cli.evaluate import add_run_options
 def register(subparsers) -> None:
     p = subparsers.add_parser("predict", help="car probability and mask of every image of a store (labels optional)",
                               description="Segment every image of STORE with the model in DIR and write its car "
-                              "probability (float32) and mask (probability > 0.5) on the image's mosaic grid into the "
+                              "probability (float32) and mask (probability > 0.5, objects under 2 m^2 on the ground dropped) on the "
+                              "image's mosaic grid into the "
                               "zarr group OUT (written atomically). Images of another ground sampling distance are "
                               "resampled to the training GSD and back. The time goes to stderr.")
     p.add_argument("store", help="RawStore (.zarr); labels not needed")

@@ -1,8 +1,9 @@
 """IoU, precision and recall of car segmentation, per image and pooled over a test set.
 
 Prediction and target live on the image's own mosaic grid (one value per CFA site): the
-prediction is probability > 0.5 per pixel (the float32 sigmoid of the logit, ``car_probability``:
-the same rule as the masks of ``metraw predict``); the target is the car *area fraction*
+prediction is probability > 0.5 per pixel (the float32 sigmoid of the logit, ``car_probability``)
+without the predicted objects smaller than ``MIN_OBJECT_AREA_M2`` on the ground (``predicted_mask``: the
+same rule as the masks of ``metraw predict``); the target is the car *area fraction*
 f of each pixel (the label geometry carried through the emulation). Scores are in ground area,
 counting a predicted pixel as wholly car: TP = sum(b f), FP = sum(b (1 - f)), FN = sum((1 - b) f)
 in pixel areas. For 0/1 masks these are the usual pixel counts; for coarse satellite pixels
@@ -26,7 +27,9 @@ field, or images without a known GSD, are not resampled ("gsd_matched": false an
 
 Labels: masks made from YOLO boxes (image meta ``mask_kind`` "box-approximate: ...") overstate the
 car area (a box is not an outline): each image and the pooled record say "box-approximate",
-"exact" or (pooled) "mixed".
+"exact" or (pooled) "mixed". On box-labelled images ``evaluate_store`` also scores every predicted
+object as its axis-aligned bounding box against the boxes ("box_iou", "box_precision", "box_recall":
+box against box, like a detector; ``metraw.segment.objects.object_boxes``).
 """
 
 from __future__ import annotations
@@ -36,13 +39,18 @@ from typing import Any
 
 import numpy as np
 
-from metraw.cfa import unpack_planes
+from metraw.cfa import pack_planes, unpack_planes
 from metraw.errors import MetrawError
 from metraw.segment.data import PreparedImage
-from metraw.segment.objects import object_counts, object_scores
+from metraw.segment.objects import (MIN_OBJECT_AREA_M2, drop_small_objects, object_boxes, object_counts,
+                                    object_scores)
 
 #: Per-image object counts (``metraw.segment.objects``), pooled by ``summarise``.
 OBJECT_KEYS = ("true_objects", "found_objects", "predicted_objects", "false_alarms")
+#: Per-image confusion counts of the predicted objects' bounding boxes (box-labelled images only).
+BOX_KEYS = ("box_tp", "box_fp", "box_fn")
+#: Probability above which a pixel is predicted car.
+THRESHOLD = 0.5
 
 #: Relative difference of packed GSDs [-] above which an image is resampled to the training GSD.
 GSD_TOLERANCE = 0.02
@@ -94,9 +102,12 @@ def summarise(per_image: list[dict[str, Any]]) -> dict[str, Any]:
     se = float(vals.std(ddof=1) / math.sqrt(vals.size)) if vals.size > 1 else None
     objects = {k: sum(r.get(k, 0) for r in per_image) for k in OBJECT_KEYS} if all(
         OBJECT_KEYS[0] in r for r in per_image) else None
+    boxes = {k: sum(r[k] for r in per_image) for k in BOX_KEYS} if per_image and all(
+        BOX_KEYS[0] in r for r in per_image) else None
     return {**scores(tp, fp, fn), "tp": tp, "fp": fp, "fn": fn, "n_images": len(per_image),
             "mean_image_iou": mean, "mean_image_iou_se": se,
-            **({**objects, **object_scores(objects)} if objects else {})}
+            **({**objects, **object_scores(objects)} if objects else {}),
+            **({**boxes, **{f"box_{k}": v for k, v in scores(*boxes.values()).items()}} if boxes else {})}
 
 
 # ----------------------------------------------------------------- ground sampling
@@ -161,10 +172,21 @@ def predict_logits(model, planes: np.ndarray, device: str = "cpu", scale: float 
 
 
 def car_probability(logits: np.ndarray) -> np.ndarray:
-    """Car probability (float32 sigmoid of the logits); a pixel is predicted car where it is > 0.5."""
+    """Car probability (float32 sigmoid of the logits); see ``predicted_mask`` for the decision."""
     import torch
 
     return torch.sigmoid(torch.from_numpy(np.ascontiguousarray(logits, dtype=np.float32))).numpy()
+
+
+def min_object_area_px(gsd_m: float | None) -> float:
+    """``MIN_OBJECT_AREA_M2`` in mosaic pixels of ground sampling ``gsd_m`` [m]; 0 (keep all) when unknown."""
+    return MIN_OBJECT_AREA_M2 / gsd_m ** 2 if gsd_m else 0.0
+
+
+def predicted_mask(probability: np.ndarray, gsd_m: float | None) -> np.ndarray:
+    """Car mask of a probability map on the mosaic grid (H, W): probability > ``THRESHOLD``, less the
+    8-connected objects smaller than ``MIN_OBJECT_AREA_M2`` (``gsd_m``: mosaic pixel [m]; None: keep all)."""
+    return drop_small_objects(np.asarray(probability) > THRESHOLD, min_object_area_px(gsd_m))
 
 
 # ----------------------------------------------------------------- scoring
@@ -180,29 +202,44 @@ def pooled_label_kind(kinds: list[str]) -> str | None:
     return None if not distinct else distinct[0] if len(distinct) == 1 else "mixed"
 
 
-def score_image(model, img: PreparedImage, device: str = "cpu", scale: float = 1.0) -> dict[str, Any]:
-    """Segment one whole image and score it: index, shape, tp, fp, fn, iou, precision, recall."""
+def score_image(model, img: PreparedImage, device: str = "cpu", scale: float = 1.0, boxes: bool = False
+                ) -> dict[str, Any]:
+    """Segment one whole image and score it: index, shape, tp, fp, fn, iou, precision, recall, object counts
+    and, with ``boxes`` (box labels), the confusion counts of the predicted objects' bounding boxes."""
     planes, frac = img.full()
-    pred = car_probability(predict_logits(model, planes, device, scale)) > 0.5
+    prob = car_probability(predict_logits(model, planes, device, scale))
+    mosaic_pred = predicted_mask(_mosaic(prob, img.pattern), img.gsd_m)
+    mosaic_frac = _mosaic(frac, img.pattern)
+    pred = _packed(mosaic_pred, img.pattern, frac.shape)
     tp, fp, fn = confusion(pred, frac)
-    return {"index": img.index, "shape": list(frac.shape), "tp": tp, "fp": fp, "fn": fn, **scores(tp, fp, fn),
-            **object_counts(*_mosaic(pred, frac, img.pattern))}
+    rec = {"index": img.index, "shape": list(frac.shape), "tp": tp, "fp": fp, "fn": fn, **scores(tp, fp, fn),
+           **object_counts(mosaic_pred, mosaic_frac)}
+    if boxes:
+        rec.update(zip(BOX_KEYS, confusion(_packed(object_boxes(mosaic_pred), img.pattern, frac.shape), frac)))
+    return rec
 
 
-def _mosaic(pred: np.ndarray, frac: np.ndarray, pattern: str) -> tuple[np.ndarray, np.ndarray]:
-    """Packed (S, h, w) prediction and fractions back on the (canonical) mosaic grid, for object counts."""
+def _mosaic(values: np.ndarray, pattern: str) -> np.ndarray:
+    """Packed (S, h, w) values back on the (canonical) mosaic grid."""
     if pattern == "mono":
-        return pred.reshape(pred.shape[-2:]), frac.reshape(frac.shape[-2:])
-    shape = (2 * pred.shape[-2], 2 * pred.shape[-1])
-    return unpack_planes(pred, "RGGB", shape), unpack_planes(frac, "RGGB", shape)
+        return values.reshape(values.shape[-2:])
+    return unpack_planes(values, "RGGB", (2 * values.shape[-2], 2 * values.shape[-1]))
 
 
-def evaluate_images(model, images: list[PreparedImage], device: str = "cpu", progress: bool | None = None
-                    ) -> dict[str, Any]:
-    """Segment whole images (no resampling) and score them: {"per_image": [...], plus ``summarise`` keys}."""
+def _packed(mosaic: np.ndarray, pattern: str, shape: tuple[int, ...]) -> np.ndarray:
+    """Inverse of ``_mosaic``: mosaic values as packed planes of ``shape`` (S, h, w)."""
+    if pattern == "mono":
+        return mosaic.reshape(shape)
+    return pack_planes(mosaic, "RGGB")
+
+
+def evaluate_images(model, images: list[PreparedImage], device: str = "cpu", progress: bool | None = None,
+                    boxes: bool = False) -> dict[str, Any]:
+    """Segment whole images (no resampling) and score them: {"per_image": [...], plus ``summarise`` keys};
+    ``boxes``: the labels are boxes, score the predicted objects' bounding boxes too (``score_image``)."""
     from metraw.progress import progress_bar
 
-    records = [score_image(model, img, device)
+    records = [score_image(model, img, device, boxes=boxes)
                for img in progress_bar(images, desc="evaluate", disable=None if progress is None else not progress)]
     return {**summarise(records), "per_image": records}
 
@@ -309,12 +346,13 @@ def evaluate_store(store_path, model_dir, device: str | None = None, progress: b
             scale, matched, note = gsd_scale(gsd, train_gsd, "train_packed_gsd_m" in ckpt)
             img = prepare(image, i)
             packed_shape = packed_shape or list(img.packed_shape)
-            rec = score_image(model, img, device, scale)
-            rec.update({"labels": label_kind(image.meta), "packed_gsd_m": gsd, "gsd_scale": scale,
-                        "gsd_matched": matched})
+            labels = label_kind(image.meta)
+            boxes = labels == "box-approximate"
+            rec = score_image(model, img, device, scale, boxes)
+            rec.update({"labels": labels, "packed_gsd_m": gsd, "gsd_scale": scale, "gsd_matched": matched})
             records.append(rec)
             for (rmodel, _), rrecs in zip(replicas, rep_records):
-                rrecs.append(score_image(rmodel, img, device, scale))
+                rrecs.append(score_image(rmodel, img, device, scale, boxes))
             if note and note not in notes:
                 notes.append(note)
     out = {**summarise(records), "per_image": records}
@@ -323,7 +361,7 @@ def evaluate_store(store_path, model_dir, device: str | None = None, progress: b
                 "gsd_matched": not notes, "gsd_note": "; ".join(notes) or None,
                 "store": str(store_path), "model": str(model_dir), "epochs": record.get("epochs"),
                 "upsample": ckpt["upsample"], "pool": ckpt.get("pool", 1), "device": device, "config": ckpt["config"],
-                "packed_shape": packed_shape})
+                "packed_shape": packed_shape, "threshold": THRESHOLD, "min_object_area_m2": MIN_OBJECT_AREA_M2})
     if replicas:
         out.update(replicate_summary(out, [(TrainConfig.from_dict(c["config"]).seed, recs)
                                            for (_, c), recs in zip(replicas, rep_records)], config.seed))

@@ -9,12 +9,13 @@ image) says which rows and columns the network itself predicted (the ones ``metr
 
 Images of another ground sampling distance than the training images are resampled to it for the
 network and back (``metraw.segment.evaluate.resample_to_gsd``); the factor is recorded per image.
-The mask is probability > 0.5, the rule ``metraw evaluate`` scores. Images need no labels.
+The mask is probability > 0.5 less the predicted objects smaller than ``MIN_OBJECT_AREA_M2`` on the ground
+(``metraw.segment.evaluate.predicted_mask``), the rule ``metraw evaluate`` scores. Images need no labels.
 
 Output: one zarr v3 group, written atomically, holding ``probability`` (float32) and ``mask`` (bool):
 (N, H, W) arrays when all images share a shape ("layout": "stacked"), else one (H, W) array per image
 ``probability/<i>``, ``mask/<i>`` ("layout": "per_image"); attributes ``metraw_predict``: model,
-store, threshold, GSD scale factors, per image its index, shape, packed window, GSD scale and labels.
+store, threshold, smallest object area [m^2], GSD scale factors, per image its index, shape, packed window, GSD scale and labels.
 """
 
 from __future__ import annotations
@@ -27,9 +28,9 @@ import numpy as np
 
 from metraw.cfa import cell_size, color_index, unpack_planes
 from metraw.errors import MetrawError
+from metraw.segment.evaluate import THRESHOLD
+from metraw.segment.objects import MIN_OBJECT_AREA_M2
 
-#: Probability above which a pixel is predicted car (the rule ``metraw evaluate`` scores).
-THRESHOLD = 0.5
 #: Colours (RGB, 0..1) of the overlay: predicted mask tint and outline, label outline.
 PRED_RGB = (0.0, 0.9, 1.0)
 LABEL_RGB = (1.0, 0.1, 0.9)
@@ -71,6 +72,17 @@ def predict_image(model, image, device: str, train_packed_gsd_m: float | None, r
     info = {"shape": list(image.shape), "packed_window": list(packed_window(image.cfa_pattern, image.shape)),
             "packed_gsd_m": gsd, "gsd_scale": scale, "gsd_matched": matched}
     return sites_to_mosaic(p, image.cfa_pattern, image.shape), info, note
+
+
+def window_mask(probability: np.ndarray, window, packed_gsd_m: float | None, pattern: str) -> np.ndarray:
+    """Car mask (H, W) of a probability map: ``predicted_mask`` on the ``packed_window`` the network predicted
+    (the pixels ``metraw evaluate`` scores, so both see the same objects), edge-replicated outside it."""
+    from metraw.segment.evaluate import predicted_mask
+
+    y0, y1, x0, x1 = window
+    H, W = probability.shape
+    inner = predicted_mask(probability[y0:y1, x0:x1], packed_gsd_m / cell_size(pattern) if packed_gsd_m else None)
+    return np.pad(inner, ((y0, H - y1), (x0, W - x1)), mode="edge")
 
 
 def predict_store(store_path, model_dir, out_path, device: str | None = None, progress: bool | None = None,
@@ -119,7 +131,7 @@ def predict_store(store_path, model_dir, out_path, device: str | None = None, pr
             image = store[i]
             check_channels(ckpt["in_channels"], image.cfa_pattern, f"image {i} of {store_path}", model_dir)
             p, info, note = predict_image(model, image, device, train_gsd, recorded)
-            mask = p > THRESHOLD
+            mask = window_mask(p, info["packed_window"], info["packed_gsd_m"], image.cfa_pattern)
             if stacked:
                 arrays["probability"][i] = p
                 arrays["mask"][i] = mask
@@ -135,7 +147,7 @@ def predict_store(store_path, model_dir, out_path, device: str | None = None, pr
             if overlay is not None and len(panels) < overlay_count:
                 panels.append((i, image, mask, info["gsd_scale"]))
         scales = sorted({r["gsd_scale"] for r in records})
-        attrs = {"model": str(model_dir), "store": str(store_path), "threshold": THRESHOLD,
+        attrs = {"model": str(model_dir), "store": str(store_path), "threshold": THRESHOLD, "min_object_area_m2": MIN_OBJECT_AREA_M2,
                  "layout": "stacked" if stacked else "per_image", "n_images": n,
                  "train_packed_gsd_m": train_gsd, "gsd_scale": scales[0] if len(scales) == 1 else None,
                  "gsd_matched": not notes, "gsd_note": "; ".join(notes) or None,
