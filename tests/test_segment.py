@@ -341,6 +341,28 @@ def test_pool_factor_follows_ground_sampling_and_keeps_the_grid():
         Segmenter(4, 8, 2, upsample=2, pool=2)
 
 
+def test_cover_draws_enough_crops_to_see_each_image_once_per_epoch(tiny_store):
+    from metraw.segment.data import PreparedImage, prepare_store
+    from metraw.segment.train import TrainConfig, crops_to_cover, fit
+    from metraw.store import RawStore
+
+    def image(h, w):
+        return PreparedImage(np.zeros((h, w), np.float32), np.zeros((h, w), np.float16), "mono", 0)
+
+    assert crops_to_cover([image(128, 128), image(160, 64), image(68, 68), image(30, 30)], 64).tolist() == [4, 2, 1, 1]
+    rggb = PreparedImage(np.zeros((256, 256), np.float32), np.zeros((256, 256), np.float16), "RGGB", 0)
+    assert crops_to_cover([rggb], 64).tolist() == [4]  # 128 x 128 packed cells
+    for bad in (0, "all", True, 1.5):
+        with pytest.raises(MetrawError, match="crops_per_image"):
+            TrainConfig.from_dict({"crops_per_image": bad})
+    images = prepare_store(RawStore.open(tiny_store), [0, 1, 2])
+    cfg = TrainConfig(epochs=1, crop_px=16, base_channels=4, depth=2, batch_size=2, crops_per_image="cover")
+    need = crops_to_cover(images, 16)
+    assert need.min() > 1
+    _, record = fit(images, cfg, "cpu", progress=False)
+    assert record["steps"] == math.ceil(need.sum() / 2)
+
+
 def test_tone_jitter_is_a_power_law_on_electrons_with_the_median_fixed():
     """z ~ 2 sqrt(e): a power g on the VST level is the power g on the photoelectrons; the image's level
     (median) maps to itself, and a channel gain c in electrons scales that plane by sqrt(c)."""

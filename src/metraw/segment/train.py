@@ -38,6 +38,8 @@ TRAIN_METRICS = "train.json"
 REPLICATE_DIR = "replicate-{r}"
 #: ``TrainConfig.precision`` values.
 PRECISIONS = ("float32", "bfloat16")
+#: ``crops_per_image`` value: enough crops to cover each image's working-grid area once per epoch.
+COVER = "cover"
 #: Wall-clock fields of the training record: returned by ``fit``/``train_store``, left out of train.json.
 TIMINGS = ("training_time_s", "preprocess_time_s", "draw_time_s", "replicate_training_time_s")
 
@@ -53,7 +55,10 @@ class TrainConfig:
     ``grid_gsd_m``: if > 0, the finest ground sampling [m per packed pixel] the network works
     at: finer inputs are average-pooled by floor(grid_gsd_m / packed GSD) and the logits
     upsampled back, so drone images cost what their ground content needs (0: never pool).
-    ``crops_per_image``: random crops drawn per training image per epoch.
+    ``crops_per_image``: random crops drawn per training image per epoch, or "cover": as many as the image's
+    working-grid area holds, round(h w / crop_px^2), at least 1 (a 60 m drone scene at 0.135 m: 12; a
+    satellite image of at most ~1.2 crops: 1), so one epoch sees every image's ground about once at any GSD.
+    Training on the fly from the source (``metraw.segment.onthefly``) takes one crop per draw.
     ``tone_gamma_range``, ``channel_gain_range``: domain randomisation of tone curve and white balance of the
     training crops (``metraw.segment.data.tone_jitter``; 1.0 = off, the default: the emulated raws' noise
     model is exact and the network sees it unchanged). For models meant to run on processed real photos.
@@ -77,7 +82,7 @@ class TrainConfig:
     depth: int = 3
     min_grid_px: int = 0
     grid_gsd_m: float = 0.0
-    crops_per_image: int = 1
+    crops_per_image: int | str = 1
     tone_gamma_range: float = 1.0
     channel_gain_range: float = 1.0
     weight_decay: float = 1e-4
@@ -95,6 +100,9 @@ class TrainConfig:
         unknown = set(d) - known
         if unknown:
             raise MetrawError(f"unknown training parameter(s): {', '.join(sorted(unknown))}")
+        crops = d.get("crops_per_image", 1)
+        if crops != COVER and not (isinstance(crops, int) and not isinstance(crops, bool) and crops >= 1):
+            raise MetrawError(f"crops_per_image must be a positive integer or {COVER!r}, got {crops!r}")
         if d.get("precision", "float32") not in PRECISIONS:
             raise MetrawError(f"training precision must be one of {', '.join(PRECISIONS)}, got {d['precision']!r}")
         return cls(**d)
@@ -280,11 +288,17 @@ def fit(images: list[PreparedImage], config: TrainConfig, device: str | None = N
         raise MetrawError("no training images")
     device = device or default_device()
     model, f, pool, in_ch = new_network(images, config, device, upsample)
-    steps_per_epoch = math.ceil(len(images) * config.crops_per_image / config.batch_size)
+    cover = config.crops_per_image == COVER
+    per_image = crops_to_cover(images, config.crop_px * pool) if cover else None
+    steps_per_epoch = math.ceil((per_image.sum() if cover else len(images) * config.crops_per_image)
+                                / config.batch_size)
     rng = rng_from_seed(config.seed)
 
     def epoch_batches(_epoch):
-        order = np.concatenate([rng.permutation(len(images)) for _ in range(config.crops_per_image)])
+        if cover:
+            order = rng.permutation(np.repeat(np.arange(len(images)), per_image))
+        else:
+            order = np.concatenate([rng.permutation(len(images)) for _ in range(config.crops_per_image)])
         for s in range(steps_per_epoch):
             batch = [images[i] for i in order[s * config.batch_size:(s + 1) * config.batch_size]]
             yield batch_crops(batch, config.crop_px * pool, rng, augment=True, gamma_range=config.tone_gamma_range,
@@ -297,6 +311,12 @@ def fit(images: list[PreparedImage], config: TrainConfig, device: str | None = N
               "pool": pool, "in_channels": in_ch, "n_train": len(images),
               "train_packed_gsd_m": training_packed_gsd_m(images)}
     return model, record
+
+
+def crops_to_cover(images: list[PreparedImage], crop_side_px: int) -> np.ndarray:
+    """Crops per image that its packed area holds: round(h w / crop_side_px^2), at least 1 (``crop_side_px``: the
+    crop's side in packed pixels, i.e. crop_px times the pooling factor)."""
+    return np.array([max(1, round(h * w / crop_side_px ** 2)) for h, w in (img.packed_shape for img in images)])
 
 
 def train_store(store_path: str | os.PathLike, out_dir: str | os.PathLike, config: TrainConfig,
