@@ -2,7 +2,7 @@
 synthetic-only / real-only / mixed training table at drone resolution and at the nominal satellite point.
 
     nice -n 5 python benchmarks/sim_to_real.py [--work benchmarks/work/sim_to_real] [--n-synthetic 480]
-                                              [--epochs 20] [--real-weight 4] [--json out.json]
+                                              [--epochs 20] [--real-weight N] [--json out.json]
 
 Real data: ../shared/data/real/kit_ais (SOURCE.txt: crops of nadir aerial photos of Munich from the KIT AIS
 data set, CC-BY 3.0, via github.com/jekhor/aerial-cars-dataset; 65 images, YOLO car boxes), ingested as
@@ -17,7 +17,8 @@ Protocol (every model: the default training profile of params.yaml, same network
 - the real images are split by image (``--real-test`` of them, seeded) into train and test; synthetic scenes
   use the workflow's split (test_fraction of params.yaml);
 - mixed = synthetic training scenes + real training images, each real image drawn ``--real-weight`` times per
-  epoch (its images are ~10x a synthetic scene's area);
+  epoch (default 4 with a fixed number of crops per image: a real image is ~10x a synthetic scene's area;
+  1 with ``crops_per_image: cover``, which already draws crops in proportion to each image's area);
 - nominal point: both stores emulated through ``target.nominal`` (photon-exact chain), then the same three
   trainings.
 Every model is scored on the real test images and on the synthetic test scenes (pooled IoU, precision,
@@ -82,17 +83,19 @@ def real_split(n: int, n_test: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     return np.sort(perm[n_test:]), np.sort(perm[:n_test])
 
 
-def scores(model, images, overlays: Path | None = None) -> dict[str, float]:
-    """Pooled pixel IoU, precision, recall and object recall / precision (``metraw.segment.objects``); with
-    ``overlays``, one PNG per image there (green: hit, red: false alarm, blue: missed label)."""
+def scores(model, images, overlays: Path | None = None, boxes: bool = False) -> dict[str, float]:
+    """Pooled pixel IoU, precision, recall and object recall / precision (``metraw.segment.objects``), and with
+    ``boxes`` (box labels) the predicted objects' bounding boxes scored against them; with ``overlays``, one
+    PNG per image there (green: hit, red: false alarm, blue: missed label)."""
     from metraw.segment.evaluate import evaluate_images
     from metraw.segment.train import flush_denormals
 
     with flush_denormals():
-        r = evaluate_images(model, images, "cpu", progress=False)
+        r = evaluate_images(model, images, "cpu", progress=False, boxes=boxes)
         if overlays is not None:
             write_overlays(model, images, overlays)
-    keys = ("iou", "precision", "recall", "object_recall", "object_precision")
+    keys = ("iou", "precision", "recall", "object_recall", "object_precision") + (
+        ("box_iou", "box_precision", "box_recall") if boxes else ())
     return {k: None if r.get(k) is None else round(float(r[k]), 4) for k in keys}
 
 
@@ -100,16 +103,17 @@ def write_overlays(model, images, folder: Path) -> None:
     from PIL import Image
 
     from metraw.atomic import atomic_path
-    from metraw.segment.evaluate import car_probability, predict_logits
+    from metraw.segment.evaluate import _mosaic, car_probability, predict_logits, predicted_mask
 
     folder.mkdir(parents=True, exist_ok=True)
     for img in images:
         planes, frac = img.full()
-        pred = car_probability(predict_logits(model, planes, "cpu")) > 0.5
+        pred = predicted_mask(_mosaic(car_probability(predict_logits(model, planes, "cpu")), img.pattern), img.gsd_m)
         g = planes[1] if planes.shape[0] > 1 else planes[0]
         grey = np.clip((g - np.percentile(g, 1)) / (np.ptp(np.percentile(g, [1, 99])) + 1e-9), 0, 1)
         rgb = np.repeat((0.8 * grey)[..., None], 3, axis=-1)
-        truth, p = frac[1] >= 0.5, pred[1]
+        site = 1 if planes.shape[0] > 1 else 0  # the first green site of each packed cell
+        truth, p = frac[site] >= 0.5, pred[site // 2::2, site % 2::2] if planes.shape[0] > 1 else pred
         rgb[p & truth] = 0.5 * rgb[p & truth] + [0, 0.5, 0]
         rgb[p & ~truth] = 0.5 * rgb[p & ~truth] + [0.5, 0, 0]
         rgb[~p & truth] = 0.5 * rgb[~p & truth] + [0, 0, 0.5]
@@ -117,11 +121,11 @@ def write_overlays(model, images, folder: Path) -> None:
             Image.fromarray((255 * rgb).astype(np.uint8)).save(tmp, format="PNG")
 
 
-def table_for(level: str, real_store: Path, syn_store: Path, config, real_test: int, real_weight: int, seed: int,
-              trainings: tuple[str, ...] = ("synthetic-only", "real-only", "mixed"), overlays: Path | None = None
-              ) -> list[dict]:
+def table_for(level: str, real_store: Path, syn_store: Path, config, real_test: int, real_weight: int | None,
+              seed: int, trainings: tuple[str, ...] = ("synthetic-only", "real-only", "mixed"),
+              overlays: Path | None = None) -> list[dict]:
     from metraw.segment.data import prepare_store, split_indices
-    from metraw.segment.train import fit
+    from metraw.segment.train import COVER, fit
     from metraw.store import RawStore
 
     real, syn = RawStore.open(real_store), RawStore.open(syn_store)
@@ -129,9 +133,11 @@ def table_for(level: str, real_store: Path, syn_store: Path, config, real_test: 
     s_train, s_test = split_indices(len(syn), config.test_fraction, config.split_seed)
     rt, rs = prepare_store(real, r_train), prepare_store(real, r_test)
     st, ss = prepare_store(syn, s_train), prepare_store(syn, s_test)
-    # real images are large strips: crops per image per epoch so a real-only epoch sees as many crops as a
-    # synthetic one; mixing repeats them real_weight times
-    per_real = max(1, round(len(st) / len(rt)))
+    # real images are large strips: with a fixed number of crops per image, a real-only epoch takes as many crops
+    # as a synthetic one; "cover" draws crops by area already. Mixing repeats the real images real_weight times.
+    per_real = config.crops_per_image if config.crops_per_image == COVER else max(1, round(len(st) / len(rt)))
+    if real_weight is None:
+        real_weight = 1 if config.crops_per_image == COVER else 4
     runs = {"synthetic-only": (st, config),
             "real-only": (rt, replace(config, crops_per_image=per_real)),
             "mixed": (st + rt * real_weight, config)}
@@ -142,7 +148,7 @@ def table_for(level: str, real_store: Path, syn_store: Path, config, real_test: 
         t0 = time.perf_counter()
         model, record = fit(images, cfg, "cpu", progress=False)
         rows.append({"level": level, "training": name, "n_train_images": len(images),
-                     "real_test": scores(model, rs, overlays and overlays / f"{level}_{name}_real"),
+                     "real_test": scores(model, rs, overlays and overlays / f"{level}_{name}_real", boxes=True),
                      "synthetic_test": scores(model, ss, overlays and overlays / f"{level}_{name}_synthetic"),
                      "train_s": round(time.perf_counter() - t0, 1)})
         print(json.dumps(rows[-1]), flush=True)
@@ -166,7 +172,8 @@ def main() -> None:
     ap.add_argument("--channel-gain-range", type=float, default=None,
                     help="override the profile's channel_gain_range (white-balance randomisation of training crops)")
     ap.add_argument("--real-test", type=int, default=20, help="real images held out for testing")
-    ap.add_argument("--real-weight", type=int, default=4, help="times each real image is drawn per epoch (mixed)")
+    ap.add_argument("--real-weight", type=int, default=None,
+                    help="times each real image is drawn per epoch (mixed; default 4, or 1 with crops_per_image: cover)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--kinds", default="urban,suburban,rural",
                     help="scene types of the synthetic store (KIT AIS shows city streets only: 'urban')")
@@ -211,11 +218,13 @@ def main() -> None:
         suffix = "" if level == "source" else f"_{level}"
         rows += table_for(level, paths[f"real{suffix}"], paths[f"synthetic{suffix}"], config, args.real_test,
                           args.real_weight, args.seed, trainings, args.overlays)
-    print("\n== training data vs test images (pooled IoU / precision / recall; real labels box-approximate)")
-    print(f"{'level':8s} {'training':15s} {'real test':>24s} {'synthetic test':>24s}")
+    print("\n== training data vs test images (pooled IoU / precision / recall; real labels are boxes: pixels "
+          "against boxes, then each predicted object's bounding box against them)")
+    print(f"{'level':8s} {'training':15s} {'real test, pixels':>24s} {'real test, boxes':>24s} {'synthetic test':>24s}")
     for r in rows:
-        f = lambda s: f"{s['iou']:.3f} / {s['precision']:.3f} / {s['recall']:.3f}"  # noqa: E731
-        print(f"{r['level']:8s} {r['training']:15s} {f(r['real_test']):>24s} {f(r['synthetic_test']):>24s}")
+        f = lambda s, b="": f"{s[b + 'iou']:.3f} / {s[b + 'precision']:.3f} / {s[b + 'recall']:.3f}"  # noqa: E731
+        print(f"{r['level']:8s} {r['training']:15s} {f(r['real_test']):>24s} {f(r['real_test'], 'box_'):>24s} "
+              f"{f(r['synthetic_test']):>24s}")
     if args.json:
         args.json.write_text(json.dumps({"rows": rows, "epochs": config.epochs, "real_test": args.real_test,
                                          "real_weight": args.real_weight}, indent=1))
