@@ -16,6 +16,7 @@ Protocol (every model: the default training profile of params.yaml, same network
   so synthetic and real images share one grid and can be mixed without resampling;
 - the real images are split by image (``--real-test`` of them, seeded) into train and test; synthetic scenes
   use the workflow's split (test_fraction of params.yaml);
+- real-only takes as many crops per epoch as synthetic-only (the same number of steps);
 - mixed = synthetic training scenes + real training images, each real image drawn ``--real-weight`` times per
   epoch (default 4 with a fixed number of crops per image: a real image is ~10x a synthetic scene's area;
   1 with ``crops_per_image: cover``, which already draws crops in proportion to each image's area);
@@ -125,7 +126,7 @@ def table_for(level: str, real_store: Path, syn_store: Path, config, real_test: 
               seed: int, trainings: tuple[str, ...] = ("synthetic-only", "real-only", "mixed"),
               overlays: Path | None = None) -> list[dict]:
     from metraw.segment.data import prepare_store, split_indices
-    from metraw.segment.train import COVER, fit
+    from metraw.segment.train import COVER, crops_to_cover, fit, pool_factor
     from metraw.store import RawStore
 
     real, syn = RawStore.open(real_store), RawStore.open(syn_store)
@@ -133,9 +134,11 @@ def table_for(level: str, real_store: Path, syn_store: Path, config, real_test: 
     s_train, s_test = split_indices(len(syn), config.test_fraction, config.split_seed)
     rt, rs = prepare_store(real, r_train), prepare_store(real, r_test)
     st, ss = prepare_store(syn, s_train), prepare_store(syn, s_test)
-    # real images are large strips: with a fixed number of crops per image, a real-only epoch takes as many crops
-    # as a synthetic one; "cover" draws crops by area already. Mixing repeats the real images real_weight times.
-    per_real = config.crops_per_image if config.crops_per_image == COVER else max(1, round(len(st) / len(rt)))
+    # a real-only epoch takes as many crops as a synthetic-only one (same steps: 45 real images against 384
+    # scenes); mixing repeats the real images real_weight times ("cover" already draws them by area)
+    syn_crops = int(crops_to_cover(st, config.crop_px * pool_factor(st, config.grid_gsd_m)).sum()) \
+        if config.crops_per_image == COVER else len(st) * config.crops_per_image
+    per_real = max(1, round(syn_crops / len(rt)))
     if real_weight is None:
         real_weight = 1 if config.crops_per_image == COVER else 4
     runs = {"synthetic-only": (st, config),
@@ -218,16 +221,17 @@ def main() -> None:
         suffix = "" if level == "source" else f"_{level}"
         rows += table_for(level, paths[f"real{suffix}"], paths[f"synthetic{suffix}"], config, args.real_test,
                           args.real_weight, args.seed, trainings, args.overlays)
+    if args.json:
+        args.json.write_text(json.dumps({"rows": rows, "epochs": config.epochs, "real_test": args.real_test,
+                                         "real_weight": args.real_weight}, indent=1))
     print("\n== training data vs test images (pooled IoU / precision / recall; real labels are boxes: pixels "
           "against boxes, then each predicted object's bounding box against them)")
     print(f"{'level':8s} {'training':15s} {'real test, pixels':>24s} {'real test, boxes':>24s} {'synthetic test':>24s}")
     for r in rows:
-        f = lambda s, b="": f"{s[b + 'iou']:.3f} / {s[b + 'precision']:.3f} / {s[b + 'recall']:.3f}"  # noqa: E731
+        f = lambda s, b="": " / ".join("-" if s[b + k] is None else f"{s[b + k]:.3f}"  # noqa: E731
+                                       for k in ("iou", "precision", "recall"))
         print(f"{r['level']:8s} {r['training']:15s} {f(r['real_test']):>24s} {f(r['real_test'], 'box_'):>24s} "
               f"{f(r['synthetic_test']):>24s}")
-    if args.json:
-        args.json.write_text(json.dumps({"rows": rows, "epochs": config.epochs, "real_test": args.real_test,
-                                         "real_weight": args.real_weight}, indent=1))
 
 
 if __name__ == "__main__":
