@@ -126,7 +126,7 @@ def table_for(level: str, real_store: Path, syn_store: Path, config, real_test: 
               seed: int, trainings: tuple[str, ...] = ("synthetic-only", "real-only", "mixed"),
               overlays: Path | None = None) -> list[dict]:
     from metraw.segment.data import prepare_store, split_indices
-    from metraw.segment.train import COVER, crops_to_cover, fit, pool_factor
+    from metraw.segment.train import COVER, crops_to_cover, fit, grid_factors
     from metraw.store import RawStore
 
     real, syn = RawStore.open(real_store), RawStore.open(syn_store)
@@ -136,7 +136,7 @@ def table_for(level: str, real_store: Path, syn_store: Path, config, real_test: 
     st, ss = prepare_store(syn, s_train), prepare_store(syn, s_test)
     # a real-only epoch takes as many crops as a synthetic-only one (same steps: 45 real images against 384
     # scenes); mixing repeats the real images real_weight times ("cover" already draws them by area)
-    syn_crops = int(crops_to_cover(st, config.crop_px * pool_factor(st, config.grid_gsd_m)).sum()) \
+    syn_crops = int(crops_to_cover(st, config.crop_px * grid_factors(st, config)[1]).sum()) \
         if config.crops_per_image == COVER else len(st) * config.crops_per_image
     per_real = max(1, round(syn_crops / len(rt)))
     if real_weight is None:

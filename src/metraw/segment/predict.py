@@ -15,7 +15,8 @@ The mask is probability > 0.5 less the predicted objects smaller than ``MIN_OBJE
 Output: one zarr v3 group, written atomically, holding ``probability`` (float32) and ``mask`` (bool):
 (N, H, W) arrays when all images share a shape ("layout": "stacked"), else one (H, W) array per image
 ``probability/<i>``, ``mask/<i>`` ("layout": "per_image"); attributes ``metraw_predict``: model,
-store, threshold, smallest object area [m^2], GSD scale factors, per image its index, shape, packed window, GSD scale and labels.
+store, threshold, smallest object area [m^2], GSD scale factors, per image its index, shape, packed window,
+GSD scale and labels.
 """
 
 from __future__ import annotations
@@ -147,7 +148,8 @@ def predict_store(store_path, model_dir, out_path, device: str | None = None, pr
             if overlay is not None and len(panels) < overlay_count:
                 panels.append((i, image, mask, info["gsd_scale"]))
         scales = sorted({r["gsd_scale"] for r in records})
-        attrs = {"model": str(model_dir), "store": str(store_path), "threshold": THRESHOLD, "min_object_area_m2": MIN_OBJECT_AREA_M2,
+        attrs = {"model": str(model_dir), "store": str(store_path), "threshold": THRESHOLD,
+                 "min_object_area_m2": MIN_OBJECT_AREA_M2,
                  "layout": "stacked" if stacked else "per_image", "n_images": n,
                  "train_packed_gsd_m": train_gsd, "gsd_scale": scales[0] if len(scales) == 1 else None,
                  "gsd_matched": not notes, "gsd_note": "; ".join(notes) or None,

@@ -269,12 +269,18 @@ def build_model(in_channels: int, config: TrainConfig, upsample: int, pool: int 
     return Segmenter(in_channels, config.base_channels, config.depth, upsample, pool)
 
 
+def grid_factors(images: list[PreparedImage], config: TrainConfig, upsample: int | None = None) -> tuple[int, int]:
+    """(upsampling, pooling) factors of the network's working grid for ``images`` (pooling only without
+    upsampling); ``upsample`` overrides the one ``config.min_grid_px`` gives."""
+    f = upsample_factor(images, config.min_grid_px) if upsample is None else upsample
+    return f, (pool_factor(images, config.grid_gsd_m) if f == 1 else 1)
+
+
 def new_network(images: list[PreparedImage], config: TrainConfig, device: str, upsample: int | None = None):
     """Seed torch (``set_determinism``) and build a fresh network sized for ``images``:
     (model on ``device``, upsampling factor, pooling factor, input channels)."""
     set_determinism(config.seed, config.threads, device)
-    f = upsample_factor(images, config.min_grid_px) if upsample is None else upsample
-    pool = pool_factor(images, config.grid_gsd_m) if f == 1 else 1
+    f, pool = grid_factors(images, config, upsample)
     in_ch = 1 if images[0].pattern == "mono" else 4
     if any((img.pattern == "mono") != (in_ch == 1) for img in images):
         raise MetrawError("cannot train on a mix of mono and CFA images")
