@@ -33,7 +33,7 @@ import json
 import subprocess
 import sys
 import time
-from dataclasses import replace
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
@@ -84,32 +84,34 @@ def real_split(n: int, n_test: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     return np.sort(perm[n_test:]), np.sort(perm[:n_test])
 
 
-def scores(model, images, overlays: Path | None = None, boxes: bool = False) -> dict[str, float]:
-    """Pooled pixel IoU, precision, recall and object recall / precision (``metraw.segment.objects``), and with
-    ``boxes`` (box labels) the predicted objects' bounding boxes scored against them; with ``overlays``, one
-    PNG per image there (green: hit, red: false alarm, blue: missed label)."""
+def scores(model, images, transforms: int, overlays: Path | None = None, boxes: bool = False) -> dict[str, float]:
+    """Pooled pixel IoU, precision, recall and object recall / precision (``metraw.segment.objects``) of the
+    predictions averaged over ``transforms`` dihedral transforms, and with ``boxes`` (box labels) the predicted
+    objects' bounding boxes scored against them; with ``overlays``, one PNG per image there (green: hit, red:
+    false alarm, blue: missed label)."""
     from metraw.segment.evaluate import evaluate_images
     from metraw.segment.train import flush_denormals
 
     with flush_denormals():
-        r = evaluate_images(model, images, "cpu", progress=False, boxes=boxes)
+        r = evaluate_images(model, images, "cpu", progress=False, boxes=boxes, transforms=transforms)
         if overlays is not None:
-            write_overlays(model, images, overlays)
+            write_overlays(model, images, overlays, transforms)
     keys = ("iou", "precision", "recall", "object_recall", "object_precision") + (
         ("box_iou", "box_precision", "box_recall") if boxes else ())
     return {k: None if r.get(k) is None else round(float(r[k]), 4) for k in keys}
 
 
-def write_overlays(model, images, folder: Path) -> None:
+def write_overlays(model, images, folder: Path, transforms: int) -> None:
     from PIL import Image
 
     from metraw.atomic import atomic_path
-    from metraw.segment.evaluate import _mosaic, car_probability, predict_logits, predicted_mask
+    from metraw.segment.evaluate import _mosaic, averaged_probability, predicted_mask
 
     folder.mkdir(parents=True, exist_ok=True)
     for img in images:
         planes, frac = img.full()
-        pred = predicted_mask(_mosaic(car_probability(predict_logits(model, planes, "cpu")), img.pattern), img.gsd_m)
+        prob = averaged_probability(model, img.z, img.pattern, "cpu", transforms=transforms)
+        pred = predicted_mask(_mosaic(prob, img.pattern), img.gsd_m)
         g = planes[1] if planes.shape[0] > 1 else planes[0]
         grey = np.clip((g - np.percentile(g, 1)) / (np.ptp(np.percentile(g, [1, 99])) + 1e-9), 0, 1)
         rgb = np.repeat((0.8 * grey)[..., None], 3, axis=-1)
@@ -151,8 +153,10 @@ def table_for(level: str, real_store: Path, syn_store: Path, config, real_test: 
         t0 = time.perf_counter()
         model, record = fit(images, cfg, "cpu", progress=False)
         rows.append({"level": level, "training": name, "n_train_images": len(images),
-                     "real_test": scores(model, rs, overlays and overlays / f"{level}_{name}_real", boxes=True),
-                     "synthetic_test": scores(model, ss, overlays and overlays / f"{level}_{name}_synthetic"),
+                     "real_test": scores(model, rs, cfg.predict_transforms, overlays and overlays / f"{level}_{name}_real",
+                                         boxes=True),
+                     "synthetic_test": scores(model, ss, cfg.predict_transforms,
+                                              overlays and overlays / f"{level}_{name}_synthetic"),
                      "train_s": round(time.perf_counter() - t0, 1)})
         print(json.dumps(rows[-1]), flush=True)
     return rows
@@ -174,6 +178,10 @@ def main() -> None:
                     help="override the profile's tone_gamma_range (tone-curve randomisation of training crops)")
     ap.add_argument("--channel-gain-range", type=float, default=None,
                     help="override the profile's channel_gain_range (white-balance randomisation of training crops)")
+    ap.add_argument("--transforms", type=int, choices=(1, 2, 4, 8), default=None,
+                    help="override the profile's predict_transforms (dihedral transforms averaged per prediction)")
+    ap.add_argument("--crops-per-image", default=None,
+                    help="override the profile's crops_per_image (a positive integer, or 'cover')")
     ap.add_argument("--real-test", type=int, default=20, help="real images held out for testing")
     ap.add_argument("--real-weight", type=int, default=None,
                     help="times each real image is drawn per epoch (mixed; default 4, or 1 with crops_per_image: cover)")
@@ -192,7 +200,7 @@ def main() -> None:
         sys.exit(f"sim_to_real: no real data at {args.kit} (see ../shared/data/real/kit_ais/SOURCE.txt)")
 
     from metraw.scenes.stats import format_table, summarise
-    from metraw.segment.train import load_config
+    from metraw.segment.train import TrainConfig, load_config
     from metraw.store import RawStore
 
     levels = args.levels.split(",")
@@ -215,6 +223,12 @@ def main() -> None:
         config = replace(config, tone_gamma_range=args.tone_gamma_range)
     if args.channel_gain_range:
         config = replace(config, channel_gain_range=args.channel_gain_range)
+    if args.transforms:
+        config = replace(config, predict_transforms=args.transforms)
+    if args.crops_per_image:
+        crops = args.crops_per_image
+        config = replace(config, crops_per_image=int(crops) if crops.isdigit() else crops)
+        TrainConfig.from_dict(asdict(config))  # one-line error on a bad value
     rows = []
     trainings = tuple(args.trainings.split(","))
     for level in levels:
@@ -223,7 +237,9 @@ def main() -> None:
                           args.real_weight, args.seed, trainings, args.overlays)
     if args.json:
         args.json.write_text(json.dumps({"rows": rows, "epochs": config.epochs, "real_test": args.real_test,
-                                         "real_weight": args.real_weight}, indent=1))
+                                         "real_weight": args.real_weight,
+                                         "transforms": config.predict_transforms,
+                                         "crops_per_image": config.crops_per_image}, indent=1))
     print("\n== training data vs test images (pooled IoU / precision / recall; real labels are boxes: pixels "
           "against boxes, then each predicted object's bounding box against them)")
     print(f"{'level':8s} {'training':15s} {'real test, pixels':>24s} {'real test, boxes':>24s} {'synthetic test':>24s}")

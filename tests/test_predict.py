@@ -144,7 +144,8 @@ def data(tmp_path_factory):
          # unlabelled, two shapes (stored one array per image)
          "unlabelled": _store(root / "unlabelled.zarr", [48, 64], 9, _profile(), labels=False)}
     (root / "params.yaml").write_text("training: {profile: tiny, test_fraction: 0.25, profiles: {tiny: {epochs: 1, "
-                                      "batch_size: 4, crop_px: 16, base_channels: 4, depth: 2}}}\n")
+                                      "batch_size: 4, crop_px: 16, base_channels: 4, depth: 2, "
+                                      "predict_transforms: 8}}}\n")
     status, _, err = _cli("train", d["train"], "--out", root / "model", "--params", root / "params.yaml")
     assert status == 0, err
     d["model"] = root / "model"
@@ -235,6 +236,27 @@ def test_predict_writes_the_mosaic_grid_and_agrees_with_evaluate(data):
     # an existing output is refused without --overwrite, replaced with it
     assert _cli("predict", data["boxes"], "--model", data["model"], "--out", out)[0] == 2
     assert _cli("predict", data["boxes"], "--model", data["model"], "--out", out, "--overwrite")[0] == 0
+
+
+def test_transforms_default_to_the_models_and_can_be_set(data):
+    m8, line8, _ = _evaluate(data, data["boxes"], "t8")
+    m1, line1, _ = _evaluate(data, data["boxes"], "t1", "--transforms", "1")
+    assert (m8["transforms"], line8["transforms"], m1["transforms"], line1["transforms"]) == (8, 8, 1, 1)
+    out8, out1 = data["root"] / "t8.zarr", data["root"] / "t1.zarr"
+    assert _cli("predict", data["boxes"], "--model", data["model"], "--out", out8)[0] == 0
+    assert _cli("predict", data["boxes"], "--model", data["model"], "--out", out1, "--transforms", "1")[0] == 0
+    import zarr
+
+    assert zarr.open_group(str(out1), mode="r").attrs["metraw_predict"]["transforms"] == 1
+    p8, p1 = load_prediction(out8, 0)[0], load_prediction(out1, 0)[0]
+    assert np.abs(p8 - p1).max() > 1e-3  # a network without symmetry: the average is another prediction
+    for i, rec in enumerate(m1["per_image"]):  # one pass: predict's mask is what evaluate scored
+        _, mask, info = load_prediction(out1, i)
+        y0, y1, x0, x1 = info["packed_window"]
+        from metraw.store import RawStore
+
+        counts = confusion(mask[y0:y1, x0:x1], RawStore.open(data["boxes"])[i].mask[y0:y1, x0:x1])
+        assert counts == pytest.approx(tuple(rec[k] for k in ("tp", "fp", "fn")))
 
 
 def test_predict_needs_no_labels_and_stores_unequal_shapes_per_image(data):

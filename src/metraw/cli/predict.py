@@ -33,7 +33,7 @@ def run(args) -> int:
     t0 = time.perf_counter()
     summary = predict_store(args.store, args.model, args.out, device=args.device,
                             progress=True if args.progress else None, overwrite=args.overwrite,
-                            overlay=args.overlay, overlay_count=args.overlay_count)
+                            overlay=args.overlay, overlay_count=args.overlay_count, transforms=args.transforms)
     print(f"metraw predict: {summary['n_images']} images in {time.perf_counter() - t0:.2f} s", file=sys.stderr)
     if summary["gsd_note"]:
         print(f"metraw predict: note: {summary['gsd_note']}", file=sys.stderr)

@@ -98,10 +98,37 @@ def _canonical_offset(ci: np.ndarray, mono: bool) -> tuple[int, int]:
     raise MetrawError("internal error: no canonical CFA offset found")
 
 
+#: How many of the 8 dihedral transforms (the first n of ``dihedral``) a prediction may average
+#: (``metraw.segment.evaluate.averaged_probability``).
+TRANSFORM_COUNTS = (1, 2, 4, 8)
+
+
+def check_transforms(transforms) -> None:
+    """A one-line error unless ``transforms`` is one of ``TRANSFORM_COUNTS``."""
+    if isinstance(transforms, bool) or transforms not in TRANSFORM_COUNTS:
+        raise MetrawError(f"transforms must be one of {', '.join(map(str, TRANSFORM_COUNTS))}, got {transforms!r}")
+
+
 def dihedral(a: np.ndarray, k: int) -> np.ndarray:
     """One of the 8 dihedral transforms of the last two axes: k in 0..7 (rot90 k%4, then flip if k>=4)."""
     a = np.rot90(a, k % 4, axes=(-2, -1))
     return a[..., :, ::-1] if k >= 4 else a
+
+
+def undo_dihedral(a: np.ndarray, k: int) -> np.ndarray:
+    """Inverse of ``dihedral``: undo_dihedral(dihedral(a, k), k) == a."""
+    a = a[..., :, ::-1] if k >= 4 else a
+    return np.rot90(a, -(k % 4), axes=(-2, -1))
+
+
+def canonical_window(pattern: str, shape: tuple[int, int], k: int = 0) -> tuple[int, int, int, int]:
+    """(dy, dx, h, w): the mosaic window, rows dy..dy+h-1 and columns dx..dx+w-1 of the image of ``shape``
+    transformed by ``dihedral`` k, that ``canonical_pack`` packs (whole R G / G B cells; h, w may be 0)."""
+    step = cell_size(pattern)
+    tshape = (shape[1], shape[0]) if k % 2 else (shape[0], shape[1])
+    corner = (2 + shape[0] % 2, 2 + shape[1] % 2)  # the CFA is periodic: the parities fix the corners' colours
+    dy, dx = _canonical_offset(dihedral(color_index(pattern, corner), k), pattern == "mono")
+    return dy, dx, max(0, (tshape[0] - dy) // step * step), max(0, (tshape[1] - dx) // step * step)
 
 
 def canonical_pack(z: np.ndarray, mask: np.ndarray | None, pattern: str, k: int = 0
@@ -112,16 +139,11 @@ def canonical_pack(z: np.ndarray, mask: np.ndarray | None, pattern: str, k: int 
     (S, h, w) float32 (or None). The result covers whole cells only (at most one mosaic
     row/column is dropped per side).
     """
-    mono = pattern == "mono"
-    step = cell_size(pattern)
-    ci = dihedral(color_index(pattern, z.shape), k)
+    dy, dx, h, w = canonical_window(pattern, z.shape, k)
     z = dihedral(z, k)
-    dy, dx = _canonical_offset(ci, mono)
-    h = (z.shape[-2] - dy) // step * step
-    w = (z.shape[-1] - dx) // step * step
-    if h < step or w < step:
+    if h < 1 or w < 1:
         raise MetrawError(f"image of shape {z.shape} is too small to pack")
-    packed = "mono" if mono else "RGGB"
+    packed = "mono" if pattern == "mono" else "RGGB"
     planes = pack_planes(np.ascontiguousarray(z[dy:dy + h, dx:dx + w]), packed)
     frac = None
     if mask is not None:

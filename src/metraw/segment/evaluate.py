@@ -41,7 +41,7 @@ import numpy as np
 
 from metraw.cfa import pack_planes, unpack_planes
 from metraw.errors import MetrawError
-from metraw.segment.data import PreparedImage
+from metraw.segment.data import PreparedImage, canonical_pack, canonical_window, check_transforms, undo_dihedral
 from metraw.segment.objects import (MIN_OBJECT_AREA_M2, drop_small_objects, object_boxes, object_counts,
                                     object_scores)
 
@@ -171,6 +171,38 @@ def predict_logits(model, planes: np.ndarray, device: str = "cpu", scale: float 
         return y[0].float().cpu().numpy()
 
 
+def averaged_probability(model, z: np.ndarray, pattern: str, device: str = "cpu", scale: float = 1.0,
+                         transforms: int = 1) -> np.ndarray:
+    """Car probability (S, h, w) per site of the mosaic ``z`` packed canonically (``canonical_pack``, transform 0),
+    averaged over the first ``transforms`` (1, 2, 4 or 8) of the 8 dihedral transforms (``data.dihedral``).
+
+    Each transform turns or flips the mosaic *before* packing, so every plane keeps its colour, exactly as in
+    training; its probabilities are unpacked to the transformed mosaic, turned back, and averaged per mosaic
+    pixel over the transforms whose packed window covers it (a transform's window may lose one edge row or
+    column). The scene and the noise model have these symmetries; the network's errors do not all share them,
+    so the average cancels part of them. ``transforms`` = 1 is the plain prediction.
+    """
+    check_transforms(transforms)
+    planes, _ = canonical_pack(z, None, pattern, 0)
+    if transforms == 1:
+        return car_probability(predict_logits(model, planes, device, scale))
+    total = np.zeros(z.shape, np.float64)
+    count = np.zeros(z.shape, np.float64)
+    for k in range(transforms):
+        dy, dx, h, w = canonical_window(pattern, z.shape, k)
+        p = car_probability(predict_logits(model, canonical_pack(z, None, pattern, k)[0], device, scale))
+        shape_k = (z.shape[1], z.shape[0]) if k % 2 else z.shape
+        summed = np.zeros(shape_k, np.float64)
+        covered = np.zeros(shape_k, np.float64)
+        summed[dy:dy + h, dx:dx + w] = _mosaic(p, pattern)
+        covered[dy:dy + h, dx:dx + w] = 1.0
+        total += undo_dihedral(summed, k)
+        count += undo_dihedral(covered, k)
+    dy, dx, h, w = canonical_window(pattern, z.shape, 0)
+    mean = (total / np.maximum(count, 1.0))[dy:dy + h, dx:dx + w]
+    return _packed(mean.astype(np.float32), pattern, planes.shape)
+
+
 def car_probability(logits: np.ndarray) -> np.ndarray:
     """Car probability (float32 sigmoid of the logits); see ``predicted_mask`` for the decision."""
     import torch
@@ -202,12 +234,13 @@ def pooled_label_kind(kinds: list[str]) -> str | None:
     return None if not distinct else distinct[0] if len(distinct) == 1 else "mixed"
 
 
-def score_image(model, img: PreparedImage, device: str = "cpu", scale: float = 1.0, boxes: bool = False
-                ) -> dict[str, Any]:
-    """Segment one whole image and score it: index, shape, tp, fp, fn, iou, precision, recall, object counts
-    and, with ``boxes`` (box labels), the confusion counts of the predicted objects' bounding boxes."""
+def score_image(model, img: PreparedImage, device: str = "cpu", scale: float = 1.0, boxes: bool = False,
+                transforms: int = 1) -> dict[str, Any]:
+    """Segment one whole image (``averaged_probability`` over ``transforms``) and score it: index, shape, tp, fp,
+    fn, iou, precision, recall, object counts and, with ``boxes`` (box labels), the confusion counts of the
+    predicted objects' bounding boxes."""
     planes, frac = img.full()
-    prob = car_probability(predict_logits(model, planes, device, scale))
+    prob = averaged_probability(model, img.z, img.pattern, device, scale, transforms)
     mosaic_pred = predicted_mask(_mosaic(prob, img.pattern), img.gsd_m)
     mosaic_frac = _mosaic(frac, img.pattern)
     pred = _packed(mosaic_pred, img.pattern, frac.shape)
@@ -234,12 +267,13 @@ def _packed(mosaic: np.ndarray, pattern: str, shape: tuple[int, ...]) -> np.ndar
 
 
 def evaluate_images(model, images: list[PreparedImage], device: str = "cpu", progress: bool | None = None,
-                    boxes: bool = False) -> dict[str, Any]:
+                    boxes: bool = False, transforms: int = 1) -> dict[str, Any]:
     """Segment whole images (no resampling) and score them: {"per_image": [...], plus ``summarise`` keys};
-    ``boxes``: the labels are boxes, score the predicted objects' bounding boxes too (``score_image``)."""
+    ``boxes``: the labels are boxes, score the predicted objects' bounding boxes too; ``transforms``: dihedral
+    transforms averaged per prediction (``score_image``)."""
     from metraw.progress import progress_bar
 
-    records = [score_image(model, img, device, boxes=boxes)
+    records = [score_image(model, img, device, boxes=boxes, transforms=transforms)
                for img in progress_bar(images, desc="evaluate", disable=None if progress is None else not progress)]
     return {**summarise(records), "per_image": records}
 
@@ -310,7 +344,7 @@ def select_images(store, store_path, model_dir, ckpt: dict[str, Any], config, sp
 
 
 def evaluate_store(store_path, model_dir, device: str | None = None, progress: bool | None = None,
-                   split: str = "auto") -> dict[str, Any]:
+                   split: str = "auto", transforms: int | None = None) -> dict[str, Any]:
     """Score a trained model (``metraw.segment.train.train_store`` output) on a store.
 
     ``split``: "auto" scores the test split of the training store and every image of a foreign
@@ -318,6 +352,8 @@ def evaluate_store(store_path, model_dir, device: str | None = None, progress: b
     store must have as many images as the training store, e.g. another parameter point); "all"
     every image. Images are read, segmented and scored one at a time. No wall-clock timings: the
     same model and store give the same record (``metraw evaluate`` logs its time on stderr).
+    ``transforms``: dihedral transforms averaged per prediction (``averaged_probability``); default the
+    model's ``predict_transforms``.
     """
     from metraw.progress import progress_bar
     from metraw.segment.data import prepare
@@ -327,6 +363,8 @@ def evaluate_store(store_path, model_dir, device: str | None = None, progress: b
     device = device or default_device()
     model, ckpt, record = open_model(model_dir, device)
     config = TrainConfig.from_dict(ckpt["config"])
+    transforms = config.predict_transforms if transforms is None else transforms
+    check_transforms(transforms)
     set_determinism(config.seed, config.threads, device)
     store = RawStore.open(store_path)
     is_training, identified_by = training_store(store, store_path, record)
@@ -348,11 +386,11 @@ def evaluate_store(store_path, model_dir, device: str | None = None, progress: b
             packed_shape = packed_shape or list(img.packed_shape)
             labels = label_kind(image.meta)
             boxes = labels == "box-approximate"
-            rec = score_image(model, img, device, scale, boxes)
+            rec = score_image(model, img, device, scale, boxes, transforms)
             rec.update({"labels": labels, "packed_gsd_m": gsd, "gsd_scale": scale, "gsd_matched": matched})
             records.append(rec)
             for (rmodel, _), rrecs in zip(replicas, rep_records):
-                rrecs.append(score_image(rmodel, img, device, scale, boxes))
+                rrecs.append(score_image(rmodel, img, device, scale, boxes, transforms))
             if note and note not in notes:
                 notes.append(note)
     out = {**summarise(records), "per_image": records}
@@ -361,7 +399,8 @@ def evaluate_store(store_path, model_dir, device: str | None = None, progress: b
                 "gsd_matched": not notes, "gsd_note": "; ".join(notes) or None,
                 "store": str(store_path), "model": str(model_dir), "epochs": record.get("epochs"),
                 "upsample": ckpt["upsample"], "pool": ckpt.get("pool", 1), "device": device, "config": ckpt["config"],
-                "packed_shape": packed_shape, "threshold": THRESHOLD, "min_object_area_m2": MIN_OBJECT_AREA_M2})
+                "packed_shape": packed_shape, "threshold": THRESHOLD, "min_object_area_m2": MIN_OBJECT_AREA_M2,
+                "transforms": transforms})
     if replicas:
         out.update(replicate_summary(out, [(TrainConfig.from_dict(c["config"]).seed, recs)
                                            for (_, c), recs in zip(replicas, rep_records)], config.seed))

@@ -27,8 +27,9 @@ from typing import Any
 
 import numpy as np
 
-from metraw.cfa import cell_size, color_index, unpack_planes
+from metraw.cfa import cell_size, unpack_planes
 from metraw.errors import MetrawError
+from metraw.segment.data import canonical_window, check_transforms
 from metraw.segment.evaluate import THRESHOLD
 from metraw.segment.objects import MIN_OBJECT_AREA_M2
 
@@ -39,12 +40,8 @@ LABEL_RGB = (1.0, 0.1, 0.9)
 
 def packed_window(pattern: str, shape: tuple[int, int]) -> tuple[int, int, int, int]:
     """(y0, y1, x0, x1): the mosaic rows y0..y1-1 and columns x0..x1-1 that canonical packing covers."""
-    from metraw.segment.data import _canonical_offset
-
-    s = cell_size(pattern)
-    dy, dx = _canonical_offset(color_index(pattern, (2, 2)), s == 1)
-    H, W = shape
-    return dy, dy + (H - dy) // s * s, dx, dx + (W - dx) // s * s
+    dy, dx, h, w = canonical_window(pattern, shape, 0)
+    return dy, dy + h, dx, dx + w
 
 
 def sites_to_mosaic(values: np.ndarray, pattern: str, shape: tuple[int, int]) -> np.ndarray:
@@ -59,17 +56,17 @@ def sites_to_mosaic(values: np.ndarray, pattern: str, shape: tuple[int, int]) ->
     return np.pad(inner, ((y0, H - y1), (x0, W - x1)), mode="edge")
 
 
-def predict_image(model, image, device: str, train_packed_gsd_m: float | None, recorded: bool = True
-                  ) -> tuple[np.ndarray, dict[str, Any], str | None]:
-    """(car probability (H, W) float32 on the mosaic grid, info (shape, packed window, packed GSD [m],
-    GSD scale), why the GSD was not matched or None); ``recorded``: the checkpoint has the training GSD."""
-    from metraw.segment.data import canonical_pack, vst_mosaic
-    from metraw.segment.evaluate import car_probability, gsd_scale, image_packed_gsd_m, predict_logits
+def predict_image(model, image, device: str, train_packed_gsd_m: float | None, recorded: bool = True,
+                  transforms: int = 1) -> tuple[np.ndarray, dict[str, Any], str | None]:
+    """(car probability (H, W) float32 on the mosaic grid, averaged over ``transforms`` dihedral transforms,
+    info (shape, packed window, packed GSD [m], GSD scale), why the GSD was not matched or None);
+    ``recorded``: the checkpoint has the training GSD."""
+    from metraw.segment.data import vst_mosaic
+    from metraw.segment.evaluate import averaged_probability, gsd_scale, image_packed_gsd_m
 
     gsd = image_packed_gsd_m(image)
     scale, matched, note = gsd_scale(gsd, train_packed_gsd_m, recorded)
-    planes, _ = canonical_pack(vst_mosaic(image), None, image.cfa_pattern, 0)
-    p = car_probability(predict_logits(model, planes, device, scale))
+    p = averaged_probability(model, vst_mosaic(image), image.cfa_pattern, device, scale, transforms)
     info = {"shape": list(image.shape), "packed_window": list(packed_window(image.cfa_pattern, image.shape)),
             "packed_gsd_m": gsd, "gsd_scale": scale, "gsd_matched": matched}
     return sites_to_mosaic(p, image.cfa_pattern, image.shape), info, note
@@ -87,8 +84,11 @@ def window_mask(probability: np.ndarray, window, packed_gsd_m: float | None, pat
 
 
 def predict_store(store_path, model_dir, out_path, device: str | None = None, progress: bool | None = None,
-                  overwrite: bool = False, overlay=None, overlay_count: int = 4) -> dict[str, Any]:
+                  overwrite: bool = False, overlay=None, overlay_count: int = 4, transforms: int | None = None
+                  ) -> dict[str, Any]:
     """Segment every image of a store with a trained model and write the zarr group ``out_path``.
+
+    ``transforms``: dihedral transforms averaged per prediction (default: the model's ``predict_transforms``).
 
     ``overlay``: a .png file (one figure, the first ``overlay_count`` images) or a folder (one
     ``overlay_<index>.png`` each), written with the group. Returns a summary (no timings).
@@ -109,6 +109,8 @@ def predict_store(store_path, model_dir, out_path, device: str | None = None, pr
     device = device or default_device()
     model, ckpt, _ = open_model(model_dir, device)
     config = TrainConfig.from_dict(ckpt["config"])
+    transforms = config.predict_transforms if transforms is None else transforms
+    check_transforms(transforms)
     set_determinism(config.seed, config.threads, device)
     store = RawStore.open(store_path)
     n = len(store)
@@ -131,7 +133,7 @@ def predict_store(store_path, model_dir, out_path, device: str | None = None, pr
         for i in progress_bar(range(n), desc="predict", disable=None if progress is None else not progress):
             image = store[i]
             check_channels(ckpt["in_channels"], image.cfa_pattern, f"image {i} of {store_path}", model_dir)
-            p, info, note = predict_image(model, image, device, train_gsd, recorded)
+            p, info, note = predict_image(model, image, device, train_gsd, recorded, transforms)
             mask = window_mask(p, info["packed_window"], info["packed_gsd_m"], image.cfa_pattern)
             if stacked:
                 arrays["probability"][i] = p
@@ -149,7 +151,7 @@ def predict_store(store_path, model_dir, out_path, device: str | None = None, pr
                 panels.append((i, image, mask, info["gsd_scale"]))
         scales = sorted({r["gsd_scale"] for r in records})
         attrs = {"model": str(model_dir), "store": str(store_path), "threshold": THRESHOLD,
-                 "min_object_area_m2": MIN_OBJECT_AREA_M2,
+                 "min_object_area_m2": MIN_OBJECT_AREA_M2, "transforms": transforms,
                  "layout": "stacked" if stacked else "per_image", "n_images": n,
                  "train_packed_gsd_m": train_gsd, "gsd_scale": scales[0] if len(scales) == 1 else None,
                  "gsd_matched": not notes, "gsd_note": "; ".join(notes) or None,

@@ -29,7 +29,7 @@ import numpy as np
 
 from metraw.cfa import cell_size
 from metraw.errors import MetrawError
-from metraw.segment.data import PreparedImage, batch_crops, prepare_store, split_indices
+from metraw.segment.data import PreparedImage, batch_crops, check_transforms, prepare_store, split_indices
 from metraw.sensor import rng_from_seed
 
 CHECKPOINT = "model.pt"
@@ -72,6 +72,9 @@ class TrainConfig:
     bfloat16 with float32 weights, optimiser and loss; on CPUs with AMX, or on a GPU, the network's passes
     run ~1.6x faster, which pays where they dominate a step: see the README). Evaluation and prediction
     always run in float32.
+    ``predict_transforms``: dihedral transforms of the mosaic (turns, flips; 1, 2, 4 or 8) whose predictions
+    ``metraw evaluate`` / ``predict`` average (``metraw.segment.evaluate.averaged_probability``); 1 (default) = a
+    single pass. A prediction setting: training does not use it.
     """
 
     epochs: int = 8
@@ -91,6 +94,7 @@ class TrainConfig:
     seed: int = 0
     threads: int = 2
     precision: str = "float32"
+    predict_transforms: int = 1
     split_seed: int = 0
     test_fraction: float = 0.2
 
@@ -103,6 +107,8 @@ class TrainConfig:
         crops = d.get("crops_per_image", 1)
         if crops != COVER and not (isinstance(crops, int) and not isinstance(crops, bool) and crops >= 1):
             raise MetrawError(f"crops_per_image must be a positive integer or {COVER!r}, got {crops!r}")
+        if "predict_transforms" in d:
+            check_transforms(d["predict_transforms"])
         if d.get("precision", "float32") not in PRECISIONS:
             raise MetrawError(f"training precision must be one of {', '.join(PRECISIONS)}, got {d['precision']!r}")
         return cls(**d)
