@@ -8,7 +8,9 @@ f of each pixel (the label geometry carried through the emulation). Scores are i
 counting a predicted pixel as wholly car: TP = sum(b f), FP = sum(b (1 - f)), FN = sum((1 - b) f)
 in pixel areas. For 0/1 masks these are the usual pixel counts; for coarse satellite pixels
 that are partly car they charge the prediction for the area it really gets wrong, so IoU means
-the same (overlap of car areas on the ground) at every parameter point.
+the same (overlap of car areas on the ground) at every parameter point. The probability may be the average
+over turns and flips of the mosaic (``averaged_probability``, ``TrainConfig.predict_transforms``; recorded as
+"transforms").
 
 Per image: IoU = TP / (TP + FP + FN), precision = TP / (TP + FP), recall = TP / (TP + FN);
 undefined ratios (empty denominators) are reported as None and left out of means.
