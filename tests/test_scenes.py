@@ -109,6 +109,40 @@ def test_tree_hides_car_from_the_mask():
     assert 0.3 * full < visible < 0.85 * full
 
 
+def test_street_furniture_lines_the_sidewalks_and_is_never_a_car(monkeypatch):
+    """Pieces come at the requested rate per 100 m of each sidewalk (Poisson, 5 sigma), all on the sidewalk band,
+    and none of them enters the car mask."""
+    import metraw.scenes.layout as layout
+
+    placed = []
+    real_add = layout.add_street_furniture
+
+    def record(scene, rng, cx, cy, angle_rad, toward_road):
+        placed.append((cx, cy, toward_road))
+        real_add(scene, rng, cx, cy, angle_rad, toward_road)
+
+    monkeypatch.setattr(layout, "add_street_furniture", record)
+    scene = Scene("urban", 100.0, 30.0, 45.0)
+    length, lanes, sidewalk, rate = 4000.0, 2, 2.5, 8.0
+    layout.add_road(scene, rng_from_seed(4), (50.0, 50.0), 0.0, length, lanes=lanes, sidewalk=sidewalk, traffic=0.0,
+                    parked=0.0, furniture=rate)
+    expected = 2 * rate * length / 100.0
+    assert abs(len(placed) - expected) < 5 * math.sqrt(expected)
+    offsets = np.array([abs(cy - 50.0) for _, cy, _ in placed])
+    kerb = lanes * 3.25 / 2
+    assert offsets.min() >= kerb + 0.3 - 1e-9 and offsets.max() <= kerb + sidewalk - 0.3 + 1e-9
+    assert all(np.sign(t[1]) == -np.sign(cy - 50.0) for _, cy, t in placed)  # arms reach over the road
+    assert not any(scene.is_vehicle) and not scene.vehicles
+    cam = default_camera()
+    size = 200
+    street = Scene("urban", size * cam.gsd_m, 30.0, 45.0)
+    layout.add_road(street, rng_from_seed(5), (street.size_m / 2,) * 2, 0.3, 3 * street.size_m, lanes=2,
+                    traffic=0.0, parked=0.0, furniture=60.0)
+    assert len(placed) > len(offsets)  # furniture was drawn in the rendered scene too
+    img, _ = render(street, cam, size, rng_from_seed(0), RenderSettings(blur_px=0.0))
+    assert float(img.mask.sum()) == 0.0
+
+
 def test_flat_patch_noise_matches_profile():
     """Uniform ground, no texture, no blur: mean and variance of each colour plane match the
     EMVA model of the image's profile within 4 standard errors."""

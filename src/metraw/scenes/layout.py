@@ -238,8 +238,8 @@ def add_vehicle(scene: Scene, rng: np.random.Generator, cx: float, cy: float, an
 
 def add_distractor(scene: Scene, rng: np.random.Generator, cx: float, cy: float, angle_rad: float,
                    base_height: float = 0.0) -> None:
-    """Car-like things that are not vehicles: containers, dark rectangles, skips, roof units."""
-    kind = rng.choice(["container", "dark_rect", "skip", "hvac"])
+    """Car-like things that are not vehicles: containers, dark rectangles, skips, roof units, skylights."""
+    kind = rng.choice(["container", "dark_rect", "skip", "hvac", "skylight"])
     if kind == "container":
         length, width, h = rng.choice([6.06, 12.19]), 2.44, 2.6
         refl = _jitter(rng, [(0.30, 0.08, 0.05), (0.05, 0.10, 0.25), (0.12, 0.20, 0.10),
@@ -251,6 +251,9 @@ def add_distractor(scene: Scene, rng: np.random.Generator, cx: float, cy: float,
     elif kind == "skip":
         length, width, h = rng.uniform(3.0, 4.2), rng.uniform(1.6, 2.0), 1.4
         refl, tex = _jitter(rng, (0.25, 0.20, 0.06), 0.3), (0.06, 0.06)
+    elif kind == "skylight":  # roof window or light dome: glass mirroring the sky, dark to pale
+        length, width, h = rng.uniform(1.0, 3.0), rng.uniform(0.8, 1.8), 0.4
+        refl, tex = _jitter(rng, tuple(g * rng.uniform(1.0, 8.0) for g in MATERIALS["glass"]), 0.2), (0.02, 0.02)
     else:
         length, width, h = rng.uniform(2.0, 4.5), rng.uniform(1.2, 2.0), 1.3
         refl, tex = _jitter(rng, (0.40, 0.40, 0.40), 0.2), (0.02, 0.04)
@@ -259,6 +262,63 @@ def add_distractor(scene: Scene, rng: np.random.Generator, cx: float, cy: float,
     scene.poly(fp, scene.new_object(refl, base_height + h, texture=tex))
     if kind == "hvac" and rng.random() < 0.7:  # fan grille: a dark disc
         scene.disc(cx, cy, 0.3 * width, scene.new_object((0.05, 0.05, 0.05), base_height + h + 0.1, texture=(0.0, 0.05)))
+
+
+#: Street furniture along sidewalks: (kind, probability). Lamp and signal heads on poles, shrubs, cabinets and
+#: bins, bus shelters: the small round or boxy things beside the kerb a segmenter takes for cars unless it
+#: has seen them (KIT AIS false alarms, 2026-11-25).
+FURNITURE = (("lamp", 0.35), ("signal", 0.15), ("shrub", 0.25), ("cabinet", 0.17), ("shelter", 0.08))
+
+
+def _pole(scene: Scene, x: float, y: float, height: float) -> None:
+    """A thin pole: a dot from above and a line of shadow."""
+    scene.cast(rect(x, y, 0.16, 0.16, 0.0), height)
+    scene.disc(x, y, 0.1, scene.new_object((0.2, 0.2, 0.2), height, texture=(0.0, 0.0)))
+
+
+def add_street_furniture(scene: Scene, rng: np.random.Generator, cx: float, cy: float, angle_rad: float,
+                         toward_road: np.ndarray) -> None:
+    """One piece of street furniture at (cx, cy) on a sidewalk; ``toward_road``: unit vector to the carriageway
+    (a lamp's arm reaches over it). Not a vehicle."""
+    kinds, probs = zip(*FURNITURE)
+    kind = kinds[rng.choice(len(kinds), p=np.array(probs) / sum(probs))]
+    if kind in ("lamp", "signal"):
+        h = rng.uniform(6.0, 10.0) if kind == "lamp" else rng.uniform(2.5, 4.5)
+        _pole(scene, cx, cy, h)
+        hx, hy = np.array([cx, cy]) + toward_road * (rng.uniform(0.0, 1.8) if kind == "lamp" else 0.0)
+        if kind == "lamp":
+            refl = _jitter(rng, (0.35, 0.35, 0.34) if rng.random() < 0.6 else (0.07, 0.07, 0.08), 0.25)
+        else:  # signal head, or a sign plate (white, blue, red)
+            refl = _jitter(rng, [(0.04, 0.04, 0.04), (0.55, 0.55, 0.53), (0.05, 0.08, 0.25),
+                                 (0.35, 0.05, 0.04)][rng.integers(4)], 0.15)
+        if rng.random() < 0.5:
+            r = rng.uniform(0.25, 0.55)
+            k = np.arange(10) * 2 * math.pi / 10
+            ring = np.stack([hx + r * np.cos(k), hy + r * np.sin(k)], axis=1)
+            scene.casters.append((ring + scene.shadow_offset(h), h))
+            scene.disc(hx, hy, r, scene.new_object(refl, h, texture=(0.02, 0.03)))
+        else:
+            head = rect(hx, hy, rng.uniform(0.5, 1.6), rng.uniform(0.3, 0.6), angle_rad + rng.choice([0.0, math.pi / 2]))
+            scene.casters.append((head + scene.shadow_offset(h), h))
+            scene.poly(head, scene.new_object(refl, h, texture=(0.02, 0.03)))
+    elif kind == "shrub":
+        r, h = rng.uniform(0.5, 1.4), rng.uniform(0.8, 2.2)
+        k = np.arange(12) * 2 * math.pi / 12
+        ring = np.stack([cx + r * np.cos(k), cy + r * np.sin(k)], axis=1)
+        scene.casters.append((convex_hull(np.vstack([ring, ring + scene.shadow_offset(h)])), h))
+        scene.disc(cx, cy, r, scene.new_object(_jitter(rng, MATERIALS["tree"], 0.25), h, texture=(0.15, 0.18),
+                                               crown=True))
+    else:  # cabinet / bin / ticket machine, or a bus shelter
+        if kind == "cabinet":
+            length, width, h = rng.uniform(0.5, 1.5), rng.uniform(0.4, 0.8), rng.uniform(1.0, 1.6)
+            refl = _jitter(rng, [(0.30, 0.30, 0.28), (0.06, 0.12, 0.07), (0.08, 0.08, 0.09),
+                                 (0.45, 0.40, 0.10)][rng.integers(4)], 0.15)
+        else:
+            length, width, h = rng.uniform(3.0, 6.0), rng.uniform(1.4, 2.0), 2.5
+            refl = _jitter(rng, (0.25, 0.26, 0.27) if rng.random() < 0.5 else (0.10, 0.11, 0.12), 0.2)
+        fp = rect(cx, cy, length, width, angle_rad)
+        scene.cast(fp, h)
+        scene.poly(fp, scene.new_object(refl, h, texture=(0.03, 0.04)))
 
 
 def add_tree(scene: Scene, rng: np.random.Generator, cx: float, cy: float, radius: float | None = None) -> None:
@@ -313,8 +373,10 @@ def add_building(scene: Scene, rng: np.random.Generator, cx, cy, length, width, 
 
 # ---------------------------------------------------------------------- ground-level layers
 def add_road(scene: Scene, rng, p0, angle_rad, length, lanes: int, lane_w=3.25, markings=True,
-             sidewalk=2.5, material="asphalt", traffic=0.3, parked=0.5) -> list[tuple[float, float, float, float]]:
-    """A straight road through point ``p0``. Returns parking slots along its curbs as (x, y, angle, dummy)."""
+             sidewalk=2.5, material="asphalt", traffic=0.3, parked=0.5, furniture=0.0
+             ) -> list[tuple[float, float, float, float]]:
+    """A straight road through point ``p0`` with ``furniture`` pieces of street furniture per 100 m of each
+    sidewalk. Returns parking slots along its curbs as (x, y, angle, dummy)."""
     cx, cy = p0
     width = lanes * lane_w
     if sidewalk:
@@ -363,6 +425,15 @@ def add_road(scene: Scene, rng, p0, angle_rad, length, lanes: int, lane_w=3.25, 
                     add_vehicle(scene, rng, c[0], c[1], angle_rad + (0 if rng.random() < 0.5 else math.pi)
                                 + rng.normal(0, 0.02), vclass="car" if rng.random() < 0.9 else "van")
                 s += rng.uniform(5.6, 7.5)
+    if sidewalk and furniture > 0:
+        normal = np.array([-math.sin(angle_rad), math.cos(angle_rad)])
+        for side in (-1, 1):
+            s = -length / 2 + rng.exponential(100.0 / furniture)
+            while s < length / 2:
+                inset = rng.uniform(0.3, max(0.31, sidewalk - 0.3))
+                c = local(cx, cy, angle_rad, [(s, side * (width / 2 + park_w + inset))])[0]
+                add_street_furniture(scene, rng, c[0], c[1], angle_rad, -side * normal)
+                s += rng.exponential(100.0 / furniture)
     return []
 
 
@@ -435,11 +506,11 @@ def _urban(scene: Scene, rng) -> None:
     c = np.array([s / 2, s / 2]) + rng.uniform(-0.25, 0.25, 2) * s
     # main road and maybe a cross street
     add_road(scene, rng, c, theta, 3 * s, lanes=int(rng.choice([2, 3, 4])), traffic=0.35, parked=rng.uniform(0.4, 0.9),
-             material=str(rng.choice(["asphalt", "asphalt_old"])))
+             material=str(rng.choice(["asphalt", "asphalt_old"])), furniture=rng.uniform(3.0, 12.0))
     u, v = np.array([math.cos(theta), math.sin(theta)]), np.array([-math.sin(theta), math.cos(theta)])
     if rng.random() < 0.5:
         add_road(scene, rng, c + u * rng.uniform(-0.3, 0.3) * s, theta + math.pi / 2, 3 * s, lanes=2,
-                 traffic=0.3, parked=rng.uniform(0.3, 0.8))
+                 traffic=0.3, parked=rng.uniform(0.3, 0.8), furniture=rng.uniform(3.0, 12.0))
     side = 1 if rng.random() < 0.5 else -1
     if rng.random() < 0.6:
         p = c + v * side * rng.uniform(14, 22) + u * rng.uniform(-10, 10)
@@ -466,7 +537,7 @@ def _suburban(scene: Scene, rng) -> None:
     c = np.array([s / 2, s / 2]) + rng.uniform(-0.3, 0.3, 2) * s
     u, v = np.array([math.cos(theta), math.sin(theta)]), np.array([-math.sin(theta), math.cos(theta)])
     add_road(scene, rng, c, theta, 3 * s, lanes=2, sidewalk=1.8, traffic=0.2, parked=rng.uniform(0.1, 0.4),
-             markings=rng.random() < 0.6)
+             markings=rng.random() < 0.6, furniture=rng.uniform(1.0, 5.0))
     for side in (-1, 1):
         x = -s
         while x < s:
