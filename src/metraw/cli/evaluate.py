@@ -30,7 +30,8 @@ def add_run_options(p, overwrite_help: str) -> None:
     p.add_argument("--device", default=None, help="torch device (default: cuda when present, else cpu)")
     p.add_argument("--transforms", type=int, choices=(1, 2, 4, 8), default=None,
                    help="dihedral transforms (turns and flips of the mosaic) whose predictions are averaged "
-                   "(default: the model's predict_transforms, 8; 1 = one pass, 8x faster)")
+                   "(default: the model's predict_transforms: 1, or 8 for the source profile's drone model; 8 costs 8 "
+                   "network passes)")
     p.add_argument("--overwrite", action="store_true", help=overwrite_help)
     p.add_argument("--progress", action="store_true", help="show progress bars even when not on a terminal")
 

@@ -270,6 +270,12 @@ def add_distractor(scene: Scene, rng: np.random.Generator, cx: float, cy: float,
 FURNITURE = (("lamp", 0.35), ("signal", 0.15), ("shrub", 0.25), ("cabinet", 0.17), ("shelter", 0.08))
 
 
+def _circle(cx: float, cy: float, r: float, n: int) -> np.ndarray:
+    """(n, 2) vertices of a regular n-gon of circumradius ``r`` [m] centred on (cx, cy): a disc's outline."""
+    ang = np.arange(n) * 2 * math.pi / n
+    return np.stack([cx + r * np.cos(ang), cy + r * np.sin(ang)], axis=1)
+
+
 def _pole(scene: Scene, x: float, y: float, height: float) -> None:
     """A thin pole: a dot from above and a line of shadow."""
     scene.cast(rect(x, y, 0.16, 0.16, 0.0), height)
@@ -293,9 +299,7 @@ def add_street_furniture(scene: Scene, rng: np.random.Generator, cx: float, cy: 
                                  (0.35, 0.05, 0.04)][rng.integers(4)], 0.15)
         if rng.random() < 0.5:
             r = rng.uniform(0.25, 0.55)
-            k = np.arange(10) * 2 * math.pi / 10
-            ring = np.stack([hx + r * np.cos(k), hy + r * np.sin(k)], axis=1)
-            scene.casters.append((ring + scene.shadow_offset(h), h))
+            scene.casters.append((_circle(hx, hy, r, 10) + scene.shadow_offset(h), h))
             scene.disc(hx, hy, r, scene.new_object(refl, h, texture=(0.02, 0.03)))
         else:
             head = rect(hx, hy, rng.uniform(0.5, 1.6), rng.uniform(0.3, 0.6), angle_rad + rng.choice([0.0, math.pi / 2]))
@@ -303,8 +307,7 @@ def add_street_furniture(scene: Scene, rng: np.random.Generator, cx: float, cy: 
             scene.poly(head, scene.new_object(refl, h, texture=(0.02, 0.03)))
     elif kind == "shrub":
         r, h = rng.uniform(0.5, 1.4), rng.uniform(0.8, 2.2)
-        k = np.arange(12) * 2 * math.pi / 12
-        ring = np.stack([cx + r * np.cos(k), cy + r * np.sin(k)], axis=1)
+        ring = _circle(cx, cy, r, 12)
         scene.casters.append((convex_hull(np.vstack([ring, ring + scene.shadow_offset(h)])), h))
         scene.disc(cx, cy, r, scene.new_object(_jitter(rng, MATERIALS["tree"], 0.25), h, texture=(0.15, 0.18),
                                                crown=True))
@@ -333,9 +336,7 @@ def add_tree(scene: Scene, rng: np.random.Generator, cx: float, cy: float, radiu
         lobes.append((cx + d * math.cos(a), cy + d * math.sin(a), r * rng.uniform(0.35, 0.6)))
     for x, y, rr in lobes:
         off = scene.shadow_offset(h - 0.3 * r)
-        k = 12
-        ang = np.arange(k) * 2 * math.pi / k
-        ring = np.stack([x + rr * np.cos(ang), y + rr * np.sin(ang)], axis=1)
+        ring = _circle(x, y, rr, 12)
         scene.casters.append((convex_hull(np.vstack([ring + scene.shadow_offset(h - 0.6 * r), ring + off])), h))
     for x, y, rr in lobes:
         scene.disc(x, y, rr, scene.new_object(_jitter(rng, leaf, 0.08), h, texture=(0.15, 0.18), crown=True))

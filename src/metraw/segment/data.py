@@ -166,9 +166,9 @@ class PreparedImage:
 
     @property
     def packed_shape(self) -> tuple[int, int]:
+        _, _, h, w = canonical_window(self.pattern, self.z.shape, 0)
         s = cell_size(self.pattern)
-        dy, dx = _canonical_offset(color_index(self.pattern, (2, 2)) if s > 1 else None, s == 1)
-        return (self.z.shape[0] - dy) // s, (self.z.shape[1] - dx) // s
+        return h // s, w // s
 
     def full(self) -> tuple[np.ndarray, np.ndarray]:
         """Whole image, untransformed: planes (S, h, w) and site car fractions (S, h, w)."""

@@ -192,7 +192,8 @@ def averaged_probability(model, z: np.ndarray, pattern: str, device: str = "cpu"
     count = np.zeros(z.shape, np.float64)
     for k in range(transforms):
         dy, dx, h, w = canonical_window(pattern, z.shape, k)
-        p = car_probability(predict_logits(model, canonical_pack(z, None, pattern, k)[0], device, scale))
+        packed = planes if k == 0 else canonical_pack(z, None, pattern, k)[0]
+        p = car_probability(predict_logits(model, packed, device, scale))
         shape_k = (z.shape[1], z.shape[0]) if k % 2 else z.shape
         summed = np.zeros(shape_k, np.float64)
         covered = np.zeros(shape_k, np.float64)
