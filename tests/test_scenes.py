@@ -251,3 +251,23 @@ def test_stats_measure_known_inputs():
     m[50:80, 40:116] = 1.0  # 76 x 30 px rectangle
     (length, width), = mask_component_sizes_m(m, 0.06)
     assert abs(length - 76 * 0.06) < 0.05 and abs(width - 30 * 0.06) < 0.05
+
+
+def test_car_contrast_outline_and_box_regions():
+    """A diagonal car of value a on a uniform ground b: its outline contrast is log2(a / b) exactly; its
+    bounding box mixes in ground, log2((f a + (1 - f) b) / b) with f its share of the box."""
+    from metraw.scenes.stats import _bounding_boxes, _region_contrast
+
+    yy, xx = np.mgrid[0:120, 0:120]
+    u, v = (xx - 60 + yy - 60) / np.sqrt(2), (yy - 60 - (xx - 60)) / np.sqrt(2)
+    car = (np.abs(u) <= 20) & (np.abs(v) <= 8)
+    a, b = 20.0, 80.0
+    g = np.where(car, a, b)
+    (outline,) = _region_contrast(g, car, ring_px=6)
+    assert outline == pytest.approx(np.log2(a / b), abs=1e-12)
+    box = _bounding_boxes(car)
+    f = car.sum() / box.sum()
+    assert 0.3 < f < 0.7  # diagonal: the box holds much ground
+    (boxed,) = _region_contrast(g, box, ring_px=6)
+    assert boxed == pytest.approx(np.log2((f * a + (1 - f) * b) / b), abs=1e-12)
+    assert _region_contrast(g, np.zeros_like(car), ring_px=6) == []

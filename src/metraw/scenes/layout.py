@@ -24,8 +24,11 @@ KINDS = ("urban", "suburban", "rural")
 # Reflectances (R, G, B), typical values of dry materials in the visible (e.g. ASTER/ECOSTRESS
 # spectral library orders of magnitude); each instance is jittered.
 MATERIALS: dict[str, tuple[float, float, float]] = {
-    "asphalt": (0.09, 0.09, 0.085),
-    "asphalt_old": (0.15, 0.145, 0.135),
+    # weathered city asphalt (the binder worn off the aggregate): 0.10-0.20 (LBNL heat-island measurements);
+    # fresh asphalt (0.05) only in patches (``add_distractor`` "dark_rect"). 0.144 / 0.195 put the synthetic
+    # cars' contrast against their surroundings where KIT AIS has it (``metraw.scenes.stats``; README).
+    "asphalt": (0.144, 0.144, 0.136),
+    "asphalt_old": (0.195, 0.1885, 0.1755),
     "concrete": (0.30, 0.29, 0.26),
     "sidewalk": (0.24, 0.23, 0.21),
     "marking": (0.55, 0.55, 0.52),

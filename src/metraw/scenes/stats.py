@@ -11,13 +11,16 @@
   compare over the same ground scales.
 - radiance histogram: quantiles of log2(green / image median) (exposure-free: a scene's dynamic
   range), and of the chroma log2(R/G), log2(B/G) per CFA cell.
-- car contrast: per car region (connected component of mask >= 0.5), log2 of its mean green over
-  the mean green of a ring ``RING_M`` wide around it; the share of cars darker than their ring.
+- car contrast: per car region, log2 of its mean green over the mean green of a ring ``RING_M`` wide
+  around it; the share of cars darker than their ring. A region is the axis-aligned bounding box of a
+  connected component of mask >= 0.5, for the synthetic scenes as for KIT's box labels, so that both
+  regions hold the same share of road and shadow; the synthetic cars' exact outlines give the
+  ``car_outline_contrast`` rows (no KIT value).
 - clutter: share of the ground (green plane block-averaged to ``CLUTTER_CELL_M`` cells) whose
   local log-gradient exceeds ``CLUTTER_THRESHOLD`` (0.3 = a 23 % step from one cell to the next)
   outside cars -- how many car-sized edges the background offers a detector.
-KIT car regions come from its YOLO boxes (axis-aligned, so a region holds some road too: its car
-contrast is biased towards zero for diagonal cars).
+KIT car regions come from its YOLO boxes (axis-aligned, so a region holds some road too: a diagonal
+car's contrast is biased towards zero, and so is a synthetic car's box contrast).
 """
 
 from __future__ import annotations
@@ -85,8 +88,36 @@ def _block_mean(a: np.ndarray, k: int) -> np.ndarray:
     return a[:h, :w].reshape(h // k, k, w // k, k).mean(axis=(1, 3))
 
 
-def radiometry(img: RawImage) -> dict[str, list[float]]:
-    """Per-image samples for the histogram, chroma, car-contrast and clutter statistics (module docstring)."""
+def _bounding_boxes(regions: np.ndarray) -> np.ndarray:
+    """Union of the axis-aligned bounding boxes of the connected components of a boolean array."""
+    lab, _ = ndimage.label(regions)
+    out = np.zeros(regions.shape, bool)
+    for sl in ndimage.find_objects(lab):
+        if sl is not None:
+            out[sl] = True
+    return out
+
+
+def _region_contrast(g: np.ndarray, regions: np.ndarray, ring_px: int, min_cells: int = 4) -> list[float]:
+    """log2(mean of ``g`` in each connected region / mean in a ring ``ring_px`` cells wide around it)."""
+    lab, n = ndimage.label(regions)
+    if n == 0:
+        return []
+    idx = np.arange(1, n + 1)
+    grown = ndimage.grey_dilation(lab, size=(2 * ring_px + 1,) * 2)
+    inside = np.atleast_1d(ndimage.mean(g, lab, idx))
+    ring_sel = (lab == 0) & (grown > 0)
+    ring_lab = np.where(ring_sel, grown, 0)
+    around_n = np.atleast_1d(ndimage.sum(np.ones_like(g), ring_lab, idx))
+    around = np.atleast_1d(ndimage.sum(g, ring_lab, idx)) / np.maximum(around_n, 1)
+    counts = np.atleast_1d(ndimage.sum(np.ones_like(g), lab, idx))
+    ok = (counts >= min_cells) & (around_n > 0) & (around > 0)
+    return [float(v) for v in np.log2(inside[ok] / around[ok])]
+
+
+def radiometry(img: RawImage, outlines: bool = True) -> dict[str, list[float]]:
+    """Per-image samples for the histogram, chroma, car-contrast and clutter statistics (module docstring).
+    ``outlines``: the mask holds the cars' outlines (False for box labels: no outline contrast)."""
     planes = cell_planes_e(img)
     g = np.maximum(planes["G"], 1.0)
     step = cell_size(img.cfa_pattern)
@@ -96,19 +127,14 @@ def radiometry(img: RawImage) -> dict[str, list[float]]:
         out["log_rg"] = list(np.log2(np.maximum(planes["R"], 1.0) / g).ravel()[::97])
         out["log_bg"] = list(np.log2(np.maximum(planes["B"], 1.0) / g).ravel()[::97])
     car = np.zeros(g.shape, bool)
-    contrast = []
+    contrast, outline = [], []
     if img.mask is not None:
         m = img.mask[: step * g.shape[0], : step * g.shape[1]].astype(np.float64)
         car = _block_mean(m, step) >= 0.5
-        lab, n = ndimage.label(car)
         ring_px = max(1, int(round(RING_M / cell_m)))
-        grown = ndimage.grey_dilation(lab, size=(2 * ring_px + 1,) * 2)
-        inside = ndimage.mean(g, lab, np.arange(1, n + 1))
-        ring_sel = (lab == 0) & (grown > 0)
-        around = ndimage.mean(g, np.where(ring_sel, grown, 0), np.arange(1, n + 1))
-        counts = ndimage.sum(np.ones_like(g), lab, np.arange(1, n + 1))
-        contrast = [float(np.log2(a / b)) for a, b, c in zip(np.atleast_1d(inside), np.atleast_1d(around),
-                                                             np.atleast_1d(counts)) if c >= 4 and b > 0]
+        outline = _region_contrast(g, car, ring_px) if outlines else []
+        contrast = _region_contrast(g, _bounding_boxes(car), ring_px)
+    out["car_outline_contrast"] = outline
     out["car_contrast"] = contrast
     k = max(1, int(round(CLUTTER_CELL_M / cell_m)))
     lg = np.log(_block_mean(g, k))
@@ -139,6 +165,9 @@ def radiometry_row(samples: list[dict[str, list[float]]]) -> dict[str, float]:
         "car_contrast_log2_p90": q("car_contrast", 90),
         "car_abs_contrast_log2_median": float(np.median(np.abs(cc))) if cc.size else float("nan"),
         "cars_darker_than_ring_share": float(np.mean(cc < 0)) if cc.size else float("nan"),
+        "car_outline_contrast_log2_median": q("car_outline_contrast", 50),
+        "cars_outline_darker_share": float(np.mean(np.array(pool["car_outline_contrast"]) < 0))
+        if pool.get("car_outline_contrast") else float("nan"),
         "clutter_share_median": q("clutter", 50),
     }
 
@@ -191,7 +220,7 @@ def summarise(images, kit_dir: Path | None = None, kit_gsd_m: float = 0.125) -> 
         files = sorted(Path(kit_dir).glob("*.png"))
         for f in files:
             img = read_raw(f, gsd_m=kit_gsd_m, seed=0)
-            rad.append(radiometry(img))
+            rad.append(radiometry(img, outlines=False))
             h, w = img.shape
             txt = f.with_suffix(".txt")
             if txt.is_file():
