@@ -23,7 +23,8 @@ Protocol (every model: the default training profile of params.yaml, same network
 - nominal point: both stores emulated through ``target.nominal`` (photon-exact chain), then the same three
   trainings.
 Every model is scored on the real test images and on the synthetic test scenes (pooled IoU, precision,
-recall). Stores are cached in ``--work``; models are retrained every run (seconds to minutes each).
+recall); a synthetic-only model also on the real training images, which it never saw (``real_validation``:
+for choosing training settings without the test images). Stores are cached in ``--work``; models are retrained every run (seconds to minutes each).
 """
 
 from __future__ import annotations
@@ -152,9 +153,12 @@ def table_for(level: str, real_store: Path, syn_store: Path, config, real_test: 
             continue
         t0 = time.perf_counter()
         model, record = fit(images, cfg, "cpu", progress=False)
-        rows.append({"level": level, "training": name, "n_train_images": len(images),
-                     "real_test": scores(model, rs, cfg.predict_transforms, overlays and overlays / f"{level}_{name}_real",
-                                         boxes=True),
+        row = {"level": level, "training": name, "n_train_images": len(images),
+               "real_test": scores(model, rs, cfg.predict_transforms, overlays and overlays / f"{level}_{name}_real",
+                                   boxes=True)}
+        if name == "synthetic-only":  # the real training images, never seen: a validation set for settings
+            row["real_validation"] = scores(model, rt, cfg.predict_transforms, boxes=True)
+        rows.append({**row,
                      "synthetic_test": scores(model, ss, cfg.predict_transforms,
                                               overlays and overlays / f"{level}_{name}_synthetic"),
                      "train_s": round(time.perf_counter() - t0, 1)})
@@ -242,12 +246,13 @@ def main() -> None:
                                          "crops_per_image": config.crops_per_image}, indent=1))
     print("\n== training data vs test images (pooled IoU / precision / recall; real labels are boxes: pixels "
           "against boxes, then each predicted object's bounding box against them)")
-    print(f"{'level':8s} {'training':15s} {'real test, pixels':>24s} {'real test, boxes':>24s} {'synthetic test':>24s}")
+    print(f"{'level':8s} {'training':15s} {'real test, pixels':>24s} {'real test, boxes':>24s} {'synthetic test':>24s}"
+          f" {'real validation, pixels':>24s}")
     for r in rows:
-        f = lambda s, b="": " / ".join("-" if s[b + k] is None else f"{s[b + k]:.3f}"  # noqa: E731
-                                       for k in ("iou", "precision", "recall"))
+        f = lambda s, b="": "-" if s is None else " / ".join(  # noqa: E731
+            "-" if s[b + k] is None else f"{s[b + k]:.3f}" for k in ("iou", "precision", "recall"))
         print(f"{r['level']:8s} {r['training']:15s} {f(r['real_test']):>24s} {f(r['real_test'], 'box_'):>24s} "
-              f"{f(r['synthetic_test']):>24s}")
+              f"{f(r['synthetic_test']):>24s} {f(r.get('real_validation')):>24s}")
 
 
 if __name__ == "__main__":
