@@ -24,7 +24,8 @@ Protocol (every model: the default training profile of params.yaml, same network
   trainings.
 Every model is scored on the real test images and on the synthetic test scenes (pooled IoU, precision,
 recall); a synthetic-only model also on the real training images, which it never saw (``real_validation``:
-for choosing training settings without the test images). Stores are cached in ``--work``; models are retrained every run (seconds to minutes each).
+for choosing training settings without the test images). Stores are cached in ``--work``; models are
+retrained every run (seconds to minutes each; ``train_s`` includes the scoring).
 """
 
 from __future__ import annotations
@@ -158,10 +159,10 @@ def table_for(level: str, real_store: Path, syn_store: Path, config, real_test: 
                                    boxes=True)}
         if name == "synthetic-only":  # the real training images, never seen: a validation set for settings
             row["real_validation"] = scores(model, rt, cfg.predict_transforms, boxes=True)
-        rows.append({**row,
-                     "synthetic_test": scores(model, ss, cfg.predict_transforms,
-                                              overlays and overlays / f"{level}_{name}_synthetic"),
-                     "train_s": round(time.perf_counter() - t0, 1)})
+        row["synthetic_test"] = scores(model, ss, cfg.predict_transforms,
+                                       overlays and overlays / f"{level}_{name}_synthetic")
+        row["train_s"] = round(time.perf_counter() - t0, 1)
+        rows.append(row)
         print(json.dumps(rows[-1]), flush=True)
     return rows
 

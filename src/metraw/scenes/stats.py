@@ -103,15 +103,15 @@ def _region_contrast(g: np.ndarray, regions: np.ndarray, ring_px: int, min_cells
     lab, n = ndimage.label(regions)
     if n == 0:
         return []
-    idx = np.arange(1, n + 1)
-    grown = ndimage.grey_dilation(lab, size=(2 * ring_px + 1,) * 2)
-    inside = np.atleast_1d(ndimage.mean(g, lab, idx))
-    ring_sel = (lab == 0) & (grown > 0)
-    ring_lab = np.where(ring_sel, grown, 0)
-    around_n = np.atleast_1d(ndimage.sum(np.ones_like(g), ring_lab, idx))
-    around = np.atleast_1d(ndimage.sum(g, ring_lab, idx)) / np.maximum(around_n, 1)
-    counts = np.atleast_1d(ndimage.sum(np.ones_like(g), lab, idx))
-    ok = (counts >= min_cells) & (around_n > 0) & (around > 0)
+    ring = np.where(lab == 0, ndimage.grey_dilation(lab, size=(2 * ring_px + 1,) * 2), 0)
+
+    def count_and_mean(labels):
+        count = np.bincount(labels.ravel(), minlength=n + 1)[1:]
+        total = np.bincount(labels.ravel(), weights=g.ravel(), minlength=n + 1)[1:]
+        return count, total / np.maximum(count, 1)
+
+    (cells, inside), (ring_cells, around) = count_and_mean(lab), count_and_mean(ring)
+    ok = (cells >= min_cells) & (ring_cells > 0) & (around > 0)
     return [float(v) for v in np.log2(inside[ok] / around[ok])]
 
 
@@ -156,6 +156,10 @@ def radiometry_row(samples: list[dict[str, list[float]]]) -> dict[str, float]:
         v = pool.get(k, [])
         return float(np.percentile(v, p)) if len(v) else float("nan")
 
+    def darker(k):
+        v = np.array(pool.get(k, []))
+        return float(np.mean(v < 0)) if v.size else float("nan")
+
     cc = np.array(pool.get("car_contrast", []))
     return {
         "log2_rel_green_p05": q("log_rel", 5), "log2_rel_green_p95": q("log_rel", 95),
@@ -164,10 +168,9 @@ def radiometry_row(samples: list[dict[str, list[float]]]) -> dict[str, float]:
         "car_contrast_log2_p10": q("car_contrast", 10), "car_contrast_log2_median": q("car_contrast", 50),
         "car_contrast_log2_p90": q("car_contrast", 90),
         "car_abs_contrast_log2_median": float(np.median(np.abs(cc))) if cc.size else float("nan"),
-        "cars_darker_than_ring_share": float(np.mean(cc < 0)) if cc.size else float("nan"),
+        "cars_darker_than_ring_share": darker("car_contrast"),
         "car_outline_contrast_log2_median": q("car_outline_contrast", 50),
-        "cars_outline_darker_share": float(np.mean(np.array(pool["car_outline_contrast"]) < 0))
-        if pool.get("car_outline_contrast") else float("nan"),
+        "cars_outline_darker_share": darker("car_outline_contrast"),
         "clutter_share_median": q("clutter", 50),
     }
 
