@@ -2,7 +2,7 @@
 
     python benchmarks/onthefly.py --source data/source.zarr [--params params.yaml] [--out DIR]
         [--scenes 60,120,240,384] [--seeds 0,1,2] [--epochs 20] [--dpe 1,2,4] [--finetune-epochs 5]
-        [--sections curve,draws,box]
+        [--sections curve,draws,box,levers] [--levers profile,depth2,...]
 
 Test set: the source's test split (params ``training.split_seed`` / ``test_fraction``), drawn at each
 point ``--test-draws`` times per scene with a fixed seed (random phases and flips): a fixed set of
@@ -16,7 +16,10 @@ Sections:
   at the same number of optimiser steps for every n (epochs x n fixed at the profile's epochs x all scenes);
 - ``draws``: nominal IoU against on-the-fly draws per scene per epoch (all training scenes);
 - ``box``: at every point of params.yaml: a model trained from scratch on that point's draws, the robust
-  model (draws across all points, each draw at a random point) and that robust model fine-tuned on the point.
+  model (draws across all points, each draw at a random point) and that robust model fine-tuned on the point;
+- ``levers``: nominal IoU of cheap changes to the profile's training, each on the fly with all training scenes
+  (``LEVERS``: U-Net depth, input upsampling, soft-IoU or no overlap term in the loss); every model is also scored
+  at the decision thresholds ``--thresholds`` (a diagnostic on the test set, not a tuned rule).
 Writes ``onthefly.csv`` (one row per run) and ``onthefly.png`` (the curves) into ``--out``.
 """
 
@@ -33,6 +36,18 @@ from pathlib import Path
 import numpy as np
 
 
+#: ``levers`` section: name -> TrainConfig changes ("upsample" = factor of the input, through ``min_grid_px``).
+LEVERS = {
+    "profile": {},
+    "depth2": {"depth": 2},
+    "depth1": {"depth": 1},
+    "upsample2": {"upsample": 2},
+    "loss-bce+iou": {"loss": "bce+iou"},
+    "loss-bce": {"loss": "bce"},
+    "depth2-dpe2": {"depth": 2, "draws_per_epoch": 2},
+}
+
+
 def test_set(fields, n_draws: int):
     from metraw.segment.data import prepare
     from metraw.segment.onthefly import draw_rng
@@ -40,11 +55,16 @@ def test_set(fields, n_draws: int):
     return [prepare(f.draw(draw_rng(10**6, k, f.index)), f.index) for f in fields for k in range(n_draws)]
 
 
-def score(model, test) -> dict:
+def score(model, test, thresholds=()) -> dict:
+    """Pooled scores at the default decision threshold, plus ``iou@t`` / ``object_f1@t`` at each of ``thresholds``."""
     from metraw.segment.evaluate import evaluate_images
 
     ev = evaluate_images(model, test, "cpu", False)
-    return {k: ev.get(k) for k in ("iou", "precision", "recall", "object_f1", "object_recall", "object_precision")}
+    out = {k: ev.get(k) for k in ("iou", "precision", "recall", "object_f1", "object_recall", "object_precision")}
+    for t in thresholds:
+        ev = evaluate_images(model, test, "cpu", False, threshold=t)
+        out[f"iou@{t}"], out[f"object_f1@{t}"] = ev.get("iou"), ev.get("object_f1")
+    return out
 
 
 def mean_se(values):
@@ -66,6 +86,10 @@ def main(argv=None) -> int:
     ap.add_argument("--finetune-epochs", type=int, default=5)
     ap.add_argument("--test-draws", type=int, default=2)
     ap.add_argument("--sections", default="speed,curve,draws,box")
+    ap.add_argument("--levers", default=",".join(LEVERS), help=f"levers section: any of {', '.join(LEVERS)}")
+    ap.add_argument("--codec-step", type=float, default=None, help="training draws through the codec at this step "
+                    "(the workflow's codec.step; default: none, as the curve rows in the README)")
+    ap.add_argument("--thresholds", default="0.3", help="levers section: extra decision thresholds to score")
     ap.add_argument("--tables-from", default=None, help="print the tables and draw the figure from a CSV this "
                     "benchmark wrote (no training)")
     args = ap.parse_args(argv)
@@ -98,13 +122,18 @@ def main(argv=None) -> int:
     def target(point):
         return TargetSystem.from_dict(target_params(params, point))
 
-    def run(section, point, mode, n_scenes, dpe, seed, fields, test, epochs, init=None):
-        cfg = dataclasses.replace(base, seed=seed, epochs=epochs)
+    def run(section, point, mode, n_scenes, dpe, seed, fields, test, epochs, init=None, changes=None, lever="",
+            thresholds=()):
+        changes = dict(changes or {})
+        upsample = changes.pop("upsample", None)
+        cfg = dataclasses.replace(base, seed=seed, epochs=epochs, **changes)
         t0 = time.perf_counter()
         model, rec = fit_draws(fields, cfg, "cpu", False, init_state=init, draws_per_epoch=dpe,
-                               static=mode == "static")
+                               static=mode == "static", upsample=upsample,
+                               codec_step=args.codec_step)
         row = {"section": section, "point": point, "mode": mode, "n_scenes": n_scenes, "draws_per_epoch": dpe,
-               "seed": seed, "epochs": epochs, "train_s": round(time.perf_counter() - t0, 1), **score(model, test)}
+               "seed": seed, "epochs": epochs, "lever": lever, "train_s": round(time.perf_counter() - t0, 1),
+               **score(model, test, thresholds)}
         rows.append(row)
         print(json.dumps(row), flush=True)
         return model
@@ -123,7 +152,7 @@ def main(argv=None) -> int:
 
     if "speed" in sections:
         speed(store, train_idx[:48], target("nominal"))
-    if not sections & {"curve", "draws", "box"}:
+    if not sections & {"curve", "draws", "box", "levers"}:
         return 0
     nominal_fields, nominal_test = fields_for("nominal")
     if "curve" in sections:
@@ -152,8 +181,19 @@ def main(argv=None) -> int:
             run("box", p, "scratch", len(tr), 1, seed, tr, te, base.epochs)
             run("box", p, "fine-tune", len(tr), 1, seed, tr, te, args.finetune_epochs, init=state)
 
+    if "levers" in sections:
+        thresholds = [float(t) for t in args.thresholds.split(",") if t]
+        for name in args.levers.split(","):
+            if name not in LEVERS:
+                ap.error(f"unknown lever {name!r} (have {', '.join(LEVERS)})")
+            changes = dict(LEVERS[name])
+            dpe = changes.pop("draws_per_epoch", 1)
+            for seed in seeds:
+                run("levers", "nominal", "on-the-fly", len(nominal_fields), dpe, seed, nominal_fields, nominal_test,
+                    base.epochs, changes=changes, lever=name, thresholds=thresholds)
+
     with open(out / "onthefly.csv", "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w = csv.DictWriter(fh, fieldnames=list(dict.fromkeys(k for r in rows for k in r)))
         w.writeheader()
         w.writerows(rows)
     print_tables(rows)
@@ -210,6 +250,8 @@ def print_tables(rows) -> None:
         for r in rows:
             if sel(r):
                 groups.setdefault(key(r), []).append(r)
+        if not groups:
+            return
         print(f"\n{label}\n| group | n seeds | IoU | precision | recall | object F1 | train s |\n|---|---|---|---|---|---|---|")
         for k, rs in groups.items():
             cells = []
@@ -222,6 +264,18 @@ def print_tables(rows) -> None:
     table(lambda r: r["section"] == "draws", lambda r: f"{r['draws_per_epoch']} draws/scene/epoch", "draws (nominal)")
     table(lambda r: r["section"] == "box" and r["point"] != "all", lambda r: f"{r['point']} {r['mode']}",
           "scratch / fine-tune / robust per point")
+    levers = [r for r in rows if r["section"] == "levers"]
+    if levers:
+        extra = sorted({k for r in levers for k in r if k.startswith("iou@")})
+        print("\nlevers (nominal; IoU at other decision thresholds: a test-set diagnostic)\n| lever | n seeds | IoU | "
+              "precision | recall | object F1 | " + " | ".join(extra) + " | train s |\n|" + "---|" * (7 + len(extra)))
+        for name in dict.fromkeys(r["lever"] for r in levers):
+            rs = [r for r in levers if r["lever"] == name]
+            cells = []
+            for m in ("iou", "precision", "recall", "object_f1", *extra):
+                mu, se = mean_se([r.get(m) for r in rs])
+                cells.append(f"{mu:.3f} +- {se:.3f}" if np.isfinite(se) else f"{mu:.3f}")
+            print(f"| {name} | {len(rs)} | " + " | ".join(cells) + f" | {np.median([r['train_s'] for r in rs]):.0f} |")
 
 
 def plot(rows, path) -> None:

@@ -179,6 +179,8 @@ def main() -> None:
                     help="training profile of params.yaml (default: training.profile; 'source' = the drone-resolution "
                          "reference's)")
     ap.add_argument("--train-seed", type=int, default=None, help="override the profile's training seed")
+    ap.add_argument("--depth", type=int, default=None,
+                    help="override the profile's U-Net depth (the default profile's was 3 until 2026-11-26, now 2)")
     ap.add_argument("--tone-gamma-range", type=float, default=None,
                     help="override the profile's tone_gamma_range (tone-curve randomisation of training crops)")
     ap.add_argument("--channel-gain-range", type=float, default=None,
@@ -224,6 +226,10 @@ def main() -> None:
         config = replace(config, epochs=args.epochs)
     if args.train_seed is not None:
         config = replace(config, seed=args.train_seed)
+    if args.depth is not None:
+        if args.depth < 1:
+            ap.error(f"--depth must be >= 1, got {args.depth}")
+        config = replace(config, depth=args.depth)
     if args.tone_gamma_range:
         config = replace(config, tone_gamma_range=args.tone_gamma_range)
     if args.channel_gain_range:

@@ -138,6 +138,9 @@ def test_small_predicted_objects_are_dropped_by_ground_area():
     mask = predicted_mask(prob, gsd_m)
     assert not mask[2:5, 2:5].any() and mask[20:26, 20:26].all() and mask.sum() == 36 + 12
     assert predicted_mask(prob, None).sum() == 9 + 36 + 12  # GSD unknown: nothing dropped
+    # another decision threshold: 0.85 keeps the 0.9 squares only, 0.4 adds the pixel at THRESHOLD
+    assert predicted_mask(prob, gsd_m, 0.85).sum() == 36 and predicted_mask(prob, None, 0.85).sum() == 9 + 36
+    assert predicted_mask(prob, None, 0.4).sum() == 9 + 36 + 12 + 1
     stack = np.stack([prob > THRESHOLD, np.zeros_like(prob, bool)])
     assert drop_small_objects(stack, 10).sum(axis=(1, 2)).tolist() == [48, 0]  # leading axes: separate images
 
@@ -215,6 +218,31 @@ def test_bfloat16_training_is_deterministic_learns_and_differs_from_float32(tiny
     assert losses[-1] < losses[0]
     with pytest.raises(MetrawError, match="precision"):
         TrainConfig.from_dict({"precision": "float16"})
+
+
+def test_losses_equal_their_formulas_on_saturated_logits():
+    import torch
+    import torch.nn.functional as F
+
+    from metraw.segment.train import TrainConfig, segmentation_loss
+
+    # saturated logits: p is 0 or 1 to float precision, so Dice and IoU are those of the 0/1 prediction
+    pred = torch.tensor([1.0, 1.0, 1.0, 0.0, 0.0, 0.0])
+    frac = torch.tensor([1.0, 0.5, 0.0, 0.25, 0.0, 0.0])
+    logits = (2 * pred - 1) * 40.0
+    bce = float(F.binary_cross_entropy_with_logits(logits, frac))
+    inter, p_sum, f_sum = 1.5, 3.0, 1.75
+    assert float(segmentation_loss(logits, frac, "bce")) == pytest.approx(bce, rel=1e-6)
+    assert float(segmentation_loss(logits, frac)) == pytest.approx(
+        bce + 1 - (2 * inter + 1) / (p_sum + f_sum + 1), rel=1e-6)
+    assert float(segmentation_loss(logits, frac, "bce+iou")) == pytest.approx(
+        bce + 1 - (inter + 1) / (p_sum + f_sum - inter + 1), rel=1e-6)
+    # IoU <= Dice for any overlap, so the IoU term is the larger loss unless the prediction is exact
+    assert float(segmentation_loss(logits, frac, "bce+iou")) > float(segmentation_loss(logits, frac))
+    with pytest.raises(MetrawError, match="loss"):
+        TrainConfig.from_dict({"loss": "lovasz"})
+    with pytest.raises(MetrawError, match="loss"):
+        segmentation_loss(logits, frac, "focal")
 
 
 def test_training_reduces_loss_and_upsampling_keeps_native_grid(tiny_store):

@@ -218,10 +218,10 @@ def min_object_area_px(gsd_m: float | None) -> float:
     return MIN_OBJECT_AREA_M2 / gsd_m ** 2 if gsd_m else 0.0
 
 
-def predicted_mask(probability: np.ndarray, gsd_m: float | None) -> np.ndarray:
-    """Car mask of a probability map on the mosaic grid (H, W): probability > ``THRESHOLD``, less the
+def predicted_mask(probability: np.ndarray, gsd_m: float | None, threshold: float = THRESHOLD) -> np.ndarray:
+    """Car mask of a probability map on the mosaic grid (H, W): probability > ``threshold``, less the
     8-connected objects smaller than ``MIN_OBJECT_AREA_M2`` (``gsd_m``: mosaic pixel [m]; None: keep all)."""
-    return drop_small_objects(np.asarray(probability) > THRESHOLD, min_object_area_px(gsd_m))
+    return drop_small_objects(np.asarray(probability) > threshold, min_object_area_px(gsd_m))
 
 
 # ----------------------------------------------------------------- scoring
@@ -238,13 +238,13 @@ def pooled_label_kind(kinds: list[str]) -> str | None:
 
 
 def score_image(model, img: PreparedImage, device: str = "cpu", scale: float = 1.0, boxes: bool = False,
-                transforms: int = 1) -> dict[str, Any]:
+                transforms: int = 1, threshold: float = THRESHOLD) -> dict[str, Any]:
     """Segment one whole image (``averaged_probability`` over ``transforms``) and score it: index, shape, tp, fp,
     fn, iou, precision, recall, object counts and, with ``boxes`` (box labels), the confusion counts of the
-    predicted objects' bounding boxes."""
+    predicted objects' bounding boxes. ``threshold``: the decision's probability (``predicted_mask``)."""
     planes, frac = img.full()
     prob = averaged_probability(model, img.z, img.pattern, device, scale, transforms)
-    mosaic_pred = predicted_mask(_mosaic(prob, img.pattern), img.gsd_m)
+    mosaic_pred = predicted_mask(_mosaic(prob, img.pattern), img.gsd_m, threshold)
     mosaic_frac = _mosaic(frac, img.pattern)
     pred = _packed(mosaic_pred, img.pattern, frac.shape)
     tp, fp, fn = confusion(pred, frac)
@@ -270,13 +270,13 @@ def _packed(mosaic: np.ndarray, pattern: str, shape: tuple[int, ...]) -> np.ndar
 
 
 def evaluate_images(model, images: list[PreparedImage], device: str = "cpu", progress: bool | None = None,
-                    boxes: bool = False, transforms: int = 1) -> dict[str, Any]:
+                    boxes: bool = False, transforms: int = 1, threshold: float = THRESHOLD) -> dict[str, Any]:
     """Segment whole images (no resampling) and score them: {"per_image": [...], plus ``summarise`` keys};
     ``boxes``: the labels are boxes, score the predicted objects' bounding boxes too; ``transforms``: dihedral
-    transforms averaged per prediction (``score_image``)."""
+    transforms averaged per prediction; ``threshold``: the decision's probability (``score_image``)."""
     from metraw.progress import progress_bar
 
-    records = [score_image(model, img, device, boxes=boxes, transforms=transforms)
+    records = [score_image(model, img, device, boxes=boxes, transforms=transforms, threshold=threshold)
                for img in progress_bar(images, desc="evaluate", disable=None if progress is None else not progress)]
     return {**summarise(records), "per_image": records}
 

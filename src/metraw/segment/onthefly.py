@@ -68,8 +68,8 @@ def through_codec(image, step: float, seed: int):
 
 def fit_draws(fields: list, config: TrainConfig, device: str | None = None,
               progress: bool | None = None, init_state: dict[str, Any] | None = None,
-              draws_per_epoch: int = 1, static: bool = False, codec_step: float | None = None
-              ) -> tuple[Any, dict[str, Any]]:
+              draws_per_epoch: int = 1, static: bool = False, codec_step: float | None = None,
+              upsample: int | None = None) -> tuple[Any, dict[str, Any]]:
     """Train on fresh draws of ``fields`` (``draws_per_epoch`` per scene per epoch); returns (model, record).
 
     ``fields``: one ``PhaseField`` per training scene, or per scene a list of fields (one per target
@@ -77,6 +77,7 @@ def fit_draws(fields: list, config: TrainConfig, device: str | None = None,
     pretrained network of the same architecture); None trains from scratch. Same network, loss and
     schedule as ``train.fit``. ``static=True`` is the baseline of a per-point store: one fixed draw per
     scene for the whole training, with the stores' dihedral augmentation after the CFA (``train.fit``).
+    ``upsample``: input upsampling factor overriding ``config.min_grid_px``'s (``train.new_network``).
     """
     if not fields:
         raise MetrawError("no training scenes")
@@ -84,7 +85,7 @@ def fit_draws(fields: list, config: TrainConfig, device: str | None = None,
     first = fields[0] if isinstance(fields[0], PhaseField) else fields[0][0]
     probe = [prepare(first.draw(0), first.index)]
     fixed = [draw_prepared(f, config.seed, 0, codec_step) for f in fields] if static else None
-    model, f_up, pool, in_ch = new_network(probe, config, device)
+    model, f_up, pool, in_ch = new_network(probe, config, device, upsample)
     if init_state is not None:
         model.load_state_dict(init_state)
     n = len(fields) * draws_per_epoch

@@ -38,6 +38,8 @@ TRAIN_METRICS = "train.json"
 REPLICATE_DIR = "replicate-{r}"
 #: ``TrainConfig.precision`` values.
 PRECISIONS = ("float32", "bfloat16")
+#: Training losses (``segmentation_loss``): binary cross-entropy plus soft Dice, plus soft IoU (Jaccard), or alone.
+LOSSES = ("bce+dice", "bce+iou", "bce")
 #: ``crops_per_image`` value: enough crops to cover each image's working-grid area once per epoch.
 COVER = "cover"
 #: Wall-clock fields of the training record: returned by ``fit``/``train_store``, left out of train.json.
@@ -72,6 +74,7 @@ class TrainConfig:
     bfloat16 with float32 weights, optimiser and loss; on CPUs with AMX, or on a GPU, the network's passes
     run ~1.6x faster, which pays where they dominate a step: see the README). Evaluation and prediction
     always run in float32.
+    ``loss``: one of ``LOSSES`` (``segmentation_loss``); "bce+dice", the default, is what the measured profiles use.
     ``predict_transforms``: dihedral transforms of the mosaic (turns, flips; 1, 2, 4 or 8) whose predictions
     ``metraw evaluate`` / ``predict`` average (``metraw.segment.evaluate.averaged_probability``); 1 (default) = a
     single pass. A prediction setting: training does not use it.
@@ -94,6 +97,7 @@ class TrainConfig:
     seed: int = 0
     threads: int = 2
     precision: str = "float32"
+    loss: str = "bce+dice"
     predict_transforms: int = 1
     split_seed: int = 0
     test_fraction: float = 0.2
@@ -111,6 +115,8 @@ class TrainConfig:
             check_transforms(d["predict_transforms"])
         if d.get("precision", "float32") not in PRECISIONS:
             raise MetrawError(f"training precision must be one of {', '.join(PRECISIONS)}, got {d['precision']!r}")
+        if d.get("loss", "bce+dice") not in LOSSES:
+            raise MetrawError(f"training loss must be one of {', '.join(LOSSES)}, got {d['loss']!r}")
         return cls(**d)
 
 
@@ -203,15 +209,23 @@ def store_digest(store) -> str:
     return h.hexdigest()
 
 
-def segmentation_loss(logits, target):
-    """Binary cross-entropy against the car area fraction of each mosaic pixel plus soft Dice (1 - Dice)."""
+def segmentation_loss(logits, target, kind: str = "bce+dice"):
+    """Binary cross-entropy against the car area fraction f of each mosaic pixel, plus (``kind``) the batch's
+    soft Dice loss 1 - (2 I + 1) / (P + F + 1) or soft IoU (Jaccard) loss 1 - (I + 1) / (P + F - I + 1), with
+    I = sum p f, P = sum p, F = sum f (p: sigmoid of the logits); "bce": the cross-entropy alone."""
     import torch.nn.functional as F
 
+    if kind not in LOSSES:
+        raise MetrawError(f"unknown loss {kind!r} (have {', '.join(LOSSES)})")
     bce = F.binary_cross_entropy_with_logits(logits, target)
+    if kind == "bce":
+        return bce
     p = logits.sigmoid()
     inter = (p * target).sum()
-    dice = (2 * inter + 1.0) / (p.sum() + target.sum() + 1.0)
-    return bce + (1.0 - dice)
+    total = p.sum() + target.sum()
+    if kind == "bce+iou":
+        return bce + (1.0 - (inter + 1.0) / (total - inter + 1.0))
+    return bce + (1.0 - (2 * inter + 1.0) / (total + 1.0))
 
 
 @contextmanager
@@ -255,7 +269,7 @@ def train_loop(model, epoch_batches, steps_per_epoch: int, config: TrainConfig, 
                 y = torch.as_tensor(y).to(device)
                 with torch.autocast(dev_type, dtype=torch.bfloat16, enabled=autocast):
                     logits = model(x)
-                loss = segmentation_loss(logits.float(), y)
+                loss = segmentation_loss(logits.float(), y, config.loss)
                 opt.zero_grad(set_to_none=True)
                 loss.backward()
                 opt.step()
