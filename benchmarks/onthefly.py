@@ -2,7 +2,7 @@
 
     python benchmarks/onthefly.py --source data/source.zarr [--params params.yaml] [--out DIR]
         [--scenes 60,120,240,384] [--seeds 0,1,2] [--epochs 20] [--dpe 1,2,4] [--finetune-epochs 5]
-        [--sections curve,draws,box,levers] [--levers profile,depth2,...]
+        [--sections curve,draws,box,levers] [--levers depth3,depth2,...]
 
 Test set: the source's test split (params ``training.split_seed`` / ``test_fraction``), drawn at each
 point ``--test-draws`` times per scene with a fixed seed (random phases and flips): a fixed set of
@@ -36,14 +36,15 @@ from pathlib import Path
 import numpy as np
 
 
-#: ``levers`` section: name -> TrainConfig changes ("upsample" = factor of the input, through ``min_grid_px``).
+#: ``levers`` section: name -> TrainConfig changes to the profile ("upsample": factor of the input, overriding
+#: ``min_grid_px``). Each names its depth, so the rows do not move when the profile's depth does (3 until 2026-11-26).
 LEVERS = {
-    "profile": {},
+    "depth3": {"depth": 3},
     "depth2": {"depth": 2},
     "depth1": {"depth": 1},
-    "upsample2": {"upsample": 2},
-    "loss-bce+iou": {"loss": "bce+iou"},
-    "loss-bce": {"loss": "bce"},
+    "depth3-upsample2": {"depth": 3, "upsample": 2},
+    "depth3-bce+iou": {"depth": 3, "loss": "bce+iou"},
+    "depth3-bce": {"depth": 3, "loss": "bce"},
     "depth2-dpe2": {"depth": 2, "draws_per_epoch": 2},
 }
 
@@ -245,18 +246,22 @@ def read_rows(path) -> list[dict]:
 
 
 def print_tables(rows) -> None:
-    def table(sel, key, label):
+    names = {"iou": "IoU", "precision": "precision", "recall": "recall", "object_f1": "object F1"}
+
+    def table(sel, key, label, extra=()):
         groups = {}
         for r in rows:
             if sel(r):
                 groups.setdefault(key(r), []).append(r)
         if not groups:
             return
-        print(f"\n{label}\n| group | n seeds | IoU | precision | recall | object F1 | train s |\n|---|---|---|---|---|---|---|")
+        metrics = [*names, *extra]
+        print(f"\n{label}\n| group | n seeds | " + " | ".join(names.get(m, m) for m in metrics) + " | train s |\n|"
+              + "---|" * (len(metrics) + 3))
         for k, rs in groups.items():
             cells = []
-            for m in ("iou", "precision", "recall", "object_f1"):
-                mu, se = mean_se([r[m] for r in rs])
+            for m in metrics:
+                mu, se = mean_se([r.get(m) for r in rs])
                 cells.append(f"{mu:.3f} +- {se:.3f}" if np.isfinite(se) else f"{mu:.3f}")
             print(f"| {k} | {len(rs)} | " + " | ".join(cells) + f" | {np.median([r['train_s'] for r in rs]):.0f} |")
 
@@ -264,18 +269,9 @@ def print_tables(rows) -> None:
     table(lambda r: r["section"] == "draws", lambda r: f"{r['draws_per_epoch']} draws/scene/epoch", "draws (nominal)")
     table(lambda r: r["section"] == "box" and r["point"] != "all", lambda r: f"{r['point']} {r['mode']}",
           "scratch / fine-tune / robust per point")
-    levers = [r for r in rows if r["section"] == "levers"]
-    if levers:
-        extra = sorted({k for r in levers for k in r if k.startswith("iou@")})
-        print("\nlevers (nominal; IoU at other decision thresholds: a test-set diagnostic)\n| lever | n seeds | IoU | "
-              "precision | recall | object F1 | " + " | ".join(extra) + " | train s |\n|" + "---|" * (7 + len(extra)))
-        for name in dict.fromkeys(r["lever"] for r in levers):
-            rs = [r for r in levers if r["lever"] == name]
-            cells = []
-            for m in ("iou", "precision", "recall", "object_f1", *extra):
-                mu, se = mean_se([r.get(m) for r in rs])
-                cells.append(f"{mu:.3f} +- {se:.3f}" if np.isfinite(se) else f"{mu:.3f}")
-            print(f"| {name} | {len(rs)} | " + " | ".join(cells) + f" | {np.median([r['train_s'] for r in rs]):.0f} |")
+    table(lambda r: r["section"] == "levers", lambda r: r["lever"],
+          "levers (nominal; IoU at other decision thresholds: a test-set diagnostic)",
+          sorted({k for r in rows if r["section"] == "levers" for k in r if k.startswith("iou@")}))
 
 
 def plot(rows, path) -> None:
