@@ -2,7 +2,7 @@
 
     python benchmarks/onthefly.py --source data/source.zarr [--params params.yaml] [--out DIR]
         [--scenes 60,120,240,384] [--seeds 0,1,2] [--epochs 20] [--dpe 1,2,4] [--finetune-epochs 5]
-        [--sections curve,draws,box,levers] [--levers depth3,depth2,...]
+        [--sections curve,draws,box,levers] [--levers depth3,depth2,...] [--more-scenes STORE]
 
 Test set: the source's test split (params ``training.split_seed`` / ``test_fraction``), drawn at each
 point ``--test-draws`` times per scene with a fixed seed (random phases and flips): a fixed set of
@@ -20,6 +20,9 @@ Sections:
 - ``levers``: nominal IoU of cheap changes to the profile's training, each on the fly with all training scenes
   (``LEVERS``: U-Net depth, input upsampling, soft-IoU or no overlap term in the loss); every model is also scored
   at the decision thresholds ``--thresholds`` (a diagnostic on the test set, not a tuned rule).
+``--more-scenes STORE``: a larger store of the same generator and seed (``metraw scenes --n N`` with N above the
+source's count: scene i depends only on the seed and i); its scenes past the source's count join the nominal training
+scenes of the ``curve``, ``draws`` and ``levers`` sections (the test set stays the source's).
 Writes ``onthefly.csv`` (one row per run) and ``onthefly.png`` (the curves) into ``--out``.
 """
 
@@ -90,6 +93,8 @@ def main(argv=None) -> int:
     ap.add_argument("--levers", default=",".join(LEVERS), help=f"levers section: any of {', '.join(LEVERS)}")
     ap.add_argument("--codec-step", type=float, default=None, help="training draws through the codec at this step "
                     "(the workflow's codec.step; default: none, as the curve rows in the README)")
+    ap.add_argument("--more-scenes", default=None, help="curve, draws and levers sections: add the scenes of this "
+                    "larger store of the same generator and seed past the source's count to the training scenes")
     ap.add_argument("--thresholds", default="0.3", help="levers section: extra decision thresholds to score")
     ap.add_argument("--tables-from", default=None, help="print the tables and draw the figure from a CSV this "
                     "benchmark wrote (no training)")
@@ -156,6 +161,14 @@ def main(argv=None) -> int:
     if not sections & {"curve", "draws", "box", "levers"}:
         return 0
     nominal_fields, nominal_test = fields_for("nominal")
+    if args.more_scenes:
+        more = RawStore.open(args.more_scenes)
+        last = len(store) - 1
+        if len(more) <= len(store) or not np.array_equal(more[last].data, store[last].data):
+            ap.error(f"--more-scenes {args.more_scenes}: not a larger store of the source's generator and seed "
+                     f"({len(more)} scenes; its scene {last} must equal the source's)")
+        nominal_fields = nominal_fields + build_fields(more, range(len(store), len(more)), target("nominal"))
+        print(f"# {len(nominal_fields)} training scenes with {args.more_scenes}", file=sys.stderr, flush=True)
     if "curve" in sections:
         for n in [int(s) for s in args.scenes.split(",")]:
             for seed in seeds:
