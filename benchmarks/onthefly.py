@@ -2,7 +2,8 @@
 
     python benchmarks/onthefly.py --source data/source.zarr [--params params.yaml] [--out DIR]
         [--scenes 60,120,240,384] [--seeds 0,1,2] [--epochs 20] [--dpe 1,2,4] [--finetune-epochs 5]
-        [--sections curve,draws,box,levers] [--levers depth3,depth2,...] [--more-scenes STORE]
+        [--sections curve,draws,box,levers] [--levers depth3,depth2,...] [--thresholds 0.3] [--codec-step 1.0]
+        [--more-scenes STORE]
 
 Test set: the source's test split (params ``training.split_seed`` / ``test_fraction``), drawn at each
 point ``--test-draws`` times per scene with a fixed seed (random phases and flips): a fixed set of
@@ -99,6 +100,14 @@ def main(argv=None) -> int:
     ap.add_argument("--tables-from", default=None, help="print the tables and draw the figure from a CSV this "
                     "benchmark wrote (no training)")
     args = ap.parse_args(argv)
+    levers = args.levers.split(",")
+    unknown = [name for name in levers if name not in LEVERS]
+    if unknown:
+        ap.error(f"unknown lever(s) {', '.join(unknown)} (have {', '.join(LEVERS)})")
+    try:
+        thresholds = [float(t) for t in args.thresholds.split(",") if t]
+    except ValueError:
+        ap.error(f"--thresholds must be comma-separated numbers, got {args.thresholds!r}")
     if args.tables_from:
         rows = read_rows(args.tables_from)
         print_tables(rows)
@@ -119,6 +128,11 @@ def main(argv=None) -> int:
     seeds = [int(s) for s in args.seeds.split(",")]
     store = RawStore.open(args.source)
     train_idx, test_idx = split_indices(len(store), base.test_fraction, base.split_seed)
+    more = RawStore.open(args.more_scenes) if args.more_scenes else None
+    last = len(store) - 1
+    if more is not None and (len(more) <= len(store) or not np.array_equal(more[last].data, store[last].data)):
+        ap.error(f"--more-scenes {args.more_scenes}: not a larger store of the source's generator and seed "
+                 f"({len(more)} scenes; its scene {last} must equal the source's)")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     rows = []
@@ -161,12 +175,7 @@ def main(argv=None) -> int:
     if not sections & {"curve", "draws", "box", "levers"}:
         return 0
     nominal_fields, nominal_test = fields_for("nominal")
-    if args.more_scenes:
-        more = RawStore.open(args.more_scenes)
-        last = len(store) - 1
-        if len(more) <= len(store) or not np.array_equal(more[last].data, store[last].data):
-            ap.error(f"--more-scenes {args.more_scenes}: not a larger store of the source's generator and seed "
-                     f"({len(more)} scenes; its scene {last} must equal the source's)")
+    if more is not None:
         nominal_fields = nominal_fields + build_fields(more, range(len(store), len(more)), target("nominal"))
         print(f"# {len(nominal_fields)} training scenes with {args.more_scenes}", file=sys.stderr, flush=True)
     if "curve" in sections:
@@ -196,10 +205,7 @@ def main(argv=None) -> int:
             run("box", p, "fine-tune", len(tr), 1, seed, tr, te, args.finetune_epochs, init=state)
 
     if "levers" in sections:
-        thresholds = [float(t) for t in args.thresholds.split(",") if t]
-        for name in args.levers.split(","):
-            if name not in LEVERS:
-                ap.error(f"unknown lever {name!r} (have {', '.join(LEVERS)})")
+        for name in levers:
             changes = dict(LEVERS[name])
             dpe = changes.pop("draws_per_epoch", 1)
             for seed in seeds:
