@@ -16,14 +16,18 @@ Sections:
   image per scene, the per-point store's protocol) against on-the-fly draws (1 draw per scene per epoch),
   at the same number of optimiser steps for every n (epochs x n fixed at the profile's epochs x all scenes);
 - ``draws``: nominal IoU against on-the-fly draws per scene per epoch (all training scenes);
-- ``box``: at every point of params.yaml: a model trained from scratch on that point's draws, the robust
-  model (draws across all points, each draw at a random point) and that robust model fine-tuned on the point;
+- ``box``: the robust model pretrained as the workflow's ``pretrain`` rule does (``metraw.segment.pretrain``: the
+  training scenes, plus ``--more-scenes``' further ones, each drawn at ``training.pretrain.points_per_scene`` points of
+  ``training.pretrain.box`` for ``training.pretrain.epochs``), then at every point of params.yaml: that robust model,
+  it fine-tuned on the point's draws for ``--finetune-epochs`` (points of the nominal's CFA family), and a model
+  trained from scratch (the profile's epochs);
 - ``levers``: nominal IoU of cheap changes to the profile's training, each on the fly with all training scenes
   (``LEVERS``: U-Net depth, input upsampling, soft-IoU or no overlap term in the loss); every model is also scored
   at the decision thresholds ``--thresholds`` (a diagnostic on the test set, not a tuned rule).
 ``--more-scenes STORE``: a larger store of the same generator and seed (``metraw scenes --n N`` with N above the
 source's count: scene i depends only on the seed and i); its scenes past the source's count join the nominal training
-scenes of the ``curve``, ``draws`` and ``levers`` sections (the test set stays the source's).
+scenes of the ``curve``, ``draws`` and ``levers`` sections and the pretraining scenes of ``box`` (the test set stays
+the source's).
 Writes ``onthefly.csv`` (one row per run) and ``onthefly.png`` (the curves) into ``--out``.
 """
 
@@ -88,13 +92,13 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", default="0,1,2")
     ap.add_argument("--epochs", type=int, default=None, help="default: the training profile's")
     ap.add_argument("--dpe", default="1,2,4")
-    ap.add_argument("--finetune-epochs", type=int, default=5)
+    ap.add_argument("--finetune-epochs", type=int, default=None, help="box section (default: training.pretrain.finetune_epochs)")
     ap.add_argument("--test-draws", type=int, default=2)
     ap.add_argument("--sections", default="speed,curve,draws,box")
     ap.add_argument("--levers", default=",".join(LEVERS), help=f"levers section: any of {', '.join(LEVERS)}")
     ap.add_argument("--codec-step", type=float, default=None, help="training draws through the codec at this step "
                     "(the workflow's codec.step; default: none, as the curve rows in the README)")
-    ap.add_argument("--more-scenes", default=None, help="curve, draws and levers sections: add the scenes of this "
+    ap.add_argument("--more-scenes", default=None, help="curve, draws, levers and box sections: add the scenes of this "
                     "larger store of the same generator and seed past the source's count to the training scenes")
     ap.add_argument("--thresholds", default="0.3", help="levers section: extra decision thresholds to score")
     ap.add_argument("--tables-from", default=None, help="print the tables and draw the figure from a CSV this "
@@ -190,19 +194,32 @@ def main(argv=None) -> int:
                 run("draws", "nominal", "on-the-fly", len(nominal_fields), dpe, seed, nominal_fields, nominal_test,
                     base.epochs)
     if "box" in sections:
-        for p in points:
-            fields_for(p)
-        box = [[fields_at[p][0][i] for p in points] for i in range(len(train_idx))]
-        seed = seeds[0]
-        robust = run("box", "all", "robust", len(box), 1, seed, box, nominal_test, base.epochs)
-        robust_row = rows[-1]
-        state = {k: v.clone() for k, v in robust.state_dict().items()}
-        for p in points:
-            tr, te = fields_at[p]
-            rows.append({**robust_row, "point": p, **score(robust, te)})
-            print(json.dumps(rows[-1]), flush=True)
-            run("box", p, "scratch", len(tr), 1, seed, tr, te, base.epochs)
-            run("box", p, "fine-tune", len(tr), 1, seed, tr, te, args.finetune_epochs, init=state)
+        from metraw.points import target_at
+        from metraw.segment.pretrain import box_fields, cfa_family, pretrain_settings, sample_box
+
+        settings = pretrain_settings(params)
+        finetune_epochs = args.finetune_epochs or settings["finetune_epochs"]
+        family = cfa_family(target("nominal"))
+        # the pretraining's scenes: the source's training scenes and, with --more-scenes, that store's further ones
+        scenes = [(store, int(i), int(i)) for i in train_idx]
+        scenes += [(more, i, i) for i in range(len(store), len(more))] if more is not None else []
+        for seed in seeds:
+            overrides = sample_box(settings["box"], len(scenes), settings["points_per_scene"], seed)
+            t0 = time.perf_counter()
+            box = box_fields(scenes, [[TargetSystem.from_dict(target_at(params, o)) for o in per] for per in overrides])
+            print(f"# box fields: {len(scenes)} scenes x {settings['points_per_scene']} points, "
+                  f"{time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
+            robust = run("box", "all", "robust", len(scenes), 1, seed, box, nominal_test, settings["epochs"])
+            del box
+            robust_row = rows[-1]
+            state = {k: v.clone() for k, v in robust.state_dict().items()}
+            for p in points:
+                tr, te = fields_for(p)
+                if cfa_family(target(p)) == family:
+                    rows.append({**robust_row, "point": p, **score(robust, te)})
+                    print(json.dumps(rows[-1]), flush=True)
+                    run("box", p, "fine-tune", len(tr), 1, seed, tr, te, finetune_epochs, init=state)
+                run("box", p, "scratch", len(tr), 1, seed, tr, te, base.epochs)
 
     if "levers" in sections:
         for name in levers:
@@ -286,11 +303,37 @@ def print_tables(rows) -> None:
 
     table(lambda r: r["section"] == "curve", lambda r: f"{r['mode']} {r['n_scenes']} scenes", "learning curve (nominal)")
     table(lambda r: r["section"] == "draws", lambda r: f"{r['draws_per_epoch']} draws/scene/epoch", "draws (nominal)")
-    table(lambda r: r["section"] == "box" and r["point"] != "all", lambda r: f"{r['point']} {r['mode']}",
-          "scratch / fine-tune / robust per point")
+    box_table(rows)
     table(lambda r: r["section"] == "levers", lambda r: r["lever"],
           "levers (nominal; IoU at other decision thresholds: a test-set diagnostic)",
           sorted({k for r in rows if r["section"] == "levers" for k in r if k.startswith("iou@")}))
+
+
+def box_table(rows) -> None:
+    """Per point: IoU of the robust model, of it fine-tuned and of the model from scratch, and the differences
+    (mean +- standard error over seeds; a difference is paired by seed)."""
+    by = {}
+    for r in rows:
+        if r["section"] == "box" and r["point"] != "all":
+            by.setdefault(r["point"], {}).setdefault(r["mode"], {})[r["seed"]] = r
+    if not by:
+        return
+
+    def cell(values):
+        mu, se = mean_se(values)
+        return "" if not np.isfinite(mu) else f"{mu:+.3f} +- {se:.3f}" if np.isfinite(se) else f"{mu:+.3f}"
+
+    print("\nscratch / fine-tune / robust, paired by seed (IoU; a difference > -0.02: within 0.02 of scratch or above)\n"
+          "| point | robust | fine-tune | scratch | fine-tune - scratch | robust - scratch | fine-tune s | scratch s |\n"
+          "|---|---|---|---|---|---|---|---|")
+    for point, modes in by.items():
+        sc = modes.get("scratch", {})
+        iou = {m: [r["iou"] for r in modes.get(m, {}).values()] for m in ("robust", "fine-tune", "scratch")}
+        diff = {m: [modes[m][s]["iou"] - sc[s]["iou"] for s in modes.get(m, {}) if s in sc] for m in ("fine-tune", "robust")}
+        secs = {m: [r["train_s"] for r in modes.get(m, {}).values()] for m in ("fine-tune", "scratch")}
+        print(f"| {point} | " + " | ".join(cell(iou[m]).lstrip("+") for m in iou) + " | "
+              + " | ".join(cell(diff[m]) for m in diff) + " | "
+              + " | ".join(f"{np.median(v):.0f}" if v else "" for v in secs.values()) + " |")
 
 
 def plot(rows, path) -> None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -100,6 +101,21 @@ def test_static_baseline_reuses_one_draw_and_on_the_fly_does_not(stores):
     assert np.array_equal(a.z, draw_prepared(field, 0, 0).z)  # and the same one for the same (seed, epoch)
 
 
+def test_a_box_of_targets_trains_within_a_cfa_family_and_refuses_a_mix(stores):
+    from metraw.segment.onthefly import build_fields, fit_draws
+
+    src, _, target = stores
+    store = RawStore.open(src)
+    coarse = dataclasses.replace(target, focal_length_m=1.2)
+    box = [list(pair) for pair in zip(build_fields(store, range(4), target, progress=False),
+                                      build_fields(store, range(4), coarse, progress=False))]
+    model, rec = fit_draws(box, _cfg(epochs=1), "cpu", False)
+    assert rec["n_train"] == 4 and rec["draws"] == 4
+    mono = build_fields(store, range(4), dataclasses.replace(target, cfa_pattern="mono"), progress=False)
+    with pytest.raises(MetrawError, match="mix mono and colour-filter targets"):
+        fit_draws([[a, b] for (a, _), b in zip(box, mono)], _cfg(epochs=1), "cpu", False)
+
+
 def test_cli_on_the_fly_and_its_errors(stores, tmp_path, capsys):
     import yaml
 
@@ -123,3 +139,118 @@ def test_cli_on_the_fly_and_its_errors(stores, tmp_path, capsys):
     assert not (tmp_path / "m2").exists()
     assert main(["train", str(tgt), "--codec-step", "1", "--out", str(tmp_path / "m3"), "--params", str(params)]) == 2
     assert "--codec-step applies to on-the-fly draws only" in capsys.readouterr().err
+
+
+def _parameters(state):
+    """The trained parameters of a state dict (batch-norm running statistics move whatever the learning rate)."""
+    return {k: v for k, v in state.items() if not k.endswith(("running_mean", "running_var", "num_batches_tracked"))}
+
+
+@pytest.fixture(scope="module")
+def pretrained(stores, tmp_path_factory):
+    """Two replicates pretrained on a focal-length box from the source's 4 training scenes and 2 extra scenes."""
+    from metraw.scenes import generate_one
+    from metraw.segment.pretrain import pretrain_stores
+
+    src, _, target = stores
+    root = tmp_path_factory.mktemp("pre")
+    with RawStore.create(root / "extra.zarr") as s:
+        for i in range(2):
+            s.append(generate_one(i, 1, 256))
+    for run in ("p", "q"):
+        rec = pretrain_stores(src, lambda o: dataclasses.replace(target, **o), {"focal_length_m": [1.2, 2.0]},
+                              root / run, _cfg(epochs=1), 2, [root / "extra.zarr"], device="cpu", progress=False)
+    return root, rec
+
+
+def test_box_points_change_one_parameter_log_uniform_in_its_range():
+    from metraw.segment.pretrain import sample_box
+
+    box = {"focal_length_m": [0.8, 2.0], "exposure_s": [1e-4, 5e-4], "diameter_m": [0.1, 0.5]}
+    drawn = sample_box(box, 2000, 3, seed=7)
+    assert drawn == sample_box(box, 2000, 3, seed=7) and drawn != sample_box(box, 2000, 3, seed=8)
+    points = [o for per_scene in drawn for o in per_scene]
+    assert len(drawn) == 2000 and all(len(per_scene) == 3 for per_scene in drawn) and all(len(o) == 1 for o in points)
+    n = len(points)
+    for name, (low, high) in box.items():
+        u = np.array([math.log(o[name] / low) / math.log(high / low) for o in points if name in o])
+        assert ((u >= 0) & (u < 1)).all()
+        # each parameter a third of the points (binomial), its log uniform in the range: mean 1/2, variance 1/12
+        assert abs(u.size - n / 3) < 4 * math.sqrt(n * 2 / 9)
+        assert abs(u.mean() - 0.5) < 4 * math.sqrt(1 / 12 / u.size)
+        assert abs(u.var() - 1 / 12) < 4 * math.sqrt(1 / 180 / u.size)
+    for bad, message in (({}, "box is empty"), ({"diameter_m": [0.5, 0.1]}, "must have 0 < low < high")):
+        with pytest.raises(MetrawError, match=message):
+            sample_box(bad, 1, 1, 0)
+
+
+def test_pretraining_draws_the_training_and_extra_scenes_and_is_deterministic(stores, pretrained):
+    from metraw.segment.pretrain import box_fields
+    from metraw.segment.train import CHECKPOINT, TRAIN_METRICS
+
+    src, _, target = stores
+    store = RawStore.open(src)
+    coarse = dataclasses.replace(target, focal_length_m=1.2)
+    box = box_fields([(store, i, 10 + i) for i in range(2)], [[target, coarse], [coarse]], progress=False)
+    assert [[f.target.focal_length_m for f in fields] for fields in box] == [[2.0, 1.2], [1.2]]
+    assert [f.index for fields in box for f in fields] == [10, 10, 11]
+    with pytest.raises(MetrawError, match="mixes mono"):
+        box_fields([(store, 0, 0)], [[target, dataclasses.replace(target, cfa_pattern="mono")]], progress=False)
+    root, rec = pretrained
+    # the source's 4 training scenes (its 2 test scenes never drawn) and both extra scenes, in 2 replicates
+    assert rec["n_train"] == 6 and len(rec["train_indices"]) == 4
+    assert set(rec["test_indices"]).isdisjoint(rec["train_indices"]) and len(rec["test_indices"]) == 2
+    assert rec["box"] == {"focal_length_m": [1.2, 2.0]} and rec["points_per_scene"] == 2
+    assert rec["replicate_seeds"] == [0, 1]
+    for rel in (CHECKPOINT, TRAIN_METRICS, f"replicate-1/{CHECKPOINT}"):
+        assert (root / "p" / rel).read_bytes() == (root / "q" / rel).read_bytes(), rel
+
+
+def test_fine_tuning_starts_each_replicate_from_its_pretrained_replicate(stores, pretrained, tmp_path):
+    import torch
+
+    from metraw.segment.onthefly import train_store_on_the_fly
+
+    src, tgt, _ = stores
+    root, _ = pretrained
+    pre = [_parameters(torch.load(root / "p" / rel, weights_only=True)["state_dict"])
+           for rel in ("model.pt", "replicate-1/model.pt")]
+    # at a vanishing learning rate the fine-tuned weights stay where replicate r's pretraining left them
+    rec = train_store_on_the_fly(tgt, src, tmp_path / "ft", _cfg(epochs=1, learning_rate=1e-12), device="cpu",
+                                 progress=False, init_dir=root / "p")
+    assert rec["init"] == str(root / "p") and rec["fine_tuned"]
+    for r, rel in enumerate(("model.pt", "replicate-1/model.pt")):
+        tuned = _parameters(torch.load(tmp_path / "ft" / rel, weights_only=True)["state_dict"])
+        assert max(float((tuned[k] - pre[r][k]).abs().max()) for k in tuned) < 1e-6
+        assert max(float((tuned[k] - pre[1 - r][k]).abs().max()) for k in tuned) > 1e-3
+    with pytest.raises(MetrawError, match="holds 2 pretrained replicate"):
+        train_store_on_the_fly(tgt, src, tmp_path / "x", _cfg(replicates=3), "cpu", False, init_dir=root / "p")
+    with pytest.raises(MetrawError, match="do not fit this network"):
+        train_store_on_the_fly(tgt, src, tmp_path / "y", _cfg(depth=3), "cpu", False, init_dir=root / "p")
+    assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
+
+
+def test_cli_pretrain_over_the_params_box_then_fine_tune(stores, tmp_path, capsys):
+    from metraw.cli import main
+
+    src, tgt, _ = stores
+    out = tmp_path / "pre"
+    assert main(["pretrain", str(src), "--out", str(out), "--params", str(PARAMS), "--epochs", "1",
+                 "--replicates", "1", "--points-per-scene", "2"]) == 0
+    err = capsys.readouterr().err
+    assert "5 scenes x 2 points of the box (focal_length_m, diameter_m, " in err and "1 replicate(s)" in err
+    record = json.loads((out / "train.json").read_text())
+    assert record["box"]["focal_length_m"] == [0.8, 2.0] and record["points_per_scene"] == 2
+    assert main(["train", str(tgt), "--source", str(src), "--init", str(out), "--epochs", "1",
+                 "--out", str(tmp_path / "m"), "--params", str(PARAMS)]) == 2
+    assert "holds 1 pretrained replicate(s); 3 are asked for" in capsys.readouterr().err
+    assert main(["train", str(tgt), "--source", str(src), "--init", str(out), "--epochs", "1", "--replicates", "1",
+                 "--out", str(tmp_path / "m"), "--params", str(PARAMS)]) == 0
+    assert json.loads((tmp_path / "m" / "train.json").read_text())["init"] == str(out)
+    for bad, message in ((["--epochs", "0"], "--epochs must be >= 1"),
+                         (["--points-per-scene", "0"], "--points-per-scene must be >= 1")):
+        assert main(["pretrain", str(src), "--out", str(tmp_path / "bad"), "--params", str(PARAMS), *bad]) == 2
+        assert message in capsys.readouterr().err
+    assert main(["train", str(tgt), "--init", str(out), "--out", str(tmp_path / "m4"), "--params", str(PARAMS)]) == 2
+    assert "--init applies to on-the-fly draws only" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists() and not (tmp_path / "m4").exists()

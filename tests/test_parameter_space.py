@@ -87,6 +87,12 @@ def test_pixel_pitch_points_scale_the_full_well_with_the_pixel_area():
     (lambda p: p["target"].update(grids=[{"focal_length_m": [1.0, 2.0], "mirror_m": [0.3, 0.4]}]), "mirror_m"),
     (lambda p: p["target"].update(grids=[{"focal_length_m": [0.0, 2.0], "diameter_m": [0.3, 0.4]}]),
      "grids/0/focal_length_m"),
+    (lambda p: p["training"]["pretrain"]["box"].update(mirror_m=[0.1, 0.2]), "mirror_m.*numeric field"),
+    (lambda p: p["training"]["pretrain"]["box"].update(cfa_pattern=[1, 2]), "cfa_pattern.*numeric field"),
+    (lambda p: p["training"]["pretrain"]["box"].update(diameter_m=[0.5, 0.1]), "low < high"),
+    (lambda p: p["training"]["pretrain"]["box"].update(diameter_m=[0.1]), "pretrain/box/diameter_m"),
+    (lambda p: p["training"]["pretrain"]["box"].update(atmospheric_transmission=[0.5, 1.5]),
+     "training/pretrain/box/atmospheric_transmission.*target/nominal/atmospheric_transmission"),
 ])
 def test_bad_sweeps_and_grids_get_one_clear_error(change, message):
     params = base_params()
@@ -113,6 +119,14 @@ def test_dvc_yaml_has_categorical_foreach_and_explicit_grid_stages():
     assert "results/points/cfa_pattern-${target.sweeps.cfa_pattern[0]}/metrics.json" in deps
     plots = [next(iter(p)) for p in mod.build(params)["plots"]]
     assert not any("cfa_pattern" in p for p in plots) and "results/plots/iou_pixel_pitch_m.csv" in plots
+    # the points of the nominal's CFA family fine-tune the pretrained networks; the mono ones train from scratch
+    pre = "results/pretrained/model"
+    assert pre in stages["train_nominal"]["deps"] and pre in stages["train_grid_0"]["deps"]
+    assert pre in stages["train_focal_length_m"]["do"]["deps"] and pre not in stages["train_cfa_pattern"]["do"]["deps"]
+    assert "target.sweeps" not in str(stages["pretrain"]["params"]) and stages["pretrain"]["outs"] == [pre]
+    params["training"]["pretrain"]["enabled"] = False
+    stages = mod.build(params)["stages"]
+    assert "pretrain" not in stages and pre not in stages["train_nominal"]["deps"]
 
 
 # --------------------------------------------------------------------------- categorical choice, 2-D grid GP

@@ -131,7 +131,7 @@ def test_sweep_through_slurm_matches_local_run(tmp_path, slurm_cluster):
         assert comment == f"rule_{rule}" or comment.startswith(f"rule_{rule}_wildcards_"), (job_id, rule, comment)
     rules = sorted(set(submitted.values()))
     assert rules == ["aggregate", "calibrate_source", "compress", "emulate", "evaluate", "evaluate_source",
-                     "source_store", "train", "train_source"], rules
+                     "pretrain", "pretrain_scenes", "source_store", "train", "train_source"], rules
 
     # 2. the same bytes as the local run
     ref, got = digests(a), digests(b)

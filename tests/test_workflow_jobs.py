@@ -198,7 +198,8 @@ def test_changing_one_sweep_value_reruns_only_that_point(tmp_path):
     points = ("nominal", "focal_length_m-1.2", "diameter_m-0.35", "exposure_s-0.0003")
     timings = {}
 
-    # 1. first real Snakemake run: the source store, the 4 jobs of each of the 4 points, the aggregate;
+    # 1. first real Snakemake run: the source store, the pretraining (its extra scenes, its networks), the 4 jobs
+    #    of each of the 4 points, the aggregate;
     #    the aggregate's 4 outputs go to the (empty) between-workflow cache, none comes from it
     cache: dict[str, str] = {}
     assert snakemake_dry(root, *targets, cache=cache)["aggregate"] == 1
@@ -206,7 +207,7 @@ def test_changing_one_sweep_value_reruns_only_that_point(tmp_path):
     t0 = time.perf_counter()
     first = _run(["snakemake", "--cores", "2", "--", *targets], root)
     timings["snakemake_first_s"] = time.perf_counter() - t0
-    expected = {"source_store": 1, "aggregate": 1}
+    expected = {"source_store": 1, "pretrain_scenes": 1, "pretrain": 1, "aggregate": 1}
     for point in points:
         expected.update(point_jobs(point))
     finished, executed, fetched, stored_jobs = snakemake_ran(root, first.stdout + first.stderr)
@@ -227,7 +228,8 @@ def test_changing_one_sweep_value_reruns_only_that_point(tmp_path):
     _run(["dvc", "commit", "--force", "--with-deps", "aggregate"], root)
     assert dvc_changed(root, "aggregate", "--with-deps") == []
 
-    # 3. change one sweep value: that point's 4 jobs and the aggregate, under both tools
+    # 3. change one sweep value: that point's 4 jobs and the aggregate, under both tools (the pretraining's box is
+    #    its own: the pretrained networks stay)
     set_sweep(root, "focal_length_m", [2.0])
     assert snakemake_dry(root, *targets) == {**point_jobs("focal_length_m-2.0"), "aggregate": 1}
     changed = point_stages("focal_length_m", "2.0") | {"aggregate"}

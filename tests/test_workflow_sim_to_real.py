@@ -37,7 +37,7 @@ def _dry(root: Path, *targets: str) -> tuple[collections.Counter, str]:
 
 def _chain_jobs() -> collections.Counter:
     jobs = collections.Counter({"source_store": 1, "calibrate_source": 1, "train_source": 1, "evaluate_source": 1,
-                                "aggregate": 1})
+                                "pretrain_scenes": 1, "pretrain": 1, "aggregate": 1})
     jobs.update({f"{rule}[{p}]": 1 for rule in ("emulate", "train", "evaluate", "compress") for p in POINTS})
     return jobs
 

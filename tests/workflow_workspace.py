@@ -24,7 +24,8 @@ needs_tools = pytest.mark.skipif(shutil.which("snakemake") is None or shutil.whi
 
 
 def tiny_params() -> dict:
-    """The repository's params.yaml shrunk: 4 scenes of 160 px, 1 epoch, 4 points (the GP's leave-one-out needs 4)."""
+    """The repository's params.yaml shrunk: 4 scenes of 160 px, 1 epoch, 4 points (the GP's leave-one-out needs 4),
+    pretraining on 2 extra scenes for 1 epoch."""
     params = yaml.safe_load((REPO / "params.yaml").read_text())
     params["source"]["dataset"] = "synthetic"
     params["source"]["synthetic"].update(n_scenes=4, size_px=160, seed=0)
@@ -33,6 +34,7 @@ def tiny_params() -> dict:
     params["training"]["profile"] = "default"
     params["training"]["profiles"]["default"].update(epochs=1, batch_size=4, crop_px=4, base_channels=4, depth=2,
                                                      min_grid_px=0, crops_per_image=1)
+    params["training"]["pretrain"].update(epochs=1, points_per_scene=2, finetune_epochs=1, extra_scenes=2)
     # the sim-to-real benchmark off (a test turns it on with a fake_real_folder): job counts stay those of the chain
     params["sim_to_real"] = {"enabled": False}
     return params

@@ -67,6 +67,19 @@ def validate_params(params: dict[str, Any], origin: str | Path = "params", compl
             error = _first_error(trial, schema)
             if error:
                 raise MetrawError(f"{origin}: {where}/{i}: {error[1]} (the constraint of target/nominal/{parameter})")
+    box = ((params.get("training") or {}).get("pretrain") or {}).get("box") or {}
+    for parameter, (low, high) in box.items():
+        where = f"training/pretrain/box/{parameter}"
+        if parameter not in target["nominal"] or isinstance(target["nominal"][parameter], (str, dict)):
+            raise MetrawError(f"{origin}: {where}: {parameter!r} is not a numeric field of target.nominal")
+        if not low < high:
+            raise MetrawError(f"{origin}: {where}: the range [{low}, {high}] must have low < high")
+        for value in (low, high):
+            trial = copy.deepcopy(params)
+            trial["target"]["nominal"][parameter] = value
+            error = _first_error(trial, schema)
+            if error:
+                raise MetrawError(f"{origin}: {where}: {error[1]} (the constraint of target/nominal/{parameter})")
     if "nominal" in target and (target.get("sweeps") or target.get("grids")):
         try:
             parameter_points(params)
@@ -248,12 +261,17 @@ def pixel_scaled(params: dict[str, Any], values: dict[str, Any]) -> dict[str, An
     return {**values, "full_well_e": float(values["full_well_e"]) * ratio**2}
 
 
+def target_at(params: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
+    """The full target parameters of the nominal payload with ``overrides`` (then `pixel_scaled`)."""
+    return pixel_scaled(params, {**params["target"]["nominal"], **overrides})
+
+
 def target_params(params: dict[str, Any], point: str) -> dict[str, Any]:
     """The full target parameter set of a point (nominal updated with its overrides, then `pixel_scaled`)."""
     points = parameter_points(params)
     if point not in points:
         raise MetrawError(f"unknown parameter point {point!r}; known: {', '.join(points)}")
-    return pixel_scaled(params, {**params["target"]["nominal"], **points[point]})
+    return target_at(params, points[point])
 
 
 def swept_parameters(params: dict[str, Any]) -> list[str]:

@@ -5,10 +5,28 @@ import re
 
 from snakemake.exceptions import WorkflowError
 
-from metraw.points import parameter_points, target_params
+from metraw.points import NOMINAL, parameter_points, target_params
+from metraw.segment.pretrain import cfa_family, pretrain_settings
+from metraw.target import TargetSystem
 
 POINTS = list(parameter_points(config))
 SOURCE_STORE = "data/source.zarr"
+
+# Pretraining across the box (params.yaml training.pretrain; workflow/rules/segment.smk): the points of the
+# nominal's CFA family fine-tune one pretrained network per replicate; the others train from scratch.
+PRETRAIN = pretrain_settings(config)
+PRETRAINED_MODEL = "results/pretrained/model"
+PRETRAIN_SCENES = "data/pretrain_scenes.zarr"
+PRETRAIN_EXTRA = (
+    [PRETRAIN_SCENES] if PRETRAIN["enabled"] and PRETRAIN["extra_scenes"] > 0 and config["source"]["dataset"] == "synthetic" else []
+)
+
+
+def _family(point):
+    return cfa_family(TargetSystem.from_dict(target_params(config, point)))
+
+
+PRETRAINED_POINTS = {p for p in POINTS if PRETRAIN["enabled"] and _family(p) == _family(NOMINAL)}
 
 # Sim-to-real benchmark (workflow/rules/sim_to_real.smk, when SIM_TO_REAL): the real photos as a store, emulated
 # per point, scored by each point's model; the drone-resolution model scored on the un-emulated store.

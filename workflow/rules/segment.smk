@@ -5,15 +5,77 @@
 # trains one model on the source store's images (it is no point of the sweep).
 
 
+def train_inputs(wildcards):
+    """The point's store and the source; the pretrained model when the point fine-tunes it."""
+    inputs = {"store": f"results/points/{wildcards.point}/target.zarr", "source": SOURCE_STORE}
+    if wildcards.point in PRETRAINED_POINTS:
+        inputs["init"] = PRETRAINED_MODEL
+    return inputs
+
+
+def finetune_args(wildcards, input):
+    return f"--init {input.init} --epochs {PRETRAIN['finetune_epochs']}" if "init" in input.keys() else ""
+
+
+if PRETRAIN["enabled"]:
+
+    if PRETRAIN_EXTRA:
+
+        rule pretrain_scenes:
+            """Synthetic scenes for pretraining only: the source's generator and camera at the next seed, so
+            that no test scene is among them."""
+            output:
+                directory(PRETRAIN_SCENES),
+            params:
+                synthetic=config["source"]["synthetic"],
+                camera=config["source"]["camera"],
+                codec=config["codec"],
+                n=PRETRAIN["extra_scenes"],
+                seed=config["source"]["synthetic"]["seed"] + 1,
+            resources:
+                mem_mb=3000,  # as source_store
+                runtime=60,  # minutes
+            log:
+                "logs/pretrain_scenes.log",
+            shell:
+                "metraw scenes --n {params.n} --seed {params.seed}"
+                " --size {params.synthetic[size_px]} --camera {PARAMS_FILE} --out {output}"
+                " --codec-step {params.codec[step]} --codec-seed {params.codec[seed]} 2> {log}"
+
+    rule pretrain:
+        """One network per replicate on draws across training.pretrain.box (metraw.segment.pretrain); it does not
+        depend on the sweeps, so a changed sweep value reruns only its point."""
+        input:
+            source=SOURCE_STORE,
+            extra=PRETRAIN_EXTRA,
+        output:
+            directory(PRETRAINED_MODEL),
+        params:
+            training=config["training"],
+            codec=config["codec"],
+            nominal=config["target"]["nominal"],  # the box's points are the nominal payload with one change
+            pixel_scaling=config["target"].get("pixel_scaling"),
+            extra=lambda wildcards, input: " ".join(f"--extra {p}" for p in input.extra),
+        threads: lambda wildcards: workflow.cores  # callable: --report and dry runs need no --cores
+        resources:
+            mem_mb=4000,  # the box's fields: ~0.3 MB per scene and point
+            runtime=60,  # minutes
+        log:
+            "logs/pretrain.log",
+        shell:
+            "metraw pretrain {input.source} {params.extra} --codec-step {params.codec[step]} --out {output}"
+            " --params {PARAMS_FILE} 2> {log}"
+
+
 rule train:
     input:
-        store="results/points/{point}/target.zarr",
-        source=SOURCE_STORE,
+        unpack(train_inputs),
     output:
         directory("results/points/{point}/model"),
     params:
         training=config["training"],
         codec=config["codec"],
+        finetune=finetune_args,
     threads: lambda wildcards: workflow.cores  # callable: --report and dry runs need no --cores
     resources:
         mem_mb=1500,  # measured peak RSS with head room (README, SLURM: resources table)
@@ -21,8 +83,8 @@ rule train:
     log:
         "logs/train/{point}.log",
     shell:
-        "metraw train {input.store} --source {input.source} --codec-step {params.codec[step]} --out {output}"
-        " --params {PARAMS_FILE} 2> {log}"
+        "metraw train {input.store} --source {input.source} --codec-step {params.codec[step]} {params.finetune}"
+        " --out {output} --params {PARAMS_FILE} 2> {log}"
 
 
 rule evaluate:

@@ -18,7 +18,7 @@ from metraw.errors import MetrawError
 
 #: Subcommand modules in the order shown by ``metraw --help``.
 COMMANDS = ("info", "ingest", "calibrate", "scenes", "encode", "decode", "verify", "emulate",
-            "train", "evaluate", "predict", "compress", "aggregate", "check", "normalise")
+            "pretrain", "train", "evaluate", "predict", "compress", "aggregate", "check", "normalise")
 
 
 def build_parser() -> argparse.ArgumentParser:

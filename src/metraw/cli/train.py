@@ -24,6 +24,9 @@ def register(subparsers) -> None:
     p.add_argument("--codec-step", type=float, default=None,
                    help="with --source: pass every draw through the noise-preserving codec at this step, as STORE "
                         "was written (default: no codec)")
+    p.add_argument("--init", default=None,
+                   help="with --source: fine-tune a pretrained model directory (`metraw pretrain`): replicate r "
+                        "starts from its replicate r and trains --epochs (default: train from scratch)")
     p.add_argument("--replicates", type=int, default=None,
                    help="override the profile's number of replicate models (seeds seed, seed+1, ...)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output directory")
@@ -39,6 +42,8 @@ def run(args) -> int:
     load_params(args.params, complete=False)  # schema: one line naming a bad or unknown key
     config = load_config(args.params, args.profile)
     if args.epochs is not None:
+        if args.epochs < 1:
+            raise MetrawError(f"--epochs must be >= 1, got {args.epochs}")
         config.epochs = args.epochs
     if args.replicates is not None:
         if args.replicates < 1:
@@ -49,10 +54,12 @@ def run(args) -> int:
         from metraw.segment.onthefly import train_store_on_the_fly
 
         record = train_store_on_the_fly(args.store, args.source, args.out, config, device=args.device,
-                                        progress=progress, overwrite=args.overwrite, codec_step=args.codec_step)
+                                        progress=progress, overwrite=args.overwrite, codec_step=args.codec_step,
+                                        init_dir=args.init)
     else:
-        if args.codec_step is not None:
-            raise MetrawError("--codec-step applies to on-the-fly draws only (give --source)")
+        for name, value in (("--codec-step", args.codec_step), ("--init", args.init)):
+            if value is not None:
+                raise MetrawError(f"{name} applies to on-the-fly draws only (give --source)")
         record = train_store(args.store, args.out, config, device=args.device, progress=progress,
                              overwrite=args.overwrite)
     # timings go to the log (stderr) and stdout, never into DIR (metraw.segment.train.TIMINGS)

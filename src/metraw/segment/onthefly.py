@@ -83,11 +83,20 @@ def fit_draws(fields: list, config: TrainConfig, device: str | None = None,
         raise MetrawError("no training scenes")
     device = device or default_device()
     first = fields[0] if isinstance(fields[0], PhaseField) else fields[0][0]
+    families = {f.target.cfa_pattern == "mono" for scene in fields
+                for f in ([scene] if isinstance(scene, PhaseField) else scene)}
+    if len(families) > 1:
+        raise MetrawError("the training fields mix mono and colour-filter targets: the network's inputs differ "
+                          "(1 full-resolution vs 4 packed channels); train them separately")
     probe = [prepare(first.draw(0), first.index)]
     fixed = [draw_prepared(f, config.seed, 0, codec_step) for f in fields] if static else None
     model, f_up, pool, in_ch = new_network(probe, config, device, upsample)
     if init_state is not None:
-        model.load_state_dict(init_state)
+        try:
+            model.load_state_dict(init_state)
+        except RuntimeError:
+            raise MetrawError("the pretrained weights do not fit this network (another depth, width or input "
+                              "layout): pretrain with the same training profile") from None
     n = len(fields) * draws_per_epoch
     steps_per_epoch = math.ceil(n / config.batch_size)
     rng = rng_from_seed(config.seed)
@@ -130,12 +139,13 @@ def store_target(store) -> TargetSystem:
 
 def train_store_on_the_fly(store_path, source_path, out_dir, config: TrainConfig, device: str | None = None,
                            progress: bool | None = None, overwrite: bool = False,
-                           codec_step: float | None = None) -> dict[str, Any]:
+                           codec_step: float | None = None, init_dir=None) -> dict[str, Any]:
     """Train ``config.replicates`` models on fresh draws of ``source_path``'s training scenes at the target of the
     emulated store ``store_path`` (image i emulated from source image i: same split); write them like
-    ``train.train_store``. The store's own test split stays the fixed test set."""
+    ``train.train_store``. The store's own test split stays the fixed test set. ``init_dir``: a pretrained model
+    directory (``metraw pretrain``): replicate r fine-tunes its replicate r (``config.epochs`` epochs)."""
     from metraw.segment.data import split_indices
-    from metraw.segment.train import fit_replicates, save_replicates, store_digest
+    from metraw.segment.train import fit_replicates, pretrained_states, save_replicates, store_digest
     from metraw.store import RawStore
 
     store = RawStore.open(store_path)
@@ -145,13 +155,16 @@ def train_store_on_the_fly(store_path, source_path, out_dir, config: TrainConfig
                           "it was not emulated from that source")
     target = store_target(store)
     train_idx, test_idx = split_indices(len(store), config.test_fraction, config.split_seed)
+    inits = pretrained_states(init_dir, max(1, config.replicates)) if init_dir is not None else None
     t0 = time.perf_counter()
     fields = build_fields(source, train_idx, target, progress=progress)
     fields_s = time.perf_counter() - t0
     digest = store_digest(store)
     runs = fit_replicates(config, lambda cfg: fit_draws(fields, cfg, device, progress,
+                                                        init_state=None if inits is None else inits[cfg.seed - config.seed],
                                                         draws_per_epoch=cfg.draws_per_epoch, codec_step=codec_step),
                           {"store": str(store_path), "store_digest": digest, "source": str(source_path),
+                           "init": None if init_dir is None else str(init_dir),
                            "n_images": len(store), "train_indices": train_idx.tolist(),
                            "test_indices": test_idx.tolist(), "preprocess_time_s": fields_s})
     save_replicates(out_dir, runs, test_idx, overwrite)

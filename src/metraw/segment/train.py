@@ -438,3 +438,16 @@ def load_model(model_dir: str | os.PathLike, device: str | None = None):
     record_path = model_dir / TRAIN_METRICS
     record = json.loads(record_path.read_text()) if record_path.is_file() else {}
     return model, ckpt, record
+
+
+def pretrained_states(model_dir: str | os.PathLike, n: int) -> list[dict[str, Any]]:
+    """The weights of the first ``n`` replicates of a model directory (``metraw pretrain``'s), in replicate
+    order: replicate r of a point fine-tunes from the r-th."""
+    import torch
+
+    dirs = [Path(model_dir)] + replicate_dirs(model_dir)
+    if not (Path(model_dir) / CHECKPOINT).is_file():
+        raise MetrawError(f"{model_dir} holds no {CHECKPOINT} (pretrain with `metraw pretrain` first)")
+    if len(dirs) < n:
+        raise MetrawError(f"{model_dir} holds {len(dirs)} pretrained replicate(s); {n} are asked for (one per replicate)")
+    return [torch.load(d / CHECKPOINT, map_location="cpu", weights_only=True)["state_dict"] for d in dirs[:n]]

@@ -1,0 +1,115 @@
+"""Pretraining across the tolerance box, fine-tuning per point (issue #15, items 2-3).
+
+Training every point from scratch spends most of the sweep's time teaching each network the same
+things (what a car looks like in noisy packed raw planes) from only the few hundred source scenes a
+point sees. Here one network per replicate learns once from fresh draws of many scenes across a box
+of target parameters (``training.pretrain.box``: parameter -> [low, high]): each scene gets
+``points_per_scene`` points, each the nominal payload with one box parameter drawn log-uniform in its
+range (the study's one-at-a-time structure, without its grid of values), and each of its draws picks one
+of them (``onthefly.draw_prepared``). Each point of the nominal's CFA family then fine-tunes its replicate r
+from pretrained replicate r for a few epochs (``onthefly.train_store_on_the_fly(init_dir=...)``), so
+replicates stay independent trainings. The box is declared on its own, not taken from the sweeps, so
+changing a sweep value reruns only that point (the pretrained networks do not depend on it).
+
+Scenes come from the source store's training split (its test split is every point's test set and is
+never drawn) and, optionally, from stores of further scenes that belong to no test set (another
+generator seed). Their draw streams are told apart by the scene index: the extra stores' scenes are
+numbered after the source's.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any, Callable, Sequence
+
+from metraw.draws import DEFAULT_OVERSAMPLE, build_field
+from metraw.errors import MetrawError
+from metraw.segment.train import TrainConfig
+from metraw.sensor import rng_from_seed
+from metraw.target import TargetSystem
+
+#: ``training.pretrain`` of params.yaml, where it leaves a key out (measured settings: README, issue #15).
+PRETRAIN_DEFAULTS = {"enabled": False, "box": {}, "epochs": 20, "points_per_scene": 4, "finetune_epochs": 5,
+                     "extra_scenes": 0}
+
+
+def pretrain_settings(params: dict[str, Any]) -> dict[str, Any]:
+    """``training.pretrain`` of a params mapping with ``PRETRAIN_DEFAULTS`` filled in."""
+    return {**PRETRAIN_DEFAULTS, **(params.get("training", {}).get("pretrain") or {})}
+
+
+def cfa_family(target: TargetSystem) -> str:
+    """"mono" or "cfa": targets of one family share the network's input layout."""
+    return "mono" if target.cfa_pattern == "mono" else "cfa"
+
+
+def sample_box(box: dict[str, Sequence[float]], n_scenes: int, points_per_scene: int,
+               seed: int) -> list[list[dict[str, float]]]:
+    """Per scene ``points_per_scene`` overrides of the nominal payload, each one parameter of ``box``
+    (name -> [low, high], both > 0) drawn log-uniform in its range; the same for the same arguments."""
+    if not box:
+        raise MetrawError("the pretraining box is empty (training.pretrain.box: parameter -> [low, high])")
+    if points_per_scene < 1:
+        raise MetrawError(f"points_per_scene must be >= 1, got {points_per_scene}")
+    for name, (low, high) in box.items():
+        if not 0 < low < high:
+            raise MetrawError(f"pretraining box {name}: the range [{low}, {high}] must have 0 < low < high")
+    names = list(box)
+    rng = rng_from_seed(seed)
+    out = []
+    for _ in range(n_scenes):
+        axes = rng.integers(0, len(names), size=points_per_scene)
+        u = rng.random(points_per_scene)
+        out.append([{names[a]: float(math.exp(math.log(box[names[a]][0])
+                                             + ui * math.log(box[names[a]][1] / box[names[a]][0])))}
+                    for a, ui in zip(axes, u)])
+    return out
+
+
+def box_fields(scenes: Sequence[tuple[Any, int, int]], targets: Sequence[Sequence[TargetSystem]],
+               oversample: int = DEFAULT_OVERSAMPLE, progress: bool | None = None) -> list[list]:
+    """Per scene (store, image index, draw index) the ``PhaseField`` s at its ``targets`` (all of one CFA family)."""
+    from metraw.progress import progress_bar
+
+    if len({cfa_family(t) for ts in targets for t in ts}) > 1:
+        raise MetrawError("the pretraining box mixes mono and colour-filter targets (the network inputs differ)")
+    disable = None if progress is None else not progress
+    return [[build_field(store[int(i)], t, oversample, index=int(draw_index)) for t in ts]
+            for (store, i, draw_index), ts in progress_bar(list(zip(scenes, targets)), desc="box fields",
+                                                           disable=disable)]
+
+
+def pretrain_stores(source_path, make_target: Callable[[dict[str, float]], TargetSystem], box: dict[str, Sequence[float]],
+                    out_dir, config: TrainConfig, points_per_scene: int, extra_paths: Sequence = (),
+                    device: str | None = None, progress: bool | None = None, overwrite: bool = False,
+                    codec_step: float | None = None) -> dict[str, Any]:
+    """Pretrain ``config.replicates`` networks on ``box`` (``sample_box``, seeded with ``config.seed``;
+    ``make_target`` turns an override into the full target) from the training split of ``source_path``
+    (the split every point's test set comes from) and every scene of ``extra_paths``; write them like
+    ``train.train_store`` (model directory with replicate sub-directories). Returns the first replicate's record."""
+    from metraw.segment.data import split_indices
+    from metraw.segment.onthefly import fit_draws
+    from metraw.segment.train import fit_replicates, save_replicates
+    from metraw.store import RawStore
+
+    source = RawStore.open(source_path)
+    train_idx, test_idx = split_indices(len(source), config.test_fraction, config.split_seed)
+    scenes = [(source, int(i), int(i)) for i in train_idx]
+    first = len(source)
+    for path in extra_paths:
+        extra = RawStore.open(path)
+        scenes += [(extra, i, first + i) for i in range(len(extra))]
+        first += len(extra)
+    overrides = sample_box(box, len(scenes), points_per_scene, config.seed)
+    t0 = time.perf_counter()
+    fields = box_fields(scenes, [[make_target(o) for o in per_scene] for per_scene in overrides], progress=progress)
+    fields_s = time.perf_counter() - t0
+    runs = fit_replicates(config, lambda cfg: fit_draws(fields, cfg, device, progress,
+                                                        draws_per_epoch=cfg.draws_per_epoch, codec_step=codec_step),
+                          {"pretraining": True, "source": str(source_path), "extra_sources": [str(p) for p in extra_paths],
+                           "n_images": len(source), "train_indices": train_idx.tolist(),
+                           "test_indices": test_idx.tolist(), "box": {k: [float(v) for v in r] for k, r in box.items()},
+                           "points_per_scene": int(points_per_scene), "preprocess_time_s": fields_s})
+    save_replicates(out_dir, runs, test_idx, overwrite)
+    return runs[0][2]
