@@ -331,6 +331,7 @@ def test_cli_emulate_writes_store_atomically(tmp_path, capsys):
     full["target"]["nominal"] = dict(NOMINAL)
     # NOMINAL has no path radiance: keep only the sweeps of fields it has (a sweep of another is refused)
     full["target"]["sweeps"] = {k: v for k, v in full["target"]["sweeps"].items() if k in NOMINAL}
+    full["training"]["pretrain"]["box"] = {k: v for k, v in full["training"]["pretrain"]["box"].items() if k in NOMINAL}
     full["target"]["emulation"] = {"mode": "auto", "seed": 0}
     params.write_text(yaml.safe_dump(full))
     src_path = tmp_path / "src.zarr"
