@@ -195,11 +195,12 @@ def main(argv=None) -> int:
                     base.epochs)
     if "box" in sections:
         from metraw.points import target_at
-        from metraw.segment.pretrain import box_fields, cfa_family, pretrain_settings, sample_box
+        from metraw.cfa import cfa_family
+        from metraw.segment.pretrain import box_fields, pretrain_settings, sample_box
 
         settings = pretrain_settings(params)
         finetune_epochs = args.finetune_epochs or settings["finetune_epochs"]
-        family = cfa_family(target("nominal"))
+        family = cfa_family(target("nominal").cfa_pattern)
         # the pretraining's scenes: the source's training scenes and, with --more-scenes, that store's further ones
         scenes = [(store, int(i), int(i)) for i in train_idx]
         scenes += [(more, i, i) for i in range(len(store), len(more))] if more is not None else []
@@ -215,7 +216,7 @@ def main(argv=None) -> int:
             state = {k: v.clone() for k, v in robust.state_dict().items()}
             for p in points:
                 tr, te = fields_for(p)
-                if cfa_family(target(p)) == family:
+                if cfa_family(target(p).cfa_pattern) == family:
                     rows.append({**robust_row, "point": p, **score(robust, te)})
                     print(json.dumps(rows[-1]), flush=True)
                     run("box", p, "fine-tune", len(tr), 1, seed, tr, te, finetune_epochs, init=state)

@@ -124,7 +124,12 @@ def test_dvc_yaml_has_categorical_foreach_and_explicit_grid_stages():
     assert pre in stages["train_nominal"]["deps"] and pre in stages["train_grid_0"]["deps"]
     assert pre in stages["train_focal_length_m"]["do"]["deps"] and pre not in stages["train_cfa_pattern"]["do"]["deps"]
     assert "target.sweeps" not in str(stages["pretrain"]["params"]) and stages["pretrain"]["outs"] == [pre]
+    from metraw.segment.pretrain import draws_extra_scenes, fine_tuned_points
+
+    assert set(fine_tuned_points(params)) == set(parameter_points(params)) - {"cfa_pattern-mono"}
+    assert draws_extra_scenes(params) and "pretrain_scenes" in stages
     params["training"]["pretrain"]["enabled"] = False
+    assert fine_tuned_points(params) == [] and not draws_extra_scenes(params)
     stages = mod.build(params)["stages"]
     assert "pretrain" not in stages and pre not in stages["train_nominal"]["deps"]
 

@@ -5,9 +5,8 @@ import re
 
 from snakemake.exceptions import WorkflowError
 
-from metraw.points import NOMINAL, parameter_points, target_params
-from metraw.segment.pretrain import cfa_family, pretrain_settings
-from metraw.target import TargetSystem
+from metraw.points import parameter_points, target_params
+from metraw.segment.pretrain import draws_extra_scenes, fine_tuned_points, pretrain_settings
 
 POINTS = list(parameter_points(config))
 SOURCE_STORE = "data/source.zarr"
@@ -17,16 +16,8 @@ SOURCE_STORE = "data/source.zarr"
 PRETRAIN = pretrain_settings(config)
 PRETRAINED_MODEL = "results/pretrained/model"
 PRETRAIN_SCENES = "data/pretrain_scenes.zarr"
-PRETRAIN_EXTRA = (
-    [PRETRAIN_SCENES] if PRETRAIN["enabled"] and PRETRAIN["extra_scenes"] > 0 and config["source"]["dataset"] == "synthetic" else []
-)
-
-
-def _family(point):
-    return cfa_family(TargetSystem.from_dict(target_params(config, point)))
-
-
-PRETRAINED_POINTS = {p for p in POINTS if PRETRAIN["enabled"] and _family(p) == _family(NOMINAL)}
+PRETRAIN_EXTRA = [PRETRAIN_SCENES] if draws_extra_scenes(config) else []
+PRETRAINED_POINTS = set(fine_tuned_points(config))
 
 # Sim-to-real benchmark (workflow/rules/sim_to_real.smk, when SIM_TO_REAL): the real photos as a store, emulated
 # per point, scored by each point's model; the drone-resolution model scored on the un-emulated store.

@@ -20,6 +20,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from metraw.cfa import cfa_family
 from metraw.draws import DEFAULT_OVERSAMPLE, PhaseField, build_field
 from metraw.errors import MetrawError
 from metraw.segment.data import batch_crops, prepare
@@ -83,7 +84,7 @@ def fit_draws(fields: list, config: TrainConfig, device: str | None = None,
         raise MetrawError("no training scenes")
     device = device or default_device()
     first = fields[0] if isinstance(fields[0], PhaseField) else fields[0][0]
-    families = {f.target.cfa_pattern == "mono" for scene in fields
+    families = {cfa_family(f.target.cfa_pattern) for scene in fields
                 for f in ([scene] if isinstance(scene, PhaseField) else scene)}
     if len(families) > 1:
         raise MetrawError("the training fields mix mono and colour-filter targets: the network's inputs differ "

@@ -23,6 +23,7 @@ import math
 import time
 from typing import Any, Callable, Sequence
 
+from metraw.cfa import cfa_family
 from metraw.draws import DEFAULT_OVERSAMPLE, build_field
 from metraw.errors import MetrawError
 from metraw.segment.train import TrainConfig
@@ -39,9 +40,22 @@ def pretrain_settings(params: dict[str, Any]) -> dict[str, Any]:
     return {**PRETRAIN_DEFAULTS, **(params.get("training", {}).get("pretrain") or {})}
 
 
-def cfa_family(target: TargetSystem) -> str:
-    """"mono" or "cfa": targets of one family share the network's input layout."""
-    return "mono" if target.cfa_pattern == "mono" else "cfa"
+def fine_tuned_points(params: dict[str, Any]) -> list[str]:
+    """The parameter points whose training fine-tunes the pretrained networks: with pretraining on, those of the
+    nominal's CFA family (a mono network's input differs). The workflow's rules and dvc.yaml both ask here."""
+    from metraw.points import NOMINAL, parameter_points, target_params
+
+    if not pretrain_settings(params)["enabled"]:
+        return []
+    nominal = cfa_family(target_params(params, NOMINAL)["cfa_pattern"])
+    return [p for p in parameter_points(params) if cfa_family(target_params(params, p)["cfa_pattern"]) == nominal]
+
+
+def draws_extra_scenes(params: dict[str, Any]) -> bool:
+    """Whether the pretraining draws ``extra_scenes`` synthetic scenes (a synthetic source only: the generator at the
+    next seed). The workflow's rules and dvc.yaml both ask here."""
+    settings = pretrain_settings(params)
+    return bool(settings["enabled"] and settings["extra_scenes"] > 0 and params["source"]["dataset"] == "synthetic")
 
 
 def sample_box(box: dict[str, Sequence[float]], n_scenes: int, points_per_scene: int,
@@ -72,7 +86,7 @@ def box_fields(scenes: Sequence[tuple[Any, int, int]], targets: Sequence[Sequenc
     """Per scene (store, image index, draw index) the ``PhaseField`` s at its ``targets`` (all of one CFA family)."""
     from metraw.progress import progress_bar
 
-    if len({cfa_family(t) for ts in targets for t in ts}) > 1:
+    if len({cfa_family(t.cfa_pattern) for ts in targets for t in ts}) > 1:
         raise MetrawError("the pretraining box mixes mono and colour-filter targets (the network inputs differ)")
     disable = None if progress is None else not progress
     return [[build_field(store[int(i)], t, oversample, index=int(draw_index)) for t in ts]
