@@ -85,7 +85,7 @@ def mean_se(values):
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--source", required=True)
+    ap.add_argument("--source", default=None, help="source store of the sweep (required unless --tables-from)")
     ap.add_argument("--params", default="params.yaml")
     ap.add_argument("--out", default="benchmarks/results/onthefly")
     ap.add_argument("--scenes", default="60,120,240,384")
@@ -117,6 +117,8 @@ def main(argv=None) -> int:
         print_tables(rows)
         plot(rows, Path(args.out) / "onthefly.png")
         return 0
+    if not args.source:
+        ap.error("--source is required (unless --tables-from prints an earlier run's tables)")
 
     from metraw.points import load_params, parameter_points, target_params
     from metraw.segment.data import split_indices
@@ -370,6 +372,7 @@ def plot(rows, path) -> None:
         ax2.set_xlabel("training draws (scenes x draws/epoch x epochs)")
         ax2.legend()
     fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
 
 
