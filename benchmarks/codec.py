@@ -63,6 +63,20 @@ sparser least-squares lattice in the encoder (the smallest odd stride with <= 16
 Every format-preserving step left is worth a few per cent; the 3x on two cores asks ~1.5x per core, i.e.
 a new stream version whose sequential loop does far less per pixel (a context that costs < 1 % bits yet
 is known before the row, or lanes that SIMD can run side by side).
+
+What such a version would cost in bits (2026-11-26; encoder changed in a scratch copy, bytes of
+``codec.encode`` at steps 1 / 2; bits do not depend on load): one predictor for all activity contexts
+(the contexts keep their tables; the sequential loop would need no per-context coefficients and the
+encoder's prediction becomes a plain stencil): canon_dng +4.2 / +6.1 %, micasense +4.8 / +6.9 %,
+spacenet_pan +1.5 / +2.3 %, synthetic +3.5 / +5.5 %. The predictor's context from the rows above only
+(|N-NW| + |N-NE| + |N-NN| + |NW-NWW| + |NE-NEE|, 8 classes at its own quantiles) while the tables keep the
+full activity, so a pass before the row could compute context and 10 of the 12 taps: +1.1 / +1.5 %,
++1.8 / +2.4 %, +0.3 / +0.3 %, +1.1 / +1.2 %. Both exceed issue #18's 1 % bound on the shared frames. A
+format-preserving route left to try: the decoder's lanes run blocks of columns two blocks apart, so before
+each block a vectorised pass can compute every context's 10-tap sum over the rows above (float64 is exact
+while |tap x value| sums stay below 2^53, i.e. symbols below ~2^17) and the sequential step keeps the
+context, the W and WW taps and rANS (~80 of today's ~164 instructions; the pass ~30 per pixel at 8 contexts):
+~1.5x on decode by that count, not measured, and nothing of the kind for the encoder.
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
     python benchmarks/onthefly.py --source data/source.zarr [--params params.yaml] [--out DIR]
         [--scenes 60,120,240,384] [--seeds 0,1,2] [--epochs 20] [--dpe 1,2,4] [--finetune-epochs 5]
-        [--sections curve,draws,box,levers] [--levers depth3,depth2,...] [--thresholds 0.3] [--codec-step 1.0]
+        [--sections curve,draws,box,ceiling,levers] [--levers depth3,depth2,...] [--thresholds 0.3] [--codec-step 1.0]
         [--more-scenes STORE]
 
 Test set: the source's test split (params ``training.split_seed`` / ``test_fraction``), drawn at each
@@ -21,6 +21,10 @@ Sections:
   ``training.pretrain.box`` for ``training.pretrain.epochs``), then at every point of params.yaml: that robust model,
   it fine-tuned on the point's draws for ``--finetune-epochs`` (points of the nominal's CFA family), and a model
   trained from scratch (the profile's epochs);
+- ``ceiling``: where the nominal IoU goes: the nominal payload's ground sampling (focal length and pitch: GSD
+  0.88 m) with the image's degradations added back one at a time (``CEILING``), from a near-ideal payload (1 m
+  aperture: diffraction 0.33 m and 25x the light; no smear, no haze) to the nominal one, each trained from scratch
+  on its draws (the profile's epochs) and scored on its own test draws;
 - ``levers``: nominal IoU of cheap changes to the profile's training, each on the fly with all training scenes
   (``LEVERS``: U-Net depth, input upsampling, soft-IoU or no overlap term in the loss); every model is also scored
   at the decision thresholds ``--thresholds`` (a diagnostic on the test set, not a tuned rule).
@@ -55,6 +59,17 @@ LEVERS = {
     "depth3-bce": {"depth": 3, "loss": "bce"},
     "depth2-dpe2": {"depth": 2, "draws_per_epoch": 2},
 }
+
+
+#: ``ceiling`` section: (label, overrides of the nominal payload), from a near-ideal payload at the nominal's
+#: ground sampling to the nominal one; each rung adds one degradation back.
+CEILING = (
+    ("ideal: D 1.0 m, no smear, no haze", {"diameter_m": 1.0, "ground_speed_m_per_s": 0.0,
+                                           "atmospheric_transmission": 1.0, "path_radiance_w_m2_sr_m": 0.0}),
+    ("+ smear (6.9 km/s)", {"diameter_m": 1.0, "atmospheric_transmission": 1.0, "path_radiance_w_m2_sr_m": 0.0}),
+    ("+ haze (T 0.8, 2e7 path radiance)", {"diameter_m": 1.0}),
+    ("nominal: + D 0.2 m", {}),
+)
 
 
 def test_set(fields, n_draws: int):
@@ -178,12 +193,13 @@ def main(argv=None) -> int:
 
     if "speed" in sections:
         speed(store, train_idx[:48], target("nominal"))
-    if not sections & {"curve", "draws", "box", "levers"}:
+    if not sections & {"curve", "draws", "box", "ceiling", "levers"}:
         return 0
-    nominal_fields, nominal_test = fields_for("nominal")
-    if more is not None:
-        nominal_fields = nominal_fields + build_fields(more, range(len(store), len(more)), target("nominal"))
-        print(f"# {len(nominal_fields)} training scenes with {args.more_scenes}", file=sys.stderr, flush=True)
+    if sections & {"curve", "draws", "box", "levers"}:
+        nominal_fields, nominal_test = fields_for("nominal")
+        if more is not None:
+            nominal_fields = nominal_fields + build_fields(more, range(len(store), len(more)), target("nominal"))
+            print(f"# {len(nominal_fields)} training scenes with {args.more_scenes}", file=sys.stderr, flush=True)
     if "curve" in sections:
         for n in [int(s) for s in args.scenes.split(",")]:
             for seed in seeds:
@@ -223,6 +239,19 @@ def main(argv=None) -> int:
                     print(json.dumps(rows[-1]), flush=True)
                     run("box", p, "fine-tune", len(tr), 1, seed, tr, te, finetune_epochs, init=state)
                 run("box", p, "scratch", len(tr), 1, seed, tr, te, base.epochs)
+
+    if "ceiling" in sections:
+        from metraw.points import target_at
+
+        for label, overrides in CEILING:
+            rung = TargetSystem.from_dict(target_at(params, overrides))
+            tr = build_fields(store, train_idx, rung)
+            if more is not None:
+                tr += build_fields(more, range(len(store), len(more)), rung)
+            te = test_set(build_fields(store, test_idx, rung), args.test_draws)
+            for seed in seeds:
+                run("ceiling", label, "on-the-fly", len(tr), 1, seed, tr, te, base.epochs)
+            del tr, te
 
     if "levers" in sections:
         for name in levers:
@@ -307,6 +336,8 @@ def print_tables(rows) -> None:
     table(lambda r: r["section"] == "curve", lambda r: f"{r['mode']} {r['n_scenes']} scenes", "learning curve (nominal)")
     table(lambda r: r["section"] == "draws", lambda r: f"{r['draws_per_epoch']} draws/scene/epoch", "draws (nominal)")
     box_table(rows)
+    table(lambda r: r["section"] == "ceiling", lambda r: r["point"],
+          "ceiling ladder (nominal ground sampling 0.88 m; each rung adds one degradation; from scratch)")
     table(lambda r: r["section"] == "levers", lambda r: r["lever"],
           "levers (nominal; IoU at other decision thresholds: a test-set diagnostic)",
           sorted({k for r in rows if r["section"] == "levers" for k in r if k.startswith("iou@")}))
