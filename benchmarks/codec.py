@@ -71,12 +71,16 @@ encoder's prediction becomes a plain stencil): canon_dng +4.2 / +6.1 %, micasens
 spacenet_pan +1.5 / +2.3 %, synthetic +3.5 / +5.5 %. The predictor's context from the rows above only
 (|N-NW| + |N-NE| + |N-NN| + |NW-NWW| + |NE-NEE|, 8 classes at its own quantiles) while the tables keep the
 full activity, so a pass before the row could compute context and 10 of the 12 taps: +1.1 / +1.5 %,
-+1.8 / +2.4 %, +0.3 / +0.3 %, +1.1 / +1.2 %. Both exceed issue #18's 1 % bound on the shared frames. A
-format-preserving route left to try: the decoder's lanes run blocks of columns two blocks apart, so before
-each block a vectorised pass can compute every context's 10-tap sum over the rows above (float64 is exact
-while |tap x value| sums stay below 2^53, i.e. symbols below ~2^17) and the sequential step keeps the
-context, the W and WW taps and rANS (~80 of today's ~164 instructions; the pass ~30 per pixel at 8 contexts):
-~1.5x on decode by that count, not measured, and nothing of the kind for the encoder.
++1.8 / +2.4 %, +0.3 / +0.3 %, +1.1 / +1.2 %. Both exceed issue #18's 1 % bound on the shared frames.
+Tried and measured the same day, not taken: a format-preserving decoder whose lanes run blocks of 16 (or 32)
+columns 18 (34) apart, so that before each block a vectorised pass computes every context's 10-tap sum over
+the rows above (in float64: exact for buffer values below 2^34, checked per block, else the block went the
+general way) and the sequential step keeps only the context, the W and WW taps and rANS. Decoded symbols
+identical on every frame of ``frames()`` at steps 0.5 / 1 / 2, but 1-thread decode CPU / JPEG-LS went from
+0.94-0.99 to 1.02-1.07 (blocks of 16; 32: 1.02-1.09; two alternating rounds each, load ~4 from a workflow run):
+the pass alone cost 13 ms of canon_dng's ~47 (8 contexts x 10 taps x 2 MP), and the sequential part fell only
+from ~43 to ~33 ms: the lanes' dependency chain (context -> table -> rANS -> value -> next context), not the
+instruction count, bounds it.
 """
 
 from __future__ import annotations
