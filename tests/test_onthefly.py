@@ -202,6 +202,16 @@ def test_pretraining_draws_the_training_and_extra_scenes_and_is_deterministic(st
     assert set(rec["test_indices"]).isdisjoint(rec["train_indices"]) and len(rec["test_indices"]) == 2
     assert rec["box"] == {"focal_length_m": [1.2, 2.0]} and rec["points_per_scene"] == 2
     assert rec["replicate_seeds"] == [0, 1]
+    # trained across the box's ground sampling, not at one GSD: the range of the drawn payloads' packed GSDs
+    from metraw.cfa import cell_size
+    from metraw.segment.pretrain import sample_box
+
+    drawn = [o["focal_length_m"] for per in sample_box(rec["box"], 6, 2, rec["config"]["seed"]) for o in per]
+    gsd = [dataclasses.replace(target, focal_length_m=f).gsd_m * cell_size(target.cfa_pattern) for f in drawn]
+    assert rec["train_packed_gsd_m"] == pytest.approx([min(gsd), max(gsd)]) and min(gsd) < max(gsd)
+    import torch
+
+    assert torch.load(root / "p" / CHECKPOINT, weights_only=True)["train_packed_gsd_m"] == rec["train_packed_gsd_m"]
     for rel in (CHECKPOINT, TRAIN_METRICS, f"replicate-1/{CHECKPOINT}"):
         assert (root / "p" / rel).read_bytes() == (root / "q" / rel).read_bytes(), rel
 

@@ -36,6 +36,10 @@ def test_gsd_scale_rules():
                                         "images not resampled")
     scale, matched, note = gsd_scale(None, 0.1)
     assert (scale, matched) == (1.0, False) and "image GSD unknown" in note
+    # a model pretrained across a range of GSDs: inside it as is, outside resampled to the nearer end
+    assert gsd_scale(1.3, [0.9, 3.5]) == (1.0, True, None) and gsd_scale(0.9, [0.9, 3.5]) == (1.0, True, None)
+    assert gsd_scale(0.6, [0.9, 3.5])[0] == pytest.approx(0.6 / 0.9)
+    assert gsd_scale(4.2, (0.9, 3.5))[:2] == (pytest.approx(1.2), True)
 
 
 class _Recorder:

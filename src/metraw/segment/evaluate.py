@@ -22,7 +22,8 @@ content digest recorded in train.json, or by its path for models trained before 
 recorded) its test split; on any other ("foreign") store all its images; ``split`` overrides.
 
 Ground sampling: the model learnt cars at the packed GSD of its training images
-(``train_packed_gsd_m`` in the checkpoint). An image whose packed GSD differs from it by more than
+(``train_packed_gsd_m`` in the checkpoint; a [low, high] range for a model pretrained across a box of
+payloads: ``gsd_scale``). An image whose packed GSD differs from it by more than
 ``GSD_TOLERANCE`` is resampled to it before the network and the logits back to the image's grid
 (``resample_to_gsd``); the factor is recorded per image ("gsd_scale"). Checkpoints without the
 field, or images without a known GSD, are not resampled ("gsd_matched": false and the reason).
@@ -119,7 +120,9 @@ def gsd_scale(image_packed_gsd_m: float | None, train_packed_gsd_m: float | None
 
     1.0 when the two agree within ``tolerance`` (relative) or when either is unknown; ``matched``
     is False only in the latter case, ``reason`` then says which is unknown (``recorded`` False:
-    a checkpoint from before the training GSD was recorded).
+    a checkpoint from before the training GSD was recorded). ``train_packed_gsd_m`` may be a range
+    [low, high] (a model pretrained across a box of payloads): images inside it are not resampled,
+    others are resampled to its nearer end.
     """
     if not recorded:
         return 1.0, False, ("the checkpoint records no training GSD (a model trained before train_packed_gsd_m "
@@ -128,6 +131,9 @@ def gsd_scale(image_packed_gsd_m: float | None, train_packed_gsd_m: float | None
         return 1.0, False, "training GSD unknown (training images without geometry): images not resampled"
     if not image_packed_gsd_m:
         return 1.0, False, "image GSD unknown (profile without geometry, no meta gsd_m): not resampled"
+    if isinstance(train_packed_gsd_m, (list, tuple)):
+        low, high = (float(v) for v in train_packed_gsd_m)
+        train_packed_gsd_m = min(max(float(image_packed_gsd_m), low), high)
     scale = float(f"{float(image_packed_gsd_m) / float(train_packed_gsd_m):.9g}")  # no float noise in records
     return (1.0 if abs(scale - 1.0) <= tolerance else scale), True, None
 
