@@ -20,7 +20,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from metraw.cfa import cfa_family
+from metraw.cfa import cell_size, cfa_family
 from metraw.draws import DEFAULT_OVERSAMPLE, PhaseField, build_field
 from metraw.errors import MetrawError
 from metraw.segment.data import batch_crops, prepare
@@ -83,9 +83,10 @@ def fit_draws(fields: list, config: TrainConfig, device: str | None = None,
     if not fields:
         raise MetrawError("no training scenes")
     device = device or default_device()
-    first = fields[0] if isinstance(fields[0], PhaseField) else fields[0][0]
-    families = {cfa_family(f.target.cfa_pattern) for scene in fields
-                for f in ([scene] if isinstance(scene, PhaseField) else scene)}
+    box = not isinstance(fields[0], PhaseField)
+    every = [f for scene in fields for f in ([scene] if isinstance(scene, PhaseField) else scene)]
+    first = every[0]
+    families = {cfa_family(f.target.cfa_pattern) for f in every}
     if len(families) > 1:
         raise MetrawError("the training fields mix mono and colour-filter targets: the network's inputs differ "
                           "(1 full-resolution vs 4 packed channels); train them separately")
@@ -124,9 +125,18 @@ def fit_draws(fields: list, config: TrainConfig, device: str | None = None,
               "training_time_s": total, "draw_time_s": timing["draw_s"], "device": device, "upsample": f_up,
               "pool": pool, "in_channels": in_ch, "n_train": len(fields), "draws": n * config.epochs,
               "draws_per_epoch": draws_per_epoch, "oversample": first.oversample, "static": static, "codec_step": codec_step,
-              "fine_tuned": init_state is not None, "train_packed_gsd_m": training_packed_gsd_m(probe),
+              "fine_tuned": init_state is not None,
+              # a box trains at every packed GSD of its targets, not at the first draw's
+              "train_packed_gsd_m": packed_gsd_range_m(every) if box else training_packed_gsd_m(probe),
               "on_the_fly": True}
     return model, record
+
+
+def packed_gsd_range_m(fields: Sequence[PhaseField]) -> list[float]:
+    """[lowest, highest] packed-grid GSD [m per packed pixel] of the fields' targets (mosaic GSD x CFA cell side):
+    what a model trained across a box records (evaluate / predict resample only images outside it)."""
+    gsds = [f.target.gsd_m * cell_size(f.target.cfa_pattern) for f in fields]
+    return [float(min(gsds)), float(max(gsds))]
 
 
 def store_target(store) -> TargetSystem:

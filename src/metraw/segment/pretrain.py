@@ -125,17 +125,5 @@ def pretrain_stores(source_path, make_target: Callable[[dict[str, float]], Targe
                            "n_images": len(source), "train_indices": train_idx.tolist(),
                            "test_indices": test_idx.tolist(), "box": {k: [float(v) for v in r] for k, r in box.items()},
                            "points_per_scene": int(points_per_scene), "preprocess_time_s": fields_s})
-    # trained at every packed GSD of the box, not at the first draw's: evaluate / predict resample only outside it
-    gsd_range = packed_gsd_range_m([t for per_scene in fields for t in per_scene])
-    for _, _, record in runs:
-        record["train_packed_gsd_m"] = gsd_range
     save_replicates(out_dir, runs, test_idx, overwrite)
     return runs[0][2]
-
-
-def packed_gsd_range_m(fields) -> list[float] | None:
-    """[lowest, highest] packed-grid GSD [m per packed pixel] of the fields' targets (mosaic GSD x CFA cell side)."""
-    from metraw.cfa import cell_size
-
-    gsds = [f.target.gsd_m * cell_size(f.target.cfa_pattern) for f in fields]
-    return [float(min(gsds)), float(max(gsds))] if gsds else None
