@@ -105,6 +105,7 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default="benchmarks/results/onthefly")
     ap.add_argument("--scenes", default="60,120,240,384")
     ap.add_argument("--seeds", default="0,1,2")
+    ap.add_argument("--workers", type=int, default=2, help="processes building the expected fields (default 2)")
     ap.add_argument("--epochs", type=int, default=None, help="default: the training profile's")
     ap.add_argument("--dpe", default="1,2,4")
     ap.add_argument("--finetune-epochs", type=int, default=None, help="box section (default: training.pretrain.finetune_epochs)")
@@ -184,8 +185,8 @@ def main(argv=None) -> int:
     def fields_for(point):
         if point not in fields_at:
             t0 = time.perf_counter()
-            tr = build_fields(store, train_idx, target(point))
-            te = build_fields(store, test_idx, target(point))
+            tr = build_fields(store, train_idx, target(point), workers=args.workers)
+            te = build_fields(store, test_idx, target(point), workers=args.workers)
             fields_at[point] = (tr, test_set(te, args.test_draws))
             print(f"# fields at {point}: {len(tr)} train scenes, {len(fields_at[point][1])} test images, "
                   f"{time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
@@ -198,7 +199,8 @@ def main(argv=None) -> int:
     if sections & {"curve", "draws", "box", "levers"}:
         nominal_fields, nominal_test = fields_for("nominal")
         if more is not None:
-            nominal_fields = nominal_fields + build_fields(more, range(len(store), len(more)), target("nominal"))
+            nominal_fields = nominal_fields + build_fields(more, range(len(store), len(more)), target("nominal"),
+                                                            workers=args.workers)
             print(f"# {len(nominal_fields)} training scenes with {args.more_scenes}", file=sys.stderr, flush=True)
     if "curve" in sections:
         for n in [int(s) for s in args.scenes.split(",")]:
@@ -225,7 +227,8 @@ def main(argv=None) -> int:
         for seed in seeds:
             overrides = sample_box(settings["box"], len(scenes), settings["points_per_scene"], seed)
             t0 = time.perf_counter()
-            box = box_fields(scenes, [[TargetSystem.from_dict(target_at(params, o)) for o in per] for per in overrides])
+            box = box_fields(scenes, [[TargetSystem.from_dict(target_at(params, o)) for o in per] for per in overrides],
+                             workers=args.workers)
             print(f"# box fields: {len(scenes)} scenes x {settings['points_per_scene']} points, "
                   f"{time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
             robust = run("box", "all", "robust", len(scenes), 1, seed, box, nominal_test, settings["epochs"])
@@ -245,10 +248,10 @@ def main(argv=None) -> int:
 
         for label, overrides in CEILING:
             rung = TargetSystem.from_dict(target_at(params, overrides))
-            tr = build_fields(store, train_idx, rung)
+            tr = build_fields(store, train_idx, rung, workers=args.workers)
             if more is not None:
-                tr += build_fields(more, range(len(store), len(more)), rung)
-            te = test_set(build_fields(store, test_idx, rung), args.test_draws)
+                tr += build_fields(more, range(len(store), len(more)), rung, workers=args.workers)
+            te = test_set(build_fields(store, test_idx, rung, workers=args.workers), args.test_draws)
             for seed in seeds:
                 run("ceiling", label, "on-the-fly", len(tr), 1, seed, tr, te, base.epochs)
             del tr, te

@@ -101,6 +101,46 @@ def test_static_baseline_reuses_one_draw_and_on_the_fly_does_not(stores):
     assert np.array_equal(a.z, draw_prepared(field, 0, 0).z)  # and the same one for the same (seed, epoch)
 
 
+def _same_fields(a, b) -> bool:
+    arrays = lambda f: [*f.field.values(), *(f.sat or {}).values(), f.sub_total, f.sub_count_y, f.sub_count_x]
+    return a.index == b.index and a.target == b.target and all(
+        np.array_equal(x, y) for x, y in zip(arrays(a), arrays(b), strict=True))
+
+
+def test_fields_built_in_worker_processes_equal_the_in_process_ones(stores):
+    from metraw import codec
+    from metraw.segment.onthefly import build_fields
+    from metraw.segment.pretrain import box_fields
+
+    src, _, target = stores
+    store = RawStore.open(src)
+    threads = codec.THREADS
+    one, two = (build_fields(store, [4, 0, 2], target, progress=False, workers=w) for w in (1, 2))
+    assert [f.index for f in two] == [4, 0, 2] and all(_same_fields(a, b) for a, b in zip(one, two, strict=True))
+    coarse = dataclasses.replace(target, focal_length_m=1.2)
+    scenes, targets = [(store, 1, 7), (store, 3, 9)], [[target, coarse], [coarse]]
+    one, two = (box_fields(scenes, targets, progress=False, workers=w) for w in (1, 2))
+    assert [[f.index for f in fs] for fs in two] == [[7, 7], [9]]
+    assert all(_same_fields(a, b) for fa, fb in zip(one, two, strict=True) for a, b in zip(fa, fb, strict=True))
+    assert codec.THREADS == threads  # the workers' single codec thread is theirs only
+    with pytest.raises(MetrawError, match="workers must be >= 1"):
+        build_fields(store, [0], target, workers=0)
+
+
+def test_prefetched_batches_train_the_same_network(stores, monkeypatch):
+    from metraw.segment import train
+    from metraw.segment.onthefly import build_fields, fit_draws
+
+    src, _, target = stores
+    fields = build_fields(RawStore.open(src), range(4), target, progress=False)
+    states = []
+    for depth in (0, 2):
+        monkeypatch.setattr(train, "PREFETCH_BATCHES", depth)
+        model, _ = fit_draws(fields, _cfg(epochs=2), "cpu", False, codec_step=1.0)
+        states.append(model.state_dict())
+    assert all(states[0][k].equal(states[1][k]) for k in states[0])
+
+
 def test_a_box_of_targets_trains_within_a_cfa_family_and_refuses_a_mix(stores):
     from metraw.segment.onthefly import build_fields, fit_draws
 
@@ -139,6 +179,12 @@ def test_cli_on_the_fly_and_its_errors(stores, tmp_path, capsys):
     assert not (tmp_path / "m2").exists()
     assert main(["train", str(tgt), "--codec-step", "1", "--out", str(tmp_path / "m3"), "--params", str(params)]) == 2
     assert "--codec-step applies to on-the-fly draws only" in capsys.readouterr().err
+    assert main(["train", str(tgt), "--workers", "2", "--out", str(tmp_path / "m3"), "--params", str(params)]) == 2
+    assert "--workers applies to on-the-fly draws only" in capsys.readouterr().err
+    assert main(["train", str(tgt), "--source", str(src), "--workers", "0", "--out", str(tmp_path / "m3"),
+                 "--params", str(params)]) == 2
+    assert "--workers must be >= 1, got 0" in capsys.readouterr().err
+    assert not (tmp_path / "m3").exists()
 
 
 def _parameters(state):
@@ -258,7 +304,8 @@ def test_cli_pretrain_over_the_params_box_then_fine_tune(stores, tmp_path, capsy
                  "--out", str(tmp_path / "m"), "--params", str(PARAMS)]) == 0
     assert json.loads((tmp_path / "m" / "train.json").read_text())["init"] == str(out)
     for bad, message in ((["--epochs", "0"], "--epochs must be >= 1"),
-                         (["--points-per-scene", "0"], "--points-per-scene must be >= 1")):
+                         (["--points-per-scene", "0"], "--points-per-scene must be >= 1"),
+                         (["--workers", "0"], "--workers must be >= 1")):
         assert main(["pretrain", str(src), "--out", str(tmp_path / "bad"), "--params", str(PARAMS), *bad]) == 2
         assert message in capsys.readouterr().err
     assert main(["train", str(tgt), "--init", str(out), "--out", str(tmp_path / "m4"), "--params", str(PARAMS)]) == 2

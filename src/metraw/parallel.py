@@ -24,3 +24,54 @@ def ordered_map(fn: Callable[[T], R], items: Iterable[T], workers: int, chunksiz
     ctx = mp.get_context("fork" if os.name == "posix" else "spawn")
     with ctx.Pool(min(workers, len(items))) as pool:
         yield from pool.imap(fn, items, chunksize=chunksize)
+
+
+def prefetch(items: Iterable[T], depth: int = 2) -> Iterator[T]:
+    """Yield ``items`` in their order, each made up to ``depth`` ahead by one background thread.
+
+    The producer's work overlaps the consumer's wherever either releases the GIL (numpy, the codec's
+    numba kernels, torch operators). One thread makes the items one after the other, so a generator
+    drawing from a seeded generator yields the same items as without prefetching. An exception of the
+    producer is raised in the consumer at its place in the sequence; a consumer that stops early stops
+    the producer (after the item it is making).
+    """
+    import queue
+    import threading
+
+    if depth < 1:
+        raise ValueError(f"depth must be >= 1, got {depth}")
+    slots: queue.Queue = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+    end = object()
+
+    def put(entry) -> bool:
+        while not stop.is_set():
+            try:
+                slots.put(entry, timeout=0.05)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def produce() -> None:
+        try:
+            for item in items:
+                if not put((item, None)):
+                    return
+            put((end, None))
+        except BaseException as error:  # handed to the consumer, raised there
+            put((None, error))
+
+    worker = threading.Thread(target=produce, name="metraw-prefetch", daemon=True)
+    worker.start()
+    try:
+        while True:
+            item, error = slots.get()
+            if error is not None:
+                raise error
+            if item is end:
+                return
+            yield item
+    finally:
+        stop.set()
+        worker.join()

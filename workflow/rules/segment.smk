@@ -64,7 +64,7 @@ if PRETRAIN["enabled"]:
             "logs/pretrain.log",
         shell:
             "metraw pretrain {input.source} {params.extra} --codec-step {params.codec[step]} --out {output}"
-            " --params {PARAMS_FILE} 2> {log}"
+            " --params {PARAMS_FILE} --workers {threads} 2> {log}"
 
 
 rule train:
@@ -84,7 +84,7 @@ rule train:
         "logs/train/{point}.log",
     shell:
         "metraw train {input.store} --source {input.source} --codec-step {params.codec[step]} {params.finetune}"
-        " --out {output} --params {PARAMS_FILE} 2> {log}"
+        " --out {output} --params {PARAMS_FILE} --workers {threads} 2> {log}"
 
 
 rule evaluate:

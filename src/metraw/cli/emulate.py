@@ -115,10 +115,6 @@ def _emulated(job: _Job, n: int, workers: int):
     from metraw import codec
     from metraw.parallel import ordered_map
 
-    threads = codec.THREADS
-    if workers > 1:
-        codec.THREADS = 1  # each process decodes its source images on one thread: the processes fill the cores
-    try:
+    # with workers, each process decodes its source images on one thread: the processes fill the cores
+    with codec.threads(1 if workers > 1 else codec.THREADS):
         yield from ordered_map(job, range(n), workers, chunksize=4)
-    finally:
-        codec.THREADS = threads

@@ -27,6 +27,8 @@ def register(subparsers) -> None:
     p.add_argument("--codec-step", type=float, default=None,
                    help="pass every draw through the noise-preserving codec at this step (default: no codec)")
     p.add_argument("--replicates", type=int, default=None, help="override the profile's number of replicates")
+    p.add_argument("--workers", type=int, default=2,
+                   help="processes building the box's expected fields (the models do not depend on it; default 2)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output directory")
     p.add_argument("--progress", action="store_true", help="show progress bars even when not on a terminal")
     p.set_defaults(func=run)
@@ -44,7 +46,7 @@ def run(args) -> int:
     settings = pretrain_settings(params)
     config.epochs = args.epochs if args.epochs is not None else settings["epochs"]
     k = args.points_per_scene if args.points_per_scene is not None else settings["points_per_scene"]
-    for name, value in (("--epochs", config.epochs), ("--points-per-scene", k)):
+    for name, value in (("--epochs", config.epochs), ("--points-per-scene", k), ("--workers", args.workers)):
         if value < 1:
             raise MetrawError(f"{name} must be >= 1, got {value}")
     if args.replicates is not None:
@@ -54,7 +56,7 @@ def run(args) -> int:
     record = pretrain_stores(args.source, lambda overrides: TargetSystem.from_dict(target_at(params, overrides)),
                              settings["box"], args.out, config, k, args.extra, device=args.device,
                              progress=True if args.progress else None, overwrite=args.overwrite,
-                             codec_step=args.codec_step)
+                             codec_step=args.codec_step, workers=args.workers)
     times = record.get("replicate_training_time_s", [record["training_time_s"]])
     print(f"metraw pretrain: {record['n_train']} scenes x {k} points of the box ({', '.join(settings['box'])}), "
           f"{record['epochs']} epoch(s), {len(times)} replicate(s) in {sum(times):.2f} s "

@@ -29,6 +29,9 @@ def register(subparsers) -> None:
                         "starts from its replicate r and trains --epochs (default: train from scratch)")
     p.add_argument("--replicates", type=int, default=None,
                    help="override the profile's number of replicate models (seeds seed, seed+1, ...)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="with --source: processes building the scenes' expected fields (the models do not depend "
+                        "on it; default 2)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output directory")
     p.add_argument("--progress", action="store_true", help="show progress bars even when not on a terminal")
     p.set_defaults(func=run)
@@ -50,14 +53,16 @@ def run(args) -> int:
             raise MetrawError(f"--replicates must be >= 1, got {args.replicates}")
         config.replicates = args.replicates
     progress = True if args.progress else None
+    if args.workers is not None and args.workers < 1:
+        raise MetrawError(f"--workers must be >= 1, got {args.workers}")
     if args.source is not None:
         from metraw.segment.onthefly import train_store_on_the_fly
 
         record = train_store_on_the_fly(args.store, args.source, args.out, config, device=args.device,
                                         progress=progress, overwrite=args.overwrite, codec_step=args.codec_step,
-                                        init_dir=args.init)
+                                        init_dir=args.init, workers=2 if args.workers is None else args.workers)
     else:
-        for name, value in (("--codec-step", args.codec_step), ("--init", args.init)):
+        for name, value in (("--codec-step", args.codec_step), ("--init", args.init), ("--workers", args.workers)):
             if value is not None:
                 raise MetrawError(f"{name} applies to on-the-fly draws only (give --source)")
         record = train_store(args.store, args.out, config, device=args.device, progress=progress,

@@ -18,6 +18,7 @@ Only the pixel array is coded; ``mask`` and ``flags`` are not part of the blob.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import threading
@@ -33,7 +34,7 @@ from metraw.errors import MetrawError
 from metraw.image import RawImage
 from metraw.profile import CalibrationProfile
 
-__all__ = ["encode", "decode", "ProfileMismatchWarning", "measured_noise_sigma", "THREADS"]
+__all__ = ["encode", "decode", "ProfileMismatchWarning", "measured_noise_sigma", "THREADS", "threads"]
 
 #: Threads for tile-parallel coding, the calling thread included (the numba kernels release the GIL).
 THREADS = 2
@@ -46,6 +47,20 @@ TILES = 2
 TILE_PIXELS = 5_000_000
 #: Relative difference between measured and claimed noise that triggers a warning.
 MISMATCH_TOLERANCE = 0.2
+
+
+@contextlib.contextmanager
+def threads(n: int):
+    """``THREADS`` = ``n`` inside the block (worker processes forked inside it inherit it: processes that fill
+    the cores each code on one thread); restored after it. The bytes do not depend on it."""
+    global THREADS
+    if n < 1:
+        raise ValueError(f"codec threads must be >= 1, got {n}")
+    before, THREADS = THREADS, int(n)
+    try:
+        yield
+    finally:
+        THREADS = before
 
 
 _POOLS: dict[int, ThreadPoolExecutor] = {}

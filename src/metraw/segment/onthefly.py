@@ -30,13 +30,50 @@ from metraw.target import TargetSystem
 
 
 def build_fields(store, indices: Sequence[int], target, oversample: int = DEFAULT_OVERSAMPLE,
-                 progress: bool | None = None) -> list[PhaseField]:
-    """``PhaseField`` of source images ``indices`` of a RawStore seen by ``target``."""
+                 progress: bool | None = None, workers: int = 1) -> list[PhaseField]:
+    """``PhaseField`` of source images ``indices`` of a RawStore seen by ``target`` (``scene_fields``)."""
+    return [f for (f,) in scene_fields([(store, int(i), int(i), [target]) for i in indices], oversample,
+                                       progress, workers)]
+
+
+def scene_fields(jobs: Sequence[tuple[Any, int, int, Sequence[TargetSystem]]], oversample: int = DEFAULT_OVERSAMPLE,
+                 progress: bool | None = None, workers: int = 1, desc: str = "expected fields") -> list[list[PhaseField]]:
+    """Per job (RawStore, image index, draw index, targets) the ``PhaseField`` s of that image at its targets, in
+    job order (the image is read once for all of them). ``workers`` > 1: in that many worker processes, each
+    reading the stores by path and decoding on one codec thread (``metraw.codec.threads``); the fields do not
+    depend on ``workers``. The draw index seeds the scene's draws (``draw_rng``)."""
+    from metraw import codec
+    from metraw.parallel import ordered_map
     from metraw.progress import progress_bar
 
+    if workers < 1:
+        raise MetrawError(f"workers must be >= 1, got {workers}")
+    stores = {str(store.path): store for store, *_ in jobs}
+    job = _SceneFields(stores, oversample)
+    items = [(str(store.path), int(i), int(index), list(targets)) for store, i, index, targets in jobs]
     disable = None if progress is None else not progress
-    return [build_field(store[int(i)], target, oversample, index=int(i))
-            for i in progress_bar(list(indices), desc="expected fields", disable=disable)]
+    with codec.threads(1 if workers > 1 else codec.THREADS):
+        return list(progress_bar(ordered_map(job, items, workers, chunksize=4), total=len(items), desc=desc,
+                                 disable=disable))
+
+
+class _SceneFields:
+    """``scene_fields``' job, picklable for worker processes: they reopen the stores by path (once per task)."""
+
+    def __init__(self, stores: dict, oversample: int):
+        self.stores, self.oversample = stores, int(oversample)
+
+    def __getstate__(self):
+        return {"stores": {}, "oversample": self.oversample}
+
+    def __call__(self, item) -> list[PhaseField]:
+        from metraw.store import RawStore
+
+        path, i, index, targets = item
+        if path not in self.stores:
+            self.stores[path] = RawStore.open(path)
+        image = self.stores[path][i]
+        return [build_field(image, t, self.oversample, index=index) for t in targets]
 
 
 def draw_rng(seed: int, epoch: int, index: int) -> np.random.Generator:
@@ -150,11 +187,12 @@ def store_target(store) -> TargetSystem:
 
 def train_store_on_the_fly(store_path, source_path, out_dir, config: TrainConfig, device: str | None = None,
                            progress: bool | None = None, overwrite: bool = False,
-                           codec_step: float | None = None, init_dir=None) -> dict[str, Any]:
+                           codec_step: float | None = None, init_dir=None, workers: int = 1) -> dict[str, Any]:
     """Train ``config.replicates`` models on fresh draws of ``source_path``'s training scenes at the target of the
     emulated store ``store_path`` (image i emulated from source image i: same split); write them like
     ``train.train_store``. The store's own test split stays the fixed test set. ``init_dir``: a pretrained model
-    directory (``metraw pretrain``): replicate r fine-tunes its replicate r (``config.epochs`` epochs)."""
+    directory (``metraw pretrain``): replicate r fine-tunes its replicate r (``config.epochs`` epochs). ``workers``:
+    processes building the scenes' expected fields (``scene_fields``)."""
     from metraw.segment.data import split_indices
     from metraw.segment.train import fit_replicates, pretrained_states, save_replicates, store_digest
     from metraw.store import RawStore
@@ -168,7 +206,7 @@ def train_store_on_the_fly(store_path, source_path, out_dir, config: TrainConfig
     train_idx, test_idx = split_indices(len(store), config.test_fraction, config.split_seed)
     inits = pretrained_states(init_dir, max(1, config.replicates)) if init_dir is not None else None
     t0 = time.perf_counter()
-    fields = build_fields(source, train_idx, target, progress=progress)
+    fields = build_fields(source, train_idx, target, progress=progress, workers=workers)
     fields_s = time.perf_counter() - t0
     digest = store_digest(store)
     runs = fit_replicates(config, lambda cfg: fit_draws(fields, cfg, device, progress,

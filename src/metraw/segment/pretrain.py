@@ -24,7 +24,7 @@ import time
 from typing import Any, Callable, Sequence
 
 from metraw.cfa import cfa_family
-from metraw.draws import DEFAULT_OVERSAMPLE, build_field
+from metraw.draws import DEFAULT_OVERSAMPLE
 from metraw.errors import MetrawError
 from metraw.segment.train import TrainConfig
 from metraw.sensor import rng_from_seed
@@ -82,26 +82,26 @@ def sample_box(box: dict[str, Sequence[float]], n_scenes: int, points_per_scene:
 
 
 def box_fields(scenes: Sequence[tuple[Any, int, int]], targets: Sequence[Sequence[TargetSystem]],
-               oversample: int = DEFAULT_OVERSAMPLE, progress: bool | None = None) -> list[list]:
-    """Per scene (store, image index, draw index) the ``PhaseField`` s at its ``targets`` (all of one CFA family)."""
-    from metraw.progress import progress_bar
+               oversample: int = DEFAULT_OVERSAMPLE, progress: bool | None = None, workers: int = 1) -> list[list]:
+    """Per scene (store, image index, draw index) the ``PhaseField`` s at its ``targets`` (all of one CFA family;
+    ``onthefly.scene_fields``: ``workers`` processes)."""
+    from metraw.segment.onthefly import scene_fields
 
     if len({cfa_family(t.cfa_pattern) for ts in targets for t in ts}) > 1:
         raise MetrawError("the pretraining box mixes mono and colour-filter targets (the network inputs differ)")
-    disable = None if progress is None else not progress
-    return [[build_field(store[int(i)], t, oversample, index=int(draw_index)) for t in ts]
-            for (store, i, draw_index), ts in progress_bar(list(zip(scenes, targets)), desc="box fields",
-                                                           disable=disable)]
+    return scene_fields([(store, i, draw_index, ts) for (store, i, draw_index), ts in zip(scenes, targets)],
+                        oversample, progress, workers, desc="box fields")
 
 
 def pretrain_stores(source_path, make_target: Callable[[dict[str, float]], TargetSystem], box: dict[str, Sequence[float]],
                     out_dir, config: TrainConfig, points_per_scene: int, extra_paths: Sequence = (),
                     device: str | None = None, progress: bool | None = None, overwrite: bool = False,
-                    codec_step: float | None = None) -> dict[str, Any]:
+                    codec_step: float | None = None, workers: int = 1) -> dict[str, Any]:
     """Pretrain ``config.replicates`` networks on ``box`` (``sample_box``, seeded with ``config.seed``;
     ``make_target`` turns an override into the full target) from the training split of ``source_path``
     (the split every point's test set comes from) and every scene of ``extra_paths``; write them like
-    ``train.train_store`` (model directory with replicate sub-directories). Returns the first replicate's record."""
+    ``train.train_store`` (model directory with replicate sub-directories). Returns the first replicate's record.
+    ``workers``: processes building the box's expected fields (``box_fields``)."""
     from metraw.segment.data import split_indices
     from metraw.segment.onthefly import fit_draws
     from metraw.segment.train import fit_replicates, save_replicates
@@ -117,7 +117,8 @@ def pretrain_stores(source_path, make_target: Callable[[dict[str, float]], Targe
         first += len(extra)
     overrides = sample_box(box, len(scenes), points_per_scene, config.seed)
     t0 = time.perf_counter()
-    fields = box_fields(scenes, [[make_target(o) for o in per_scene] for per_scene in overrides], progress=progress)
+    fields = box_fields(scenes, [[make_target(o) for o in per_scene] for per_scene in overrides], progress=progress,
+                        workers=workers)
     fields_s = time.perf_counter() - t0
     runs = fit_replicates(config, lambda cfg: fit_draws(fields, cfg, device, progress,
                                                         draws_per_epoch=cfg.draws_per_epoch, codec_step=codec_step),

@@ -29,6 +29,7 @@ import numpy as np
 
 from metraw.cfa import cell_size
 from metraw.errors import MetrawError
+from metraw.parallel import prefetch
 from metraw.segment.data import PreparedImage, batch_crops, check_transforms, prepare_store, split_indices
 from metraw.sensor import rng_from_seed
 
@@ -42,6 +43,10 @@ PRECISIONS = ("float32", "bfloat16")
 LOSSES = ("bce+dice", "bce+iou", "bce")
 #: ``crops_per_image`` value: enough crops to cover each image's working-grid area once per epoch.
 COVER = "cover"
+#: Training batches made ahead by a background thread while the network trains on the current one
+#: (``metraw.parallel.prefetch``: the on-the-fly draws overlap torch; the same batches in the same order).
+#: 0: made in turn with the training steps.
+PREFETCH_BATCHES = 2
 #: Wall-clock fields of the training record: returned by ``fit``/``train_store``, left out of train.json.
 TIMINGS = ("training_time_s", "preprocess_time_s", "draw_time_s", "replicate_training_time_s")
 
@@ -69,7 +74,9 @@ class TrainConfig:
     ``draws_per_epoch``: fresh target draws per scene per epoch when training on the fly from the source
     (``metraw.segment.onthefly``; ignored when training on a store's fixed images).
     ``threads``: torch CPU threads, fixed here and not taken from the machine or the workflow's
-    ``--cores``: the thread count changes the kernels' summation order, hence the weights' bytes.
+    ``--cores``: the thread count changes the kernels' summation order, hence the weights' bytes. The batches
+    are made in a background thread beside them (``PREFETCH_BATCHES``): on small satellite crops 1 torch thread
+    and the draws' thread fill 2 cores best (the ``default`` profile), on drone crops 2 torch threads.
     ``precision``: arithmetic of the training passes: "float32", or "bfloat16" (autocast: convolutions in
     bfloat16 with float32 weights, optimiser and loss; on CPUs with AMX, or on a GPU, the network's passes
     run ~1.6x faster, which pays where they dominate a step: see the README). Evaluation and prediction
@@ -264,7 +271,8 @@ def train_loop(model, epoch_batches, steps_per_epoch: int, config: TrainConfig, 
         for epoch in bar:
             model.train()
             run, n = 0.0, 0
-            for x, y in epoch_batches(epoch):
+            batches = epoch_batches(epoch)
+            for x, y in (prefetch(batches, PREFETCH_BATCHES) if PREFETCH_BATCHES else batches):
                 x = torch.as_tensor(x).to(device)
                 y = torch.as_tensor(y).to(device)
                 with torch.autocast(dev_type, dtype=torch.bfloat16, enabled=autocast):

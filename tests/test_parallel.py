@@ -1,0 +1,82 @@
+"""metraw.parallel: ordered process map and background prefetching keep order, seeds and errors."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from metraw import codec
+from metraw.parallel import ordered_map, prefetch
+
+
+def _square(x: int) -> int:
+    return x * x
+
+
+def test_ordered_map_gives_the_same_results_in_order_for_any_worker_count():
+    assert list(ordered_map(_square, range(9), 1)) == list(ordered_map(_square, range(9), 2, chunksize=2)) == [
+        x * x for x in range(9)]
+
+
+def test_prefetch_yields_a_seeded_generator_unchanged_and_runs_ahead_in_another_thread():
+    def draws(seed, made, threads):
+        rng = np.random.default_rng(seed)
+        for _ in range(20):
+            threads.add(threading.get_ident())
+            made.append(1)
+            yield rng.normal(size=3)
+
+    plain = list(draws(5, [], set()))
+    made, threads = [], set()
+    got = []
+    for item in prefetch(draws(5, made, threads), depth=2):
+        got.append(item)
+        if len(got) == 3:
+            time.sleep(0.2)  # the consumer is busy: the producer makes the next items meanwhile, at most depth + 1
+            assert len(made) in (3 + 2, 3 + 3), len(made)
+    assert len(got) == 20 and all(np.array_equal(a, b) for a, b in zip(got, plain))
+    assert threads == {next(iter(threads))} != {threading.get_ident()}  # one background thread made them all
+
+
+def test_prefetch_raises_the_producers_error_in_place_and_an_early_stop_stops_the_producer():
+    def failing():
+        yield 1
+        yield 2
+        raise ValueError("bad item 3")
+
+    got = []
+    with pytest.raises(ValueError, match="bad item 3"):
+        for item in prefetch(failing()):
+            got.append(item)
+    assert got == [1, 2]
+
+    made = []
+
+    def endless():
+        while True:
+            made.append(1)
+            yield len(made)
+
+    for item in prefetch(endless(), depth=1):
+        if item == 4:
+            break
+    n = len(made)
+    time.sleep(0.2)
+    assert n <= 4 + 2 and len(made) == n  # stopped: nothing made after the consumer left
+    with pytest.raises(ValueError, match="depth must be >= 1"):
+        next(prefetch(iter([1]), depth=0))
+
+
+def test_codec_threads_is_restored_after_the_block_even_on_error():
+    before = codec.THREADS
+    with pytest.raises(RuntimeError):
+        with codec.threads(1):
+            assert codec.THREADS == 1
+            raise RuntimeError
+    assert codec.THREADS == before
+    with pytest.raises(ValueError, match=">= 1"):
+        with codec.threads(0):
+            pass
