@@ -1,5 +1,6 @@
-"""Ordered parallel map over worker processes (fork where available): results in input order, so
-outputs do not depend on the number of workers when each item carries its own seed."""
+"""Parallel helpers whose results do not depend on the parallelism: an ordered map over worker
+processes (fork where available; outputs independent of the number of workers when each item carries
+its own seed), and ``prefetch``, which makes a sequence's items ahead in one background thread."""
 
 from __future__ import annotations
 
