@@ -139,6 +139,8 @@ def fit_draws(fields: list, config: TrainConfig, device: str | None = None,
     n = len(fields) * draws_per_epoch
     steps_per_epoch = math.ceil(n / config.batch_size)
     rng = rng_from_seed(config.seed)
+    # wall time spent making the batches; they are made in train_loop's prefetch thread, beside the training steps,
+    # so it overlaps training_time_s (not a part of it to subtract)
     timing = {"draw_s": 0.0}
 
     def epoch_batches(epoch):
