@@ -187,6 +187,63 @@ def test_cli_on_the_fly_and_its_errors(stores, tmp_path, capsys):
     assert not (tmp_path / "m3").exists()
 
 
+def test_a_store_of_the_test_split_alone_trains_and_scores_like_the_whole_store(stores, tmp_path, capsys):
+    """`metraw emulate --images test` writes only the source's test split, byte-identical to those images of the
+    whole store; on-the-fly training (which draws from the source) and its evaluation do not change with it."""
+    import yaml
+
+    from metraw.cli import main
+    from metraw.segment.data import source_indices, split_indices
+    from metraw.segment.evaluate import evaluate_store
+    from metraw.segment.onthefly import train_store_on_the_fly
+    from metraw.segment.train import CHECKPOINT, train_store
+
+    src = stores[0]
+    params = yaml.safe_load(PARAMS.read_text())
+    params["training"]["test_fraction"] = 0.34
+    pfile = tmp_path / "params.yaml"
+    pfile.write_text(yaml.safe_dump(params))
+    for images in ("all", "test"):
+        assert main(["emulate", str(src), str(tmp_path / f"{images}.zarr"), "--params", str(pfile), "--point",
+                     "focal_length_m=2.0", "--images", images, "--workers", "1"]) == 0
+        assert f"({images})" in capsys.readouterr().out
+    full, test = RawStore.open(tmp_path / "all.zarr"), RawStore.open(tmp_path / "test.zarr")
+    _, test_idx = split_indices(6, 0.34, 0)
+    assert len(full) == 6 and len(test) == len(test_idx) == 2
+    assert source_indices(full)[0].tolist() == list(range(6)) and source_indices(full)[1] == 6
+    assert source_indices(test)[0].tolist() == test_idx.tolist() and source_indices(test)[1] == 6
+    for pos, i in enumerate(test_idx):  # image i uses seed (seed, i) in either store
+        assert np.array_equal(test[pos].data, full[i].data) and test[pos].provenance == full[i].provenance
+    cfg = _cfg(replicates=1)
+    for images in ("all", "test"):
+        train_store_on_the_fly(tmp_path / f"{images}.zarr", src, tmp_path / f"m-{images}", cfg, device="cpu",
+                               progress=False, codec_step=1.0)
+    assert (tmp_path / "m-all" / CHECKPOINT).read_bytes() == (tmp_path / "m-test" / CHECKPOINT).read_bytes()
+    m_full = evaluate_store(tmp_path / "all.zarr", tmp_path / "m-all", device="cpu", progress=False)
+    m_test = evaluate_store(tmp_path / "test.zarr", tmp_path / "m-test", device="cpu", progress=False)
+    assert m_full["split"] == m_test["split"] == "test" and m_test["n_images"] == 2
+    assert [r["iou"] for r in m_full["per_image"]] == [r["iou"] for r in m_test["per_image"]]
+    assert m_full["iou"] == m_test["iou"]
+    # a model trained beside one store scores the other's test split too (the split is by source image)
+    cross = evaluate_store(tmp_path / "test.zarr", tmp_path / "m-all", device="cpu", progress=False, split="test")
+    assert cross["iou"] == m_full["iou"] and not cross["training_store"]
+    # the store's own fixed images cannot train a model: they are the test set
+    with pytest.raises(MetrawError, match="holds 2 of its source's 6 images"):
+        train_store(tmp_path / "test.zarr", tmp_path / "m-fixed", cfg, device="cpu", progress=False)
+    # a store of another split's test images (split seed 1: source images 0 and 4) lacks this split's: one
+    # line, nothing written
+    params["training"]["split_seed"] = 1
+    pfile.write_text(yaml.safe_dump(params))
+    assert main(["emulate", str(src), str(tmp_path / "other.zarr"), "--params", str(pfile), "--point",
+                 "focal_length_m=2.0", "--images", "test", "--workers", "1"]) == 0
+    assert source_indices(RawStore.open(tmp_path / "other.zarr"))[0].tolist() == [0, 4]
+    with pytest.raises(MetrawError, match="lacks 2 of the 2 test images"):
+        train_store_on_the_fly(tmp_path / "other.zarr", src, tmp_path / "m-other", cfg, device="cpu", progress=False)
+    assert not (tmp_path / "m-other").exists()
+    with pytest.raises(MetrawError, match="lacks 2 of the 2 test images"):
+        evaluate_store(tmp_path / "other.zarr", tmp_path / "m-all", device="cpu", progress=False, split="test")
+
+
 def _parameters(state):
     """The trained parameters of a state dict (batch-norm running statistics move whatever the learning rate)."""
     return {k: v for k, v in state.items() if not k.endswith(("running_mean", "running_var", "num_batches_tracked"))}

@@ -55,11 +55,14 @@ def test_dry_run_lists_the_real_jobs(tmp_path, enabled):
     root = make_workspace(tmp_path, sim_to_real_params(tiny_params(), "real", enabled))
     jobs, text = _dry(root)
     assert jobs == _chain_jobs() + _real_jobs(), jobs
-    # the real store is ingested like the kit_ais source; each point's emulation has the emulate rule's flags
+    # the real store is ingested like the kit_ais source; each point's emulation has the emulate rule's flags, but
+    # emulates every real image (the synthetic store holds the test split only: training draws from the source)
     assert re.search(r"metraw ingest real --labels yolo --camera \S+ --gsd-m 0.135 --white-fraction 1.0 --seed 0 "
                      r"--out data/real.zarr --codec-step 1.0 --codec-seed 0", text), text
     emulate = re.search(r"metraw emulate data/source.zarr results/points/nominal/target.zarr (.*?) 2>", text).group(1)
-    assert f"metraw emulate data/real.zarr results/points/nominal/real.zarr {emulate} 2>" in text
+    assert "--images test" in emulate
+    assert (f"metraw emulate data/real.zarr results/points/nominal/real.zarr "
+            f"{emulate.replace('--images test', '--images all')} 2>") in text
     assert ("metraw evaluate results/points/nominal/real.zarr --model results/points/nominal/model --split all "
             "--out results/points/nominal/real_metrics.json") in text
     assert ("metraw evaluate data/real.zarr --model results/source/model --split all "

@@ -29,6 +29,9 @@ rule emulate:
         target=point_target,
         point=point_overrides,
         emulation=config["target"].get("emulation", {}),
+        images=config["target"].get("emulation", {}).get("images", "all"),
+        # the test split (images: test) is the training section's; a change to it re-emulates
+        split={k: config["training"][k] for k in ("split_seed", "test_fraction") if k in config["training"]},
         codec=config["codec"],
     threads: 1  # one process per point; the points share the cores (see emulation_priority)
     priority: emulation_priority
@@ -39,5 +42,5 @@ rule emulate:
         "logs/emulate/{point}.log",
     shell:
         "metraw emulate {input} {output} --params {PARAMS_FILE} --point '{params.point}'"
-        " --mode {params.emulation[mode]} --seed {params.emulation[seed]} --workers {threads}"
+        " --mode {params.emulation[mode]} --seed {params.emulation[seed]} --images {params.images} --workers {threads}"
         " --codec-step {params.codec[step]} --codec-seed {params.codec[seed]} 2> {log}"

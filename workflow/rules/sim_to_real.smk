@@ -33,7 +33,8 @@ rule emulate_real:
     params:
         target=point_target,
         point=point_overrides,
-        emulation=config["target"].get("emulation", {}),
+        # mode and seed only: the real store is emulated whole (target.emulation.images is the synthetic stores')
+        emulation={k: v for k, v in config["target"].get("emulation", {}).items() if k != "images"},
         codec=config["codec"],
     threads: 1  # one process per point, as rule emulate
     priority: emulation_priority
@@ -44,7 +45,7 @@ rule emulate_real:
         "logs/emulate_real/{point}.log",
     shell:
         "metraw emulate {input} {output} --params {PARAMS_FILE} --point '{params.point}'"
-        " --mode {params.emulation[mode]} --seed {params.emulation[seed]} --workers {threads}"
+        " --mode {params.emulation[mode]} --seed {params.emulation[seed]} --images all --workers {threads}"
         " --codec-step {params.codec[step]} --codec-seed {params.codec[seed]} 2> {log}"
 
 

@@ -96,8 +96,10 @@ def _params_for(rule: str, params: dict[str, Any]) -> list[str]:
     """Keys of params.yaml that the rule reads (only those present: DVC refuses missing keys)."""
     target = params.get("target", {})
     emulate = ["target.nominal"] + (["target.emulation"] if "emulation" in target else []) + ["codec"]
+    # images: test emulates the training section's test split
+    split = [f"training.{k}" for k in ("split_seed", "test_fraction") if k in params.get("training", {})]
     keys = {
-        "emulate": emulate,
+        "emulate": emulate + split,
         "emulate_real": emulate,
         "evaluate_real": [],
         "train": ["training", "codec"],  # on-the-fly draws pass the codec as the store did

@@ -25,7 +25,11 @@ def register(subparsers) -> None:
                    "image i uses seed (seed, i)")
     p.add_argument("--edge", choices=("reflect", "zero", "valid"), default="reflect", help="edge policy")
     p.add_argument("--accuracy", default="", help="Accuracy overrides name=value,... (e.g. kernel_flux_loss=1e-2)")
-    p.add_argument("--limit", type=int, default=None, help="emulate only the first N images")
+    p.add_argument("--images", choices=("all", "test"), default="all",
+                   help="source images to emulate: all (default), or only the test split of the parameter file's "
+                   "training section (split_seed, test_fraction): all a point needs when its models train on fresh "
+                   "draws of the source (`metraw train --source`)")
+    p.add_argument("--limit", type=int, default=None, help="emulate only the first N of those images")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output")
     p.add_argument("--workers", type=int, default=2, help="worker processes (bytes do not depend on it; default 2)")
     add_codec_arguments(p)
@@ -67,23 +71,40 @@ def run(args: argparse.Namespace) -> int:
     if not Path(args.source).exists():
         raise MetrawError(f"source store {args.source} does not exist")
     source = RawStore.open(args.source)
-    n = len(source) if args.limit is None else min(len(source), args.limit)
-    if n < 1:
+    if len(source) < 1:
         raise MetrawError(f"source store {args.source} holds no images")
+    images = args.images
+    indices = _source_images(len(source), images, args.params)[:args.limit]
+    n = len(indices)
     t0 = time.perf_counter()
     mean_e = []
     with RawStore.create(args.output, overwrite=args.overwrite, **codec.create_kwargs()) as out:
         out.set_attrs(generator="metraw.emulate", source=str(args.source), target=target.to_dict(), mode=mode,
-                      seed=seed, edge=args.edge, accuracy=accuracy.to_dict(), **codec.attrs())
+                      seed=seed, edge=args.edge, accuracy=accuracy.to_dict(), images=images,
+                      source_images=len(source), source_indices=[int(i) for i in indices], **codec.attrs())
         job = _Job(str(args.source), target, mode, seed, accuracy, args.edge)
-        for img in progress_bar(_emulated(job, n, args.workers), total=n, desc="emulate"):
+        for img in progress_bar(_emulated(job, indices, args.workers), total=n, desc="emulate"):
             mean_e.append(img.meta["emulation"]["mean_signal_e"])
             out.append(codec.mark(img))
             ratio = img.meta["emulation"]["gsd_ratio"]
     dt = time.perf_counter() - t0
-    print(f"metraw emulate: {n} images -> {args.output} in {dt:.1f} s ({dt / n:.3f} s/image); GSD ratio {ratio:.3g}, "
+    print(f"metraw emulate: {n} images ({images}) -> {args.output} in {dt:.1f} s ({dt / n:.3f} s/image); GSD ratio {ratio:.3g}, "
           f"mean signal {np.mean(mean_e):.3g} e- per target pixel, mode {mode}, {args.workers} workers")
     return 0
+
+
+def _source_images(n_source: int, images: str, params_path) -> list[int]:
+    """Indices of the source images to emulate: all, or the test split of ``params_path``'s training section."""
+    if images == "all":
+        return list(range(n_source))
+    from metraw.segment.data import split_indices
+    from metraw.segment.train import TrainConfig, load_config
+
+    try:
+        config = load_config(params_path)
+    except MetrawError:  # a parameter file without training profiles: the training defaults
+        config = TrainConfig()
+    return split_indices(n_source, config.test_fraction, config.split_seed)[1].tolist()
 
 
 class _Job:
@@ -110,11 +131,11 @@ class _Job:
         return img
 
 
-def _emulated(job: _Job, n: int, workers: int):
-    """Images 0 .. n-1 in order; ``workers`` > 1 emulates them in worker processes."""
+def _emulated(job: _Job, indices: list[int], workers: int):
+    """Source images ``indices`` emulated, in order; ``workers`` > 1 emulates them in worker processes."""
     from metraw import codec
     from metraw.parallel import ordered_map
 
     # with workers, each process decodes its source images on one thread: the processes fill the cores
     with codec.threads(1 if workers > 1 else codec.THREADS):
-        yield from ordered_map(job, range(n), workers, chunksize=4)
+        yield from ordered_map(job, indices, workers, chunksize=4)

@@ -52,6 +52,38 @@ def split_indices(n_images: int, test_fraction: float, split_seed: int) -> tuple
     return np.sort(perm[n_test:]), np.sort(perm[:n_test])
 
 
+def source_indices(store) -> tuple[np.ndarray, int]:
+    """(index in its source of each image of an emulated ``store``, images in that source).
+
+    ``metraw emulate`` records both (store attributes ``source_indices`` / ``source_images``): a store emulated
+    with ``--images test`` holds only its source's test split. A store without them holds images 0 .. n-1 of n.
+    """
+    attrs = store.attrs
+    if "source_indices" not in attrs:
+        return np.arange(len(store)), len(store)
+    indices = np.asarray(attrs["source_indices"], dtype=np.int64)
+    n_source = int(attrs.get("source_images", len(store)))
+    if len(indices) != len(store) or (len(indices) and not (0 <= indices.min() and indices.max() < n_source)):
+        raise MetrawError(f"store {store.path}: its source_indices ({len(indices)}) do not match its "
+                          f"{len(store)} images of a {n_source}-image source")
+    return indices, n_source
+
+
+def split_positions(store, test_fraction: float, split_seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(source test indices, store positions of the test images, store positions of the training images) of an
+    emulated ``store``: the split is its source's (``split_indices`` over the source's images), whatever subset of
+    them the store holds; a store that lacks a test image of its source is refused in one line."""
+    indices, n_source = source_indices(store)
+    _, test_idx = split_indices(n_source, test_fraction, split_seed)
+    is_test = np.isin(indices, test_idx)
+    if int(is_test.sum()) != len(test_idx):
+        missing = np.setdiff1d(test_idx, indices)
+        raise MetrawError(f"store {store.path} lacks {len(missing)} of the {len(test_idx)} test images "
+                          f"of its {n_source}-image source (e.g. source image {int(missing[0])}): emulate it with "
+                          "the same training.split_seed and test_fraction")
+    return test_idx, np.flatnonzero(is_test), np.flatnonzero(~is_test)
+
+
 def vst_mosaic(image: RawImage) -> np.ndarray:
     """Generalised Anscombe of the image's DN with its own profile, minus its median (float32).
 

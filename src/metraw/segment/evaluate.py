@@ -334,21 +334,23 @@ def training_store(store, store_path, record: dict[str, Any]) -> tuple[bool, str
 
 def select_images(store, store_path, model_dir, ckpt: dict[str, Any], config, split: str, is_training: bool
                   ) -> tuple[list[int], str]:
-    """(image indices, split name) to score: the checkpoint's test split ("test") or every image."""
-    from metraw.segment.data import split_indices
+    """(store positions, split name) to score: the checkpoint's test split ("test") or every image. The test
+    split is by source image (``data.split_positions``): a store emulated with ``--images test`` holds only it."""
+    from metraw.segment.data import source_indices, split_positions
 
     if split not in SPLITS:
         raise MetrawError(f"split must be one of {', '.join(SPLITS)}, got {split!r}")
     if len(store) == 0:
         raise MetrawError(f"store {store_path} holds no images")
     if split == "test" or (split == "auto" and is_training):
-        if len(store) < 2:
+        n_source = source_indices(store)[1]
+        if n_source < 2:
             raise MetrawError(f"store {store_path} has {len(store)} image: no test split to score")
-        _, test_idx = split_indices(len(store), config.test_fraction, config.split_seed)
+        test_idx, positions, _ = split_positions(store, config.test_fraction, config.split_seed)
         if test_idx.tolist() != [int(i) for i in ckpt["test_indices"]]:
-            raise MetrawError(f"the test split of {store_path} ({len(store)} images) differs from the one the "
+            raise MetrawError(f"the test split of {store_path} ({n_source} source images) differs from the one the "
                               f"model in {model_dir} was trained with (use --split all)")
-        return test_idx.tolist(), "test"
+        return positions.tolist(), "test"
     return list(range(len(store))), "all (training store)" if is_training else "all (foreign store)"
 
 

@@ -1,7 +1,8 @@
 """Training on fresh target draws: every epoch sees new target images of the source scenes (issue #15).
 
-A per-point store holds one emulated image per source scene; a network trained on those few
-hundred arrays of ~34 x 34 packed pixels overfits them. Here each training scene gets its
+An emulated store holds one image per source scene; a network trained on those few hundred arrays
+of ~34 x 34 packed pixels overfits them (so the workflow's per-point stores hold only the test split:
+``metraw emulate --images test``). Here each training scene gets its
 ``metraw.draws.PhaseField`` (the expected stage, computed once, ~40 ms per 1024 px scene) and every
 epoch draws, per scene, a new target raw: a random sampling phase of the target pixel grid on the
 ground (a whole CFA period in steps of GSD/K), a random flip of the scene, fresh photon and read
@@ -191,21 +192,24 @@ def train_store_on_the_fly(store_path, source_path, out_dir, config: TrainConfig
                            progress: bool | None = None, overwrite: bool = False,
                            codec_step: float | None = None, init_dir=None, workers: int = 1) -> dict[str, Any]:
     """Train ``config.replicates`` models on fresh draws of ``source_path``'s training scenes at the target of the
-    emulated store ``store_path`` (image i emulated from source image i: same split); write them like
-    ``train.train_store``. The store's own test split stays the fixed test set. ``init_dir``: a pretrained model
+    emulated store ``store_path`` (emulated from that source: all its images, or only its test split with
+    ``metraw emulate --images test``); write them like ``train.train_store``. The source's test split, held by the
+    store, stays the fixed test set. ``init_dir``: a pretrained model
     directory (``metraw pretrain``): replicate r fine-tunes its replicate r (``config.epochs`` epochs). ``workers``:
     processes building the scenes' expected fields (``scene_fields``)."""
-    from metraw.segment.data import split_indices
+    from metraw.segment.data import source_indices, split_indices, split_positions
     from metraw.segment.train import fit_replicates, pretrained_states, save_replicates, store_digest
     from metraw.store import RawStore
 
     store = RawStore.open(store_path)
     source = RawStore.open(source_path)
-    if len(store) != len(source):
-        raise MetrawError(f"{store_path} has {len(store)} images but the source {source_path} has {len(source)}: "
-                          "it was not emulated from that source")
+    _, n_source = source_indices(store)
+    if n_source != len(source):
+        raise MetrawError(f"{store_path} was emulated from a {n_source}-image source but the source {source_path} has "
+                          f"{len(source)}: it was not emulated from that source")
     target = store_target(store)
-    train_idx, test_idx = split_indices(len(store), config.test_fraction, config.split_seed)
+    train_idx, test_idx = split_indices(n_source, config.test_fraction, config.split_seed)
+    split_positions(store, config.test_fraction, config.split_seed)  # the store holds the test split
     inits = pretrained_states(init_dir, max(1, config.replicates)) if init_dir is not None else None
     t0 = time.perf_counter()
     fields = build_fields(source, train_idx, target, progress=progress, workers=workers)
@@ -216,7 +220,7 @@ def train_store_on_the_fly(store_path, source_path, out_dir, config: TrainConfig
                                                         draws_per_epoch=cfg.draws_per_epoch, codec_step=codec_step),
                           {"store": str(store_path), "store_digest": digest, "source": str(source_path),
                            "init": None if init_dir is None else str(init_dir),
-                           "n_images": len(store), "train_indices": train_idx.tolist(),
+                           "n_images": len(store), "source_images": n_source, "train_indices": train_idx.tolist(),
                            "test_indices": test_idx.tolist(), "preprocess_time_s": fields_s})
     save_replicates(out_dir, runs, test_idx, overwrite)
     return runs[0][2]

@@ -30,7 +30,7 @@ import numpy as np
 from metraw.cfa import cell_size
 from metraw.errors import MetrawError
 from metraw.parallel import prefetch
-from metraw.segment.data import PreparedImage, batch_crops, check_transforms, prepare_store, split_indices
+from metraw.segment.data import PreparedImage, batch_crops, check_transforms, prepare_store, source_indices, split_indices
 from metraw.sensor import rng_from_seed
 
 CHECKPOINT = "model.pt"
@@ -360,6 +360,10 @@ def train_store(store_path: str | os.PathLike, out_dir: str | os.PathLike, confi
     from metraw.store import RawStore
 
     store = RawStore.open(store_path)
+    _, n_source = source_indices(store)
+    if n_source != len(store):
+        raise MetrawError(f"{store_path} holds {len(store)} of its source's {n_source} images (emulated with "
+                          "--images test): train on fresh draws of the source instead (--source)")
     train_idx, test_idx = split_indices(len(store), config.test_fraction, config.split_seed)
     digest = store_digest(store)
     t0 = time.perf_counter()
