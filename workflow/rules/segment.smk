@@ -76,7 +76,10 @@ rule train:
         training=config["training"],
         codec=config["codec"],
         finetune=finetune_args,
-    threads: lambda wildcards: workflow.cores  # callable: --report and dry runs need no --cores
+    # 1 declared thread, so that two train jobs (or one beside an emulation) run at once: a job's 1 torch thread
+    # (training.profiles) and its draws' prefetch thread kept ~1.6 of 2 cores busy on their own (the mono point's
+    # from-scratch training ~1.2); the SLURM profile gives it 2 CPUs (set-threads), and with them 2 field processes
+    threads: 1
     resources:
         mem_mb=1500,  # measured peak RSS with head room (README, SLURM: resources table)
         runtime=60,  # minutes, a generous bound on the measured wall time
