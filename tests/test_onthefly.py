@@ -214,6 +214,11 @@ def test_a_store_of_the_test_split_alone_trains_and_scores_like_the_whole_store(
     assert source_indices(test)[0].tolist() == test_idx.tolist() and source_indices(test)[1] == 6
     for pos, i in enumerate(test_idx):  # image i uses seed (seed, i) in either store
         assert np.array_equal(test[pos].data, full[i].data) and test[pos].provenance == full[i].provenance
+    # the first N of all images (--limit) stay a data set of their own, split over its own images
+    assert main(["emulate", str(src), str(tmp_path / "first4.zarr"), "--params", str(pfile), "--point",
+                 "focal_length_m=2.0", "--images", "all", "--limit", "4", "--workers", "1"]) == 0
+    assert source_indices(RawStore.open(tmp_path / "first4.zarr"))[0].tolist() == [0, 1, 2, 3]
+    assert source_indices(RawStore.open(tmp_path / "first4.zarr"))[1] == 4
     cfg = _cfg(replicates=1)
     for images in ("all", "test"):
         train_store_on_the_fly(tmp_path / f"{images}.zarr", src, tmp_path / f"m-{images}", cfg, device="cpu",

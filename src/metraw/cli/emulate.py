@@ -79,9 +79,12 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     mean_e = []
     with RawStore.create(args.output, overwrite=args.overwrite, **codec.create_kwargs()) as out:
+        # a test-split store records which source images it holds (metraw.segment.data.source_indices); a store of
+        # all images (or their first --limit) is image i from source image i, a data set of its own
+        subset = {"source_images": len(source), "source_indices": [int(i) for i in indices]} if images == "test" else {}
         out.set_attrs(generator="metraw.emulate", source=str(args.source), target=target.to_dict(), mode=mode,
-                      seed=seed, edge=args.edge, accuracy=accuracy.to_dict(), images=images,
-                      source_images=len(source), source_indices=[int(i) for i in indices], **codec.attrs())
+                      seed=seed, edge=args.edge, accuracy=accuracy.to_dict(), images=images, **subset,
+                      **codec.attrs())
         job = _Job(str(args.source), target, mode, seed, accuracy, args.edge)
         for img in progress_bar(_emulated(job, indices, args.workers), total=n, desc="emulate"):
             mean_e.append(img.meta["emulation"]["mean_signal_e"])

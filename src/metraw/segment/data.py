@@ -55,8 +55,9 @@ def split_indices(n_images: int, test_fraction: float, split_seed: int) -> tuple
 def source_indices(store) -> tuple[np.ndarray, int]:
     """(index in its source of each image of an emulated ``store``, images in that source).
 
-    ``metraw emulate`` records both (store attributes ``source_indices`` / ``source_images``): a store emulated
-    with ``--images test`` holds only its source's test split. A store without them holds images 0 .. n-1 of n.
+    ``metraw emulate --images test`` records both (store attributes ``source_indices`` / ``source_images``): the
+    store holds only its source's test split. A store without them (``--images all``, also with ``--limit``) holds
+    images 0 .. n-1 of n, its own data set.
     """
     attrs = store.attrs
     if "source_indices" not in attrs:
