@@ -70,9 +70,8 @@ def source_indices(store) -> tuple[np.ndarray, int]:
     return indices, n_source
 
 
-def split_positions(store, test_fraction: float, split_seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(source test indices, store positions of the test images, store positions of the training images) of an
-    emulated ``store``: the split is its source's (``split_indices`` over the source's images), whatever subset of
+def split_positions(store, test_fraction: float, split_seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """(source test indices, store positions of the test images) of an emulated ``store``: the split is its source's (``split_indices`` over the source's images), whatever subset of
     them the store holds; a store that lacks a test image of its source is refused in one line."""
     indices, n_source = source_indices(store)
     _, test_idx = split_indices(n_source, test_fraction, split_seed)
@@ -82,7 +81,7 @@ def split_positions(store, test_fraction: float, split_seed: int) -> tuple[np.nd
         raise MetrawError(f"store {store.path} lacks {len(missing)} of the {len(test_idx)} test images "
                           f"of its {n_source}-image source (e.g. source image {int(missing[0])}): emulate it with "
                           "the same training.split_seed and test_fraction")
-    return test_idx, np.flatnonzero(is_test), np.flatnonzero(~is_test)
+    return test_idx, np.flatnonzero(is_test)
 
 
 def vst_mosaic(image: RawImage) -> np.ndarray:

@@ -346,7 +346,7 @@ def select_images(store, store_path, model_dir, ckpt: dict[str, Any], config, sp
         n_source = source_indices(store)[1]
         if n_source < 2:
             raise MetrawError(f"store {store_path} has {len(store)} image: no test split to score")
-        test_idx, positions, _ = split_positions(store, config.test_fraction, config.split_seed)
+        test_idx, positions = split_positions(store, config.test_fraction, config.split_seed)
         if test_idx.tolist() != [int(i) for i in ckpt["test_indices"]]:
             raise MetrawError(f"the test split of {store_path} ({n_source} source images) differs from the one the "
                               f"model in {model_dir} was trained with (use --split all)")
