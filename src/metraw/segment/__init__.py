@@ -1,7 +1,8 @@
 """Car segmentation on raw images: compact U-Net on packed, variance-stabilised CFA planes.
 
 - ``data``: preprocessing (VST, canonical CFA packing, car fraction per pixel), split, crops;
-- ``model``: the U-Net (plain torch) and its resampling wrapper (upsample / pool);
+- ``condition``: the payload vector of an image's profile that a conditioned network takes (off by default);
+- ``model``: the U-Net (plain torch; FiLM conditioning optional) and its resampling wrapper (upsample / pool);
 - ``train``: training one model per parameter point (``train_store``), checkpoints;
 - ``evaluate``: IoU / precision / recall per image and pooled (``evaluate_store``): a store's test split,
   or every image of a foreign store, resampled to the model's training ground sampling;

@@ -32,6 +32,7 @@ from metraw.cfa import cell_size, color_index, pack_planes
 from metraw.errors import MetrawError
 from metraw.image import RawImage
 from metraw.progress import progress_bar
+from metraw.segment.condition import payload_condition
 from metraw.sensor import rng_from_seed
 from metraw.vst import anscombe
 
@@ -187,7 +188,8 @@ def canonical_pack(z: np.ndarray, mask: np.ndarray | None, pattern: str, k: int 
 @dataclass
 class PreparedImage:
     """Cached preprocessed image: centred VST mosaic (float32), car mask (float16), CFA pattern,
-    ground sample distance of a mosaic pixel [m] (None when the profile lacks the geometry)."""
+    ground sample distance of a mosaic pixel [m] (None when the profile lacks the geometry), and the
+    payload's conditioning vector (``metraw.segment.condition.payload_condition``; None likewise)."""
 
     z: np.ndarray
     mask: np.ndarray
@@ -195,6 +197,7 @@ class PreparedImage:
     index: int
     gsd_m: float | None = None
     level: float = 0.0  # the median VST value subtracted from z
+    condition: np.ndarray | None = None
 
     @property
     def packed_shape(self) -> tuple[int, int]:
@@ -242,7 +245,8 @@ def prepare(image: RawImage, index: int = -1) -> PreparedImage:
     if image.mask is None:
         raise MetrawError(f"image {index} has no label mask; segmentation needs masks")
     z, level = vst_mosaic_and_level(image)
-    return PreparedImage(z, image.mask.astype(np.float16), image.cfa_pattern, index, image.profile.gsd_m, level)
+    return PreparedImage(z, image.mask.astype(np.float16), image.cfa_pattern, index, image.profile.gsd_m, level,
+                         payload_condition(image.profile))
 
 
 def prepare_store(store, indices, progress: bool | None = None) -> list[PreparedImage]:
@@ -252,8 +256,12 @@ def prepare_store(store, indices, progress: bool | None = None) -> list[Prepared
 
 
 def batch_crops(images: list[PreparedImage], crop_px: int, rng: np.random.Generator, augment: bool = True,
-                gamma_range: float = 1.0, gain_range: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
-    """Stack one random crop per image; all crops cut to the smallest common packed side."""
+                gamma_range: float = 1.0, gain_range: float = 1.0
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Stack one random crop per image, all cut to the smallest common packed side: (planes, site car fractions,
+    the images' conditioning vectors (B, K), or None when one of them has none)."""
     xs, ys = zip(*(img.crop(crop_px, rng, augment, gamma_range, gain_range) for img in images))
     c = min(min(x.shape[-2:]) for x in xs)
-    return (np.stack([x[:, :c, :c] for x in xs]), np.stack([y[:, :c, :c] for y in ys]))
+    conds = [img.condition for img in images]
+    cond = None if any(v is None for v in conds) else np.stack(conds)
+    return np.stack([x[:, :c, :c] for x in xs]), np.stack([y[:, :c, :c] for y in ys]), cond

@@ -164,23 +164,28 @@ def resample_to_gsd(x, scale: float, size: tuple[int, int] | None = None):
                          antialias=size[0] < h or size[1] < w)
 
 
-def predict_logits(model, planes: np.ndarray, device: str = "cpu", scale: float = 1.0) -> np.ndarray:
+def predict_logits(model, planes: np.ndarray, device: str = "cpu", scale: float = 1.0,
+                   condition: np.ndarray | None = None) -> np.ndarray:
     """Logits (S, h, w), one per CFA site, of one packed image (S, h, w) on its own grid.
 
     ``scale`` != 1 (image packed GSD / training packed GSD): the planes are resampled to the
     training GSD for the network and its logits back to (h, w) (``resample_to_gsd``).
+    ``condition``: the image's payload vector (``metraw.segment.condition``), used by a conditioned network.
     """
     import torch
 
+    from metraw.segment.train import condition_tensor
+
     model.eval()
     with torch.no_grad():
-        x = torch.from_numpy(np.ascontiguousarray(planes))[None].to(device)
-        y = resample_to_gsd(model(resample_to_gsd(x, scale)), scale, size=tuple(planes.shape[-2:]))
+        x = resample_to_gsd(torch.from_numpy(np.ascontiguousarray(planes))[None].to(device), scale)
+        c = condition_tensor(model, None if condition is None else condition[None], device, "prediction")
+        y = resample_to_gsd(model(x) if c is None else model(x, c), scale, size=tuple(planes.shape[-2:]))
         return y[0].float().cpu().numpy()
 
 
 def averaged_probability(model, z: np.ndarray, pattern: str, device: str = "cpu", scale: float = 1.0,
-                         transforms: int = 1) -> np.ndarray:
+                         transforms: int = 1, condition: np.ndarray | None = None) -> np.ndarray:
     """Car probability (S, h, w) per site of the mosaic ``z`` packed canonically (``canonical_pack``, transform 0),
     averaged over the first ``transforms`` (1, 2, 4 or 8) of the 8 dihedral transforms (``data.dihedral``).
 
@@ -188,18 +193,19 @@ def averaged_probability(model, z: np.ndarray, pattern: str, device: str = "cpu"
     training; its probabilities are unpacked to the transformed mosaic, turned back, and averaged per mosaic
     pixel over the transforms whose packed window covers it (a transform's window may lose one edge row or
     column). The scene and the noise model have these symmetries; the network's errors do not all share them,
-    so the average cancels part of them. ``transforms`` = 1 is the plain prediction.
+    so the average cancels part of them. ``transforms`` = 1 is the plain prediction. ``condition``: as
+    ``predict_logits``.
     """
     check_transforms(transforms)
     planes, _ = canonical_pack(z, None, pattern, 0)
     if transforms == 1:
-        return car_probability(predict_logits(model, planes, device, scale))
+        return car_probability(predict_logits(model, planes, device, scale, condition))
     total = np.zeros(z.shape, np.float64)
     count = np.zeros(z.shape, np.float64)
     for k in range(transforms):
         dy, dx, h, w = canonical_window(pattern, z.shape, k)
         packed = planes if k == 0 else canonical_pack(z, None, pattern, k)[0]
-        p = car_probability(predict_logits(model, packed, device, scale))
+        p = car_probability(predict_logits(model, packed, device, scale, condition))
         shape_k = (z.shape[1], z.shape[0]) if k % 2 else z.shape
         summed = np.zeros(shape_k, np.float64)
         covered = np.zeros(shape_k, np.float64)
@@ -249,7 +255,7 @@ def score_image(model, img: PreparedImage, device: str = "cpu", scale: float = 1
     fn, iou, precision, recall, object counts and, with ``boxes`` (box labels), the confusion counts of the
     predicted objects' bounding boxes. ``threshold``: the decision's probability (``predicted_mask``)."""
     planes, frac = img.full()
-    prob = averaged_probability(model, img.z, img.pattern, device, scale, transforms)
+    prob = averaged_probability(model, img.z, img.pattern, device, scale, transforms, img.condition)
     mosaic_pred = predicted_mask(_mosaic(prob, img.pattern), img.gsd_m, threshold)
     mosaic_frac = _mosaic(frac, img.pattern)
     pred = _packed(mosaic_pred, img.pattern, frac.shape)

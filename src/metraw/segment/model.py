@@ -34,11 +34,17 @@ class _Block(nn.Sequential):
 
 
 class UNet(nn.Module):
-    """U-Net with ``depth`` poolings and ``base_channels`` * 2**level channels per level."""
+    """U-Net with ``depth`` poolings and ``base_channels`` * 2**level channels per level.
 
-    def __init__(self, in_channels: int, base_channels: int = 16, depth: int = 3, out_channels: int = 1):
+    ``n_condition`` > 0: every block's output is scaled and shifted per channel by a linear map of a
+    conditioning vector (FiLM: x (1 + gamma) + beta; ``metraw.segment.condition``), zero at initialisation.
+    """
+
+    def __init__(self, in_channels: int, base_channels: int = 16, depth: int = 3, out_channels: int = 1,
+                 n_condition: int = 0):
         super().__init__()
         self.depth = depth
+        self.n_condition = int(n_condition)
         chans = [base_channels * 2**i for i in range(depth + 1)]
         self.down = nn.ModuleList()
         cin = in_channels
@@ -52,22 +58,43 @@ class UNet(nn.Module):
             self.up.append(nn.ConvTranspose2d(chans[i + 1], chans[i], 2, stride=2))
             self.dec.append(_Block(2 * chans[i], chans[i]))
         self.head = nn.Conv2d(chans[0], out_channels, 1)
+        self.film = nn.ModuleList()
+        if self.n_condition:
+            for c in chans[:-1] + [chans[-1]] + chans[-2::-1]:  # down blocks, bottom, decoder blocks
+                layer = nn.Linear(self.n_condition, 2 * c)
+                nn.init.zeros_(layer.weight)
+                nn.init.zeros_(layer.bias)
+                self.film.append(layer)
 
     @property
     def multiple(self) -> int:
         """Input sides must be multiples of this (2**depth)."""
         return 2**self.depth
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
+    def forward(self, x: torch.Tensor, condition: torch.Tensor | None = None) -> torch.Tensor:
+        """Logits of ``x`` (B, C, h, w); ``condition`` (B, n_condition) when the network is conditioned."""
+        film = iter(self.film)
+        if self.n_condition:
+            if condition is None or tuple(condition.shape) != (x.shape[0], self.n_condition):
+                raise ValueError(f"this network is conditioned: it needs a condition of shape ({x.shape[0]}, "
+                                 f"{self.n_condition}), got {None if condition is None else tuple(condition.shape)}")
+            condition = condition.to(x.dtype)
+
+        def modulate(h: torch.Tensor) -> torch.Tensor:
+            if not self.n_condition:
+                return h
+            gamma, beta = next(film)(condition).chunk(2, dim=1)
+            return h * (1 + gamma[:, :, None, None]) + beta[:, :, None, None]
+
         skips = []
         for block in self.down:
-            x = block(x)
+            x = modulate(block(x))
             skips.append(x)
             x = F.max_pool2d(x, 2)
-        x = self.bottom(x)
+        x = modulate(self.bottom(x))
         for up, dec in zip(self.up, self.dec):
             x = up(x)
-            x = dec(torch.cat([x, skips.pop()], dim=1))
+            x = modulate(dec(torch.cat([x, skips.pop()], dim=1)))
         return self.head(x)
 
 
@@ -83,19 +110,25 @@ def _pad_to(x: torch.Tensor, multiple: int) -> torch.Tensor:
 class Segmenter(nn.Module):
     """U-Net wrapped with resampling to its working grid and padding to a valid size.
 
-    ``forward(x)`` accepts any (B, S, h, w) and returns logits (B, S, h, w) on the input grid.
+    ``forward(x, condition)`` accepts any (B, S, h, w) and returns logits (B, S, h, w) on the input grid;
+``condition`` (B, n_condition) only for a conditioned network.
     """
 
     def __init__(self, in_channels: int, base_channels: int = 16, depth: int = 3, upsample: int = 1,
-                 pool: int = 1):
+                 pool: int = 1, n_condition: int = 0):
         super().__init__()
         if upsample < 1 or pool < 1 or (upsample > 1 and pool > 1):
             raise ValueError("upsample and pool must be integers >= 1, at most one of them > 1")
         self.upsample = int(upsample)
         self.pool = int(pool)
-        self.unet = UNet(in_channels, base_channels, depth, out_channels=in_channels)
+        self.unet = UNet(in_channels, base_channels, depth, out_channels=in_channels, n_condition=n_condition)
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
+    @property
+    def n_condition(self) -> int:
+        """Length of the conditioning vector the network takes (0: none)."""
+        return self.unet.n_condition
+
+    def forward(self, x: torch.Tensor, condition: torch.Tensor | None = None) -> torch.Tensor:
         h, w = x.shape[-2:]
         f, p = self.upsample, self.pool
         if f > 1:
@@ -103,7 +136,7 @@ class Segmenter(nn.Module):
         if p > 1:
             x = F.avg_pool2d(_pad_to(x, p), p)
         hn, wn = x.shape[-2:]
-        y = self.unet(_pad_to(x, self.unet.multiple))[..., :hn, :wn]
+        y = self.unet(_pad_to(x, self.unet.multiple), condition)[..., :hn, :wn]
         if f > 1:
             y = F.avg_pool2d(y, f)
         if p > 1:

@@ -61,12 +61,14 @@ def predict_image(model, image, device: str, train_packed_gsd_m: float | None, r
     """(car probability (H, W) float32 on the mosaic grid, averaged over ``transforms`` dihedral transforms,
     info (shape, packed window, packed GSD [m], GSD scale), why the GSD was not matched or None);
     ``recorded``: the checkpoint has the training GSD."""
+    from metraw.segment.condition import payload_condition
     from metraw.segment.data import vst_mosaic
     from metraw.segment.evaluate import averaged_probability, gsd_scale, image_packed_gsd_m
 
     gsd = image_packed_gsd_m(image)
     scale, matched, note = gsd_scale(gsd, train_packed_gsd_m, recorded)
-    p = averaged_probability(model, vst_mosaic(image), image.cfa_pattern, device, scale, transforms)
+    p = averaged_probability(model, vst_mosaic(image), image.cfa_pattern, device, scale, transforms,
+                             payload_condition(image.profile))
     info = {"shape": list(image.shape), "packed_window": list(packed_window(image.cfa_pattern, image.shape)),
             "packed_gsd_m": gsd, "gsd_scale": scale, "gsd_matched": matched}
     return sites_to_mosaic(p, image.cfa_pattern, image.shape), info, note

@@ -85,6 +85,8 @@ class TrainConfig:
     ``predict_transforms``: dihedral transforms of the mosaic (turns, flips; 1, 2, 4 or 8) whose predictions
     ``metraw evaluate`` / ``predict`` average (``metraw.segment.evaluate.averaged_probability``); 1 (default) = a
     single pass. A prediction setting: training does not use it.
+    ``condition``: condition the network on each image's payload (``metraw.segment.condition``: packed GSD, diffraction
+    blur, light collected, smear, from the image's profile; FiLM in every block). False (default): a plain network.
     """
 
     epochs: int = 8
@@ -106,6 +108,7 @@ class TrainConfig:
     precision: str = "float32"
     loss: str = "bce+dice"
     predict_transforms: int = 1
+    condition: bool = False
     split_seed: int = 0
     test_fraction: float = 0.2
 
@@ -122,6 +125,8 @@ class TrainConfig:
             check_transforms(d["predict_transforms"])
         if d.get("precision", "float32") not in PRECISIONS:
             raise MetrawError(f"training precision must be one of {', '.join(PRECISIONS)}, got {d['precision']!r}")
+        if not isinstance(d.get("condition", False), bool):
+            raise MetrawError(f"training condition must be true or false, got {d['condition']!r}")
         if d.get("loss", "bce+dice") not in LOSSES:
             raise MetrawError(f"training loss must be one of {', '.join(LOSSES)}, got {d['loss']!r}")
         return cls(**d)
@@ -253,7 +258,8 @@ def train_loop(model, epoch_batches, steps_per_epoch: int, config: TrainConfig, 
                progress: bool | None = None) -> list[float]:
     """AdamW + one-cycle schedule over ``config.epochs``; ``epoch_batches(epoch)`` yields (x, y) batches.
 
-    x: (B, S, h, w) packed VST planes, y: (B, S, h, w) site car fractions (numpy arrays or tensors).
+    x: (B, S, h, w) packed VST planes, y: (B, S, h, w) site car fractions (numpy arrays or tensors); a third item,
+    the images' conditioning vectors (B, K), goes to a conditioned network (``TrainConfig.condition``).
     Returns the mean loss per epoch.
     """
     import torch
@@ -272,11 +278,12 @@ def train_loop(model, epoch_batches, steps_per_epoch: int, config: TrainConfig, 
             model.train()
             run, n = 0.0, 0
             batches = epoch_batches(epoch)
-            for x, y in (prefetch(batches, PREFETCH_BATCHES) if PREFETCH_BATCHES else batches):
+            for x, y, *cond in (prefetch(batches, PREFETCH_BATCHES) if PREFETCH_BATCHES else batches):
                 x = torch.as_tensor(x).to(device)
                 y = torch.as_tensor(y).to(device)
                 with torch.autocast(dev_type, dtype=torch.bfloat16, enabled=autocast):
-                    logits = model(x)
+                    c = condition_tensor(model, cond[0] if cond else None, device)
+                    logits = model(x) if c is None else model(x, c)
                 loss = segmentation_loss(logits.float(), y, config.loss)
                 opt.zero_grad(set_to_none=True)
                 loss.backward()
@@ -291,10 +298,24 @@ def train_loop(model, epoch_batches, steps_per_epoch: int, config: TrainConfig, 
     return losses
 
 
+def condition_tensor(model, condition, device: str, where: str = "training batch"):
+    """The (B, K) conditioning tensor a conditioned ``model`` takes (one clear error when the images have none),
+    or None for a plain network (the vectors are then not used)."""
+    import torch
+
+    from metraw.segment.condition import require_condition
+
+    if not getattr(model, "n_condition", 0):
+        return None
+    return torch.as_tensor(require_condition(condition, where)).to(device)
+
+
 def build_model(in_channels: int, config: TrainConfig, upsample: int, pool: int = 1):
+    from metraw.segment.condition import CONDITION_FEATURES
     from metraw.segment.model import Segmenter
 
-    return Segmenter(in_channels, config.base_channels, config.depth, upsample, pool)
+    return Segmenter(in_channels, config.base_channels, config.depth, upsample, pool,
+                     n_condition=len(CONDITION_FEATURES) if config.condition else 0)
 
 
 def grid_factors(images: list[PreparedImage], config: TrainConfig, upsample: int | None = None) -> tuple[int, int]:
