@@ -257,6 +257,26 @@ def test_saturated_source_pixels_flag_the_target_pixels_they_feed():
     assert entry["saturated_source_cells"] > 0 and entry["target_pixels_fed_by_saturated"] == int(sat.sum())
 
 
+def test_scenes_that_differ_in_exposure_alone_share_the_plan_but_keep_their_own_thinning():
+    from metraw import emulate as emulate_module
+
+    short = flat_source((600, 900), 800.0, seed=3, exposure_s=0.5e-3)
+    long = RawImage(short.data, short.profile.replace(exposure_s=1.0e-3))
+    tgt = target(ground_speed_m_per_s=0.0)
+    emulate_module._PLAN_CACHE.clear()
+    fresh = emulate(long, tgt, "expected", seed=1)
+    plan_long = plan_emulation(long.profile, long.shape, tgt)
+    emulate_module._PLAN_CACHE.clear()
+    plan_short = plan_emulation(short.profile, short.shape, tgt)
+    plan_after = plan_emulation(long.profile, long.shape, tgt)
+    # one Fourier grid and transfer for both, each its own alpha and p (half the exposure: twice the ratios)
+    assert plan_after.transfer is plan_short.transfer and len(emulate_module._PLAN_CACHE) == 1
+    assert (plan_after.alpha, plan_after.p) == thinning_ratios(long.profile, tgt) == (plan_long.alpha, plan_long.p)
+    assert all(plan_short.alpha[c] == pytest.approx(2 * plan_after.alpha[c], rel=1e-12) for c in plan_short.alpha)
+    # and the emulation through the shared plan is the one through a plan of its own, bit for bit
+    assert np.array_equal(emulate(long, tgt, "expected", seed=1).data, fresh.data)
+
+
 def test_very_large_sums_use_float64():
     # 60 000 e- per pixel at gain 1/16 DN/e- and a 16-bit ADC: cell sums ~1e9 e- per target pixel footprint
     src = flat_source((800, 1200), 60000.0, seed=8, gain_dn_per_e=1 / 16, white_level_dn=65535, adc_bits=16,

@@ -45,7 +45,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from typing import Any
 
@@ -211,20 +211,28 @@ def _ee_table(obscuration: float, v_max: float):
 
 
 def _plan_key(profile, shape, target, acc, edge) -> str:
-    return json.dumps([profile.to_dict(), list(shape), target.to_dict(), acc.to_dict(), edge], sort_keys=True,
-                      default=str)
+    # the source's exposure sets only the thinning ratios (alpha, p): scenes of one camera that differ in exposure
+    # alone (auto exposure) share the rest of the plan, its costly part (Fourier grid, transfer functions)
+    prof = profile.to_dict()
+    prof.pop("exposure_s", None)
+    return json.dumps([prof, list(shape), target.to_dict(), acc.to_dict(), edge], sort_keys=True, default=str)
 
 
 def plan_emulation(source_profile, source_shape: tuple[int, int], target: TargetSystem,
                    accuracy: Accuracy | None = None, edge: str = "reflect") -> EmulationPlan:
-    """Everything decided before touching pixels; cached per (geometry, target, accuracy, edge)."""
+    """Everything decided before touching pixels; cached per (geometry, target, accuracy, edge), with the
+    thinning ratios of ``source_profile``'s own exposure."""
     acc = accuracy or DEFAULT_ACCURACY
     key = _plan_key(source_profile, source_shape, target, acc, edge)
-    if key not in _PLAN_CACHE:
+    plan = _PLAN_CACHE.get(key)
+    if plan is None:
         if len(_PLAN_CACHE) > 8:
             _PLAN_CACHE.pop(next(iter(_PLAN_CACHE)))
-        _PLAN_CACHE[key] = _make_plan(source_profile, tuple(source_shape), target, acc, edge)
-    return _PLAN_CACHE[key]
+        plan = _PLAN_CACHE[key] = _make_plan(source_profile, tuple(source_shape), target, acc, edge)
+    alpha, p = thinning_ratios(source_profile, target)
+    if alpha != plan.alpha or p != plan.p:
+        plan = replace(plan, alpha=alpha, p=p)
+    return plan
 
 
 def _make_plan(source_profile, source_shape, target: TargetSystem, acc: Accuracy, edge: str) -> EmulationPlan:
@@ -556,11 +564,13 @@ def _land_photons(src_idx, bw, block, clamp_w, clamp_h, ux, uy, ul, upsf, uphi, 
         if jx.size:
             x += jx[i]
             y += jy[i]
-        if reflect:
-            x = x % (2.0 * wm)
+        if reflect:  # x % p is x itself for 0 <= x < p: the modulo only where a photon left the period
+            if x < 0.0 or x >= 2.0 * wm:
+                x = x % (2.0 * wm)
             if x > wm:
                 x = 2.0 * wm - x
-            y = y % (2.0 * hm)
+            if y < 0.0 or y >= 2.0 * hm:
+                y = y % (2.0 * hm)
             if y > hm:
                 y = 2.0 * hm - y
         dx = x - cx
