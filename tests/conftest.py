@@ -16,3 +16,27 @@ def real_data_dir() -> Path:
     if not REAL_DATA_DIR.is_dir():
         pytest.skip(f"real data not available at {REAL_DATA_DIR}")
     return REAL_DATA_DIR
+
+
+@pytest.fixture(scope="module")
+def stores(tmp_path_factory):
+    """A 6-scene synthetic source (256 px) and its emulation at a 0.72 m GSD target (~20 px frames):
+    (source store path, target store path, target) for the on-the-fly training tests."""
+    import dataclasses
+
+    from metraw.emulate import emulate
+    from metraw.scenes import generate_one
+    from metraw.store import RawStore
+    from metraw.target import TargetSystem
+
+    root = tmp_path_factory.mktemp("otf")
+    params = Path(__file__).resolve().parents[1] / "params.yaml"
+    target = dataclasses.replace(TargetSystem.from_params(str(params)), focal_length_m=2.0)
+    scenes = [generate_one(i, 0, 256) for i in range(6)]
+    with RawStore.create(root / "src.zarr") as s:
+        for img in scenes:
+            s.append(img)
+    with RawStore.create(root / "tgt.zarr") as s:
+        for i, img in enumerate(scenes):
+            s.append(emulate(img, target, "auto", i))
+    return root / "src.zarr", root / "tgt.zarr", target

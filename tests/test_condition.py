@@ -69,25 +69,6 @@ def test_a_conditioned_network_starts_as_the_plain_one_and_needs_its_condition()
     assert torch.equal(y1[0], y2[0]) and (y1[1] - y2[1]).abs().max() > 1e-3
 
 
-@pytest.fixture(scope="module")
-def stores(tmp_path_factory):
-    """A 6-scene synthetic source (256 px) and its emulation at a 0.72 m GSD target."""
-    from metraw.emulate import emulate
-    from metraw.scenes import generate_one
-    from metraw.store import RawStore
-
-    root = tmp_path_factory.mktemp("cond")
-    target = dataclasses.replace(TargetSystem.from_params(str(PARAMS)), focal_length_m=2.0)
-    scenes = [generate_one(i, 0, 256) for i in range(6)]
-    with RawStore.create(root / "src.zarr") as s:
-        for img in scenes:
-            s.append(img)
-    with RawStore.create(root / "tgt.zarr") as s:
-        for i, img in enumerate(scenes):
-            s.append(emulate(img, target, "auto", i))
-    return root / "src.zarr", root / "tgt.zarr", target
-
-
 def test_a_conditioned_model_trains_saves_and_scores_and_refuses_images_without_geometry(stores, tmp_path):
     import torch
 

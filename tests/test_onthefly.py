@@ -10,29 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from metraw.emulate import emulate
 from metraw.errors import MetrawError
 from metraw.store import RawStore
-from metraw.target import TargetSystem
 
 PARAMS = Path(__file__).resolve().parents[1] / "params.yaml"
-
-
-@pytest.fixture(scope="module")
-def stores(tmp_path_factory):
-    """A 6-scene synthetic source (256 px) and its emulation at a 0.72 m GSD target (~20 px frames)."""
-    from metraw.scenes import generate_one
-
-    root = tmp_path_factory.mktemp("otf")
-    target = dataclasses.replace(TargetSystem.from_params(str(PARAMS)), focal_length_m=2.0)
-    scenes = [generate_one(i, 0, 256) for i in range(6)]
-    with RawStore.create(root / "src.zarr") as s:
-        for img in scenes:
-            s.append(img)
-    with RawStore.create(root / "tgt.zarr") as s:
-        for i, img in enumerate(scenes):
-            s.append(emulate(img, target, "auto", i))
-    return root / "src.zarr", root / "tgt.zarr", target
 
 
 def _cfg(**kw):
