@@ -111,7 +111,7 @@ class Segmenter(nn.Module):
     """U-Net wrapped with resampling to its working grid and padding to a valid size.
 
     ``forward(x, condition)`` accepts any (B, S, h, w) and returns logits (B, S, h, w) on the input grid;
-``condition`` (B, n_condition) only for a conditioned network.
+    ``condition`` (B, n_condition) only for a conditioned network.
     """
 
     def __init__(self, in_channels: int, base_channels: int = 16, depth: int = 3, upsample: int = 1,
