@@ -103,7 +103,8 @@ def test_a_conditioned_model_trains_saves_and_scores_and_refuses_images_without_
     plain, _, _ = load_model(tmp_path / "a", "cpu")
     plain.unet.n_condition = 0
     plain.unet.film = torch.nn.ModuleList()
-    assert np.array_equal(predict_logits(plain, planes, "cpu", condition=img.condition), predict_logits(plain, planes, "cpu"))
+    assert np.array_equal(predict_logits(plain, planes, "cpu", condition=img.condition),
+                          predict_logits(plain, planes, "cpu"))
 
 
 def test_condition_must_be_a_boolean():

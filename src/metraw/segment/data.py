@@ -72,8 +72,9 @@ def source_indices(store) -> tuple[np.ndarray, int]:
 
 
 def split_positions(store, test_fraction: float, split_seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """(source test indices, store positions of the test images) of an emulated ``store``: the split is its source's (``split_indices`` over the source's images), whatever subset of
-    them the store holds; a store that lacks a test image of its source is refused in one line."""
+    """(source test indices, store positions of the test images) of an emulated ``store``: the split is its
+    source's (``split_indices`` over the source's images), whatever subset of them the store holds; a store that
+    lacks a test image of its source is refused in one line."""
     indices, n_source = source_indices(store)
     _, test_idx = split_indices(n_source, test_fraction, split_seed)
     is_test = np.isin(indices, test_idx)
