@@ -437,3 +437,32 @@ def test_sections_with_extreme_escapes_or_damaged_bytes_fail_cleanly():
             predictive.decode_planes(bytes(b), [u])
         except MetrawError:
             pass
+
+
+@pytest.mark.parametrize("pattern", ["RGGB", "GBRG", "mono"])
+@pytest.mark.parametrize("shape", [(68, 68), (9, 7), (1, 5), (517, 263)])
+@pytest.mark.parametrize("step", [0.5, 1.0, 2.0])
+def test_round_trip_equals_decode_of_encode(pattern, shape, step):
+    """``codec.round_trip`` (no entropy coding) gives the decoder's pixels bit for bit, escapes included: saturated
+    and below-black pixels, row tiles (517 rows: two tiles) and every plane layout."""
+    img = _scene(shape, _profile(cfa_pattern=pattern), seed=shape[0])
+    data = img.data.copy()
+    data.reshape(-1)[::37] = 16000  # saturated: escaped, stored as they are
+    data.reshape(-1)[5::41] = 0     # below the transform's domain: escaped too
+    img = RawImage(data, img.profile)
+    for seed in (0, 12345):
+        coded = codec.decode(codec.encode(img, step, seed, check_profile=False, embed_profile=False), img.profile).data
+        fast = codec.round_trip(img, step, seed)
+        assert fast.dtype == np.uint16 and np.array_equal(fast, coded)
+    assert not np.array_equal(codec.round_trip(img, step, 0), codec.round_trip(img, step, 12345))  # the dither acts
+    assert np.array_equal(img.data, data)  # the input is left as it was
+
+
+def test_round_trip_bad_input_errors():
+    img = _scene((8, 8))
+    with pytest.raises(MetrawError, match="codec.round_trip needs a RawImage"):
+        codec.round_trip(img.data, 1.0, 0)
+    with pytest.raises(MetrawError, match="positive number of sigmas"):
+        codec.round_trip(img, 0.0, 0)
+    with pytest.raises(MetrawError, match="seed must be in"):
+        codec.round_trip(img, 1.0, -1)

@@ -34,7 +34,7 @@ from metraw.errors import MetrawError
 from metraw.image import RawImage
 from metraw.profile import CalibrationProfile
 
-__all__ = ["encode", "decode", "ProfileMismatchWarning", "measured_noise_sigma", "THREADS", "threads"]
+__all__ = ["encode", "decode", "round_trip", "ProfileMismatchWarning", "measured_noise_sigma", "THREADS", "threads"]
 
 #: Threads for tile-parallel coding, the calling thread included (the numba kernels release the GIL).
 THREADS = 2
@@ -205,6 +205,44 @@ def measured_noise_sigma(symbols: np.ndarray, pattern: str, step: float) -> floa
     return _noise_sigma_of_planes(_planes(symbols, pattern), step)
 
 
+def _check_encode_args(image, step, seed, caller: str) -> tuple[float, int]:
+    """(step, seed) as float and int after checking them and ``image`` (one clear error each)."""
+    if not isinstance(image, RawImage):
+        raise MetrawError(f"{caller} needs a RawImage (uint16 DN with a calibration profile)")
+    if image.data.dtype != np.uint16:
+        raise MetrawError(f"{caller} needs uint16 DN, got {image.data.dtype}")
+    step = float(step)
+    if not (math.isfinite(step) and step > 0):
+        raise MetrawError(f"quantisation step must be a positive number of sigmas, got {step}")
+    seed = int(seed)
+    if not 0 <= seed < 2**63:
+        raise MetrawError(f"seed must be in [0, 2^63), got {seed}")
+    return step, seed
+
+
+def round_trip(image: RawImage, step: float = 1.0, seed: int = 0) -> np.ndarray:
+    """The uint16 DN that ``decode(encode(image, step, seed))`` returns, without coding them.
+
+    The entropy coder is lossless: a decoded pixel is the reconstruction of its quantised symbol
+    (``prepare.forward`` then ``prepare.inverse_dn``, with the same dither), or the original DN where
+    it was escaped (saturated or below the transform's domain). So the round trip needs neither the
+    predictor nor rANS; it is what training draws use, where only the pixels matter, not the bits
+    (tests/test_codec.py: equal to the coded path for each CFA pattern, shape, tiling and step).
+    """
+    step, seed = _check_encode_args(image, step, seed, "codec.round_trip")
+    data = image.data
+    h, w = data.shape
+    pattern = image.profile.cfa_pattern
+    cell = cell_size(pattern)
+    out = np.empty((h, w), np.uint16)
+    for (dy, dx, _, _), u in zip(_plane_grid(0, h, w, pattern), _plane_dithers(seed, 0, h, w, pattern)):
+        sym = prepare.forward(data[dy::cell, dx::cell], image.profile, step, u)
+        prepare.inverse_dn(sym, image.profile, step, u, out[dy::cell, dx::cell])
+    esc = prepare.escape_mask(data, image.profile)
+    out[esc] = data[esc]
+    return out
+
+
 def encode(image: RawImage, step: float = 1.0, seed: int = 0, check_profile: bool = True,
            embed_profile: bool = True, account: dict | None = None) -> bytes:
     """Compress ``image``: quantisation step ``step`` in noise sigmas, dither seed ``seed``.
@@ -220,16 +258,7 @@ def encode(image: RawImage, step: float = 1.0, seed: int = 0, check_profile: boo
     used plus its share of the side information (``predictive.encode_planes``), the lossless
     escapes split by escaped pixels of each colour, the container header by pixels.
     """
-    if not isinstance(image, RawImage):
-        raise MetrawError("codec.encode needs a RawImage (uint16 DN with a calibration profile)")
-    if image.data.dtype != np.uint16:
-        raise MetrawError(f"codec.encode needs uint16 DN, got {image.data.dtype}")
-    step = float(step)
-    if not (math.isfinite(step) and step > 0):
-        raise MetrawError(f"quantisation step must be a positive number of sigmas, got {step}")
-    seed = int(seed)
-    if not 0 <= seed < 2**63:
-        raise MetrawError(f"seed must be in [0, 2^63), got {seed}")
+    step, seed = _check_encode_args(image, step, seed, "codec.encode")
     h, w = image.shape
     if h * w >= 2**32:
         raise MetrawError("images of 2^32 pixels or more are not supported by the codec")

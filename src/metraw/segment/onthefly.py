@@ -97,12 +97,13 @@ def draw_prepared(field: PhaseField | Sequence[PhaseField], seed: int, epoch: in
 
 
 def through_codec(image, step: float, seed: int):
-    """``image`` with its raw replaced by its round trip through the noise-preserving codec (step, dither seed)."""
+    """``image`` with its raw replaced by its round trip through the noise-preserving codec (step, dither seed):
+    ``codec.round_trip``, the pixels ``decode(encode(...))`` gives, without coding them."""
     from dataclasses import replace
 
-    from metraw.codec import decode, encode
+    from metraw.codec import round_trip
 
-    return replace(image, data=decode(encode(image, step, seed, check_profile=False), image.profile).data)
+    return replace(image, data=round_trip(image, step, seed))
 
 
 def fit_draws(fields: list, config: TrainConfig, device: str | None = None,
