@@ -114,7 +114,8 @@ rule train_source:
     params:
         training=config["training"],
         profile=config["training"].get("source_profile", config["training"]["profile"]),
-    threads: lambda wildcards: workflow.cores  # callable: --report and dry runs need no --cores
+    # 1 declared thread: the source profile trains on 1 torch thread (params.yaml), beside other jobs
+    threads: 1
     resources:
         mem_mb=6000,  # measured peak RSS with head room (README, SLURM: resources table)
         runtime=120,  # minutes, a generous bound on the measured wall time
