@@ -17,6 +17,14 @@ def finetune_args(wildcards, input):
     return f"--init {input.init} --epochs {PRETRAIN['finetune_epochs']}" if "init" in input.keys() else ""
 
 
+def source_train_threads(wildcards):
+    """The source profile's torch threads (its `threads`, else TrainConfig's default), at most the cores."""
+    from metraw.segment.train import TrainConfig
+
+    name = config["training"].get("source_profile", config["training"]["profile"])
+    return min(workflow.cores, int(config["training"]["profiles"][name].get("threads", TrainConfig.threads)))
+
+
 if PRETRAIN["enabled"]:
 
     if PRETRAIN_EXTRA:
@@ -114,8 +122,8 @@ rule train_source:
     params:
         training=config["training"],
         profile=config["training"].get("source_profile", config["training"]["profile"]),
-    # 1 declared thread: the source profile trains on 1 torch thread (params.yaml), beside other jobs
-    threads: 1
+    # the profile's torch threads (1 for the default `source` profile: the job runs beside others)
+    threads: source_train_threads
     resources:
         mem_mb=6000,  # measured peak RSS with head room (README, SLURM: resources table)
         runtime=120,  # minutes, a generous bound on the measured wall time
