@@ -81,6 +81,13 @@ identical on every frame of ``frames()`` at steps 0.5 / 1 / 2, but 1-thread deco
 the pass alone cost 13 ms of canon_dng's ~47 (8 contexts x 10 taps x 2 MP), and the sequential part fell only
 from ~43 to ~33 ms: the lanes' dependency chain (context -> table -> rANS -> value -> next context), not the
 instruction count, bounds it.
+
+A vectorised pass can only take taps whose coefficients do not depend on the activity context (which needs W).
+``benchmarks/codec_predictors.py`` (2026-11-26; empirical H(r | context, phase) in float arithmetic, no side
+information, steps 1 / 2) measured such predictors against today's: one shared predictor canon_dng +1.5 / +2.0 %,
+micasense +5.5 / +8.3 %, spacenet_pan +1.7 / +2.7 %; a shared sum of the 10 taps above plus per-context W, WW, N
+and bias +1.1 / +1.7, +2.5 / +3.9, +1.0 / +1.5 %; per-context N, NW, NE, NN, WW and bias plus a shared sum of the
+6 farther taps +0.9 / +1.4, +1.2 / +1.6, +0.2 / +0.3 %. None stays within issue #18's 1 % on every frame.
 """
 
 from __future__ import annotations

@@ -73,7 +73,8 @@ def code_length_bits(s: np.ndarray, u: np.ndarray, prediction: np.ndarray, ctx: 
     t = m - np.round(m)
     r = np.where(t < 0, -1, 1) * (s - np.round(m))
     cls = ctx * NPH + np.minimum((np.abs(t) * 2 * NPH).astype(np.int64), NPH - 1)
-    _, inverse, counts = np.unique(np.stack([cls, r.astype(np.int64)]), axis=1, return_inverse=True,
+    pairs = np.stack([cls, r.astype(np.int64)])
+    _, inverse, counts = np.unique(pairs, axis=1, return_inverse=True,
                                    return_counts=True)
     n_cls = np.bincount(cls)
     cls_of_pair = np.zeros(counts.size, np.int64)
