@@ -43,8 +43,10 @@ def symbol_planes(img, step: float, seed: int = 0):
     h, w = img.shape
     pattern = img.profile.cfa_pattern
     cell = cell_size(pattern)
+    grid = codec._plane_grid(0, h, w, pattern)
+    dithers = codec._plane_dithers(seed, 0, h, w, pattern)
     return [(prepare.forward(img.data[dy::cell, dx::cell], img.profile, step, u).astype(np.float64), u)
-            for (dy, dx, _, _), u in zip(codec._plane_grid(0, h, w, pattern), codec._plane_dithers(seed, 0, h, w, pattern))]
+            for (dy, dx, _, _), u in zip(grid, dithers)]
 
 
 def neighbours(a: np.ndarray) -> dict[str, np.ndarray]:
@@ -74,8 +76,7 @@ def code_length_bits(s: np.ndarray, u: np.ndarray, prediction: np.ndarray, ctx: 
     r = np.where(t < 0, -1, 1) * (s - np.round(m))
     cls = ctx * NPH + np.minimum((np.abs(t) * 2 * NPH).astype(np.int64), NPH - 1)
     pairs = np.stack([cls, r.astype(np.int64)])
-    _, inverse, counts = np.unique(pairs, axis=1, return_inverse=True,
-                                   return_counts=True)
+    _, inverse, counts = np.unique(pairs, axis=1, return_inverse=True, return_counts=True)
     n_cls = np.bincount(cls)
     cls_of_pair = np.zeros(counts.size, np.int64)
     cls_of_pair[inverse.ravel()] = cls
