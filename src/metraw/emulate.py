@@ -225,10 +225,11 @@ def plan_emulation(source_profile, source_shape: tuple[int, int], target: Target
     acc = accuracy or DEFAULT_ACCURACY
     key = _plan_key(source_profile, source_shape, target, acc, edge)
     plan = _PLAN_CACHE.get(key)
-    if plan is None:
+    if plan is None:  # made from this profile: its thinning ratios are this exposure's
         if len(_PLAN_CACHE) > 8:
             _PLAN_CACHE.pop(next(iter(_PLAN_CACHE)))
         plan = _PLAN_CACHE[key] = _make_plan(source_profile, tuple(source_shape), target, acc, edge)
+        return plan
     alpha, p = thinning_ratios(source_profile, target)
     if alpha != plan.alpha or p != plan.p:
         plan = replace(plan, alpha=alpha, p=p)
