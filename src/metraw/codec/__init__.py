@@ -205,6 +205,17 @@ def measured_noise_sigma(symbols: np.ndarray, pattern: str, step: float) -> floa
     return _noise_sigma_of_planes(_planes(symbols, pattern), step)
 
 
+def _tile_symbols(data: np.ndarray, r0: int, r1: int, profile: CalibrationProfile, step: float,
+                  seed: int) -> list[tuple[tuple[int, int, int, int], np.ndarray, np.ndarray]]:
+    """Per CFA plane of the row tile r0 .. r1 - 1 of ``data``: (its ``_plane_grid`` entry, dither, symbols), each a
+    contiguous array (the coder's kernels are faster on them): what ``encode`` codes and ``round_trip`` reconstructs."""
+    w = data.shape[1]
+    pattern = profile.cfa_pattern
+    cell = cell_size(pattern)
+    return [(g, u, prepare.forward(data[r0 + g[0]:r1:cell, g[1]::cell], profile, step, u))
+            for g, u in zip(_plane_grid(r0, r1, w, pattern), _plane_dithers(seed, r0, r1, w, pattern))]
+
+
 def _check_encode_args(image, step, seed, caller: str) -> tuple[float, int]:
     """(step, seed) as float and int after checking them and ``image`` (one clear error each)."""
     if not isinstance(image, RawImage):
@@ -231,12 +242,9 @@ def round_trip(image: RawImage, step: float = 1.0, seed: int = 0) -> np.ndarray:
     """
     step, seed = _check_encode_args(image, step, seed, "codec.round_trip")
     data = image.data
-    h, w = data.shape
-    pattern = image.profile.cfa_pattern
-    cell = cell_size(pattern)
-    out = np.empty((h, w), np.uint16)
-    for (dy, dx, _, _), u in zip(_plane_grid(0, h, w, pattern), _plane_dithers(seed, 0, h, w, pattern)):
-        sym = prepare.forward(data[dy::cell, dx::cell], image.profile, step, u)
+    cell = cell_size(image.profile.cfa_pattern)
+    out = np.empty(data.shape, np.uint16)
+    for (dy, dx, _, _), u, sym in _tile_symbols(data, 0, data.shape[0], image.profile, step, seed):
         prepare.inverse_dn(sym, image.profile, step, u, out[dy::cell, dx::cell])
     esc = prepare.escape_mask(data, image.profile)
     out[esc] = data[esc]
@@ -267,14 +275,9 @@ def encode(image: RawImage, step: float = 1.0, seed: int = 0, check_profile: boo
     pattern = prof.cfa_pattern
     tiles = _tiles(h, w, cell_size(pattern))
 
-    cell = cell_size(pattern)
-
     def work(tile):
         r0, r1 = tile
-        # per CFA plane, contiguous: its dither and symbols (the coder's kernels are faster on them)
-        us = _plane_dithers(seed, r0, r1, w, pattern)
-        syms = [prepare.forward(data[r0 + dy:r1:cell, dx::cell], prof, step, u)
-                for (dy, dx, _, _), u in zip(_plane_grid(r0, r1, w, pattern), us)]
+        _, us, syms = zip(*_tile_symbols(data, r0, r1, prof, step, seed))
         # the profile check looks at the first row tile only (half the frame at most: plenty)
         measured = _noise_sigma_of_planes(syms, step) if check_profile and r0 == 0 else None
         acc = [] if account is not None else None
