@@ -158,11 +158,14 @@ def structured_source(shape=(240, 360), seed=3, **changes) -> RawImage:
     return RawImage(expose(scene, prof, rng_from_seed(seed)), prof)
 
 
-@pytest.mark.parametrize("edge,rotation", [("reflect", 0.0), ("zero", 0.0), ("reflect", 0.4)])
-def test_mean_of_photon_draws_agrees_with_expected(edge, rotation):
+@pytest.mark.parametrize("edge,rotation,speed,jitter", [("reflect", 0.0, 0.0, 0.0), ("zero", 0.0, 0.0, 0.0),
+                                                         ("reflect", 0.4, 0.0, 0.0), ("reflect", 0.0, 6900.0, 1e-6)])
+def test_mean_of_photon_draws_agrees_with_expected(edge, rotation, speed, jitter):
     src = structured_source()
-    tgt = target(ground_speed_m_per_s=0.0, frame_rotation_rad=rotation)
+    tgt = target(ground_speed_m_per_s=speed, jitter_rms_rad=jitter, frame_rotation_rad=rotation)
     want, plan = expected_electrons(src, tgt, edge=edge)
+    if speed or jitter:  # the last case draws smear (1.2 m) and jitter (0.6 m rms) per photon
+        assert plan.smear_m > 0 and plan.jitter_m > 0
     n = 200
     draws = np.stack([photon_electrons(src, tgt, edge=edge, seed=i)[0] for i in range(n)]).astype(np.float64)
     det = want > 0
@@ -312,6 +315,8 @@ def test_result_profile_provenance_and_determinism():
     assert entry["params"]["accuracy"] == Accuracy().to_dict()
     photon = emulate(src, tgt, mode="photon", seed=11)
     assert photon.meta["emulation"]["chain"] == "photon"
+    assert np.array_equal(photon.data, emulate(src, tgt, mode="photon", seed=11).data)
+    assert not np.array_equal(photon.data, emulate(src, tgt, mode="photon", seed=12).data)
     with pytest.raises(MetrawError, match="mode"):
         emulate(src, tgt, mode="fast")
 

@@ -49,7 +49,6 @@ from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from typing import Any
 
-import numba as nb
 import numpy as np
 import scipy.fft as sfft
 import scipy.sparse as sp
@@ -58,6 +57,7 @@ from metraw.accuracy import DEFAULT_ACCURACY, Accuracy
 from metraw.cfa import channel_names, color_index, fill_factor, plane_offsets
 from metraw.errors import MetrawError
 from metraw.image import FLAG_SATURATED, RawImage
+from metraw.photon_landing import land_photons
 from metraw.rawfunc import stochastic_round, thin_counts
 from metraw.sensor import readout, rng_from_seed
 from metraw.target import TargetSystem
@@ -517,75 +517,6 @@ def _expected(cells: dict[str, np.ndarray], plan, target, fourier) -> np.ndarray
     return np.maximum(out, 0.0)
 
 
-@nb.njit(cache=True, nogil=True)
-def _land_photons(src_idx, bw, block, clamp_w, clamp_h, ux, uy, ul, upsf, uphi, usm, jx, jy,
-                  lo, hi, v_scale, ee, vt, guide, v_max, tail, smear_x, smear_y, reflect, wm, hm,
-                  cx, cy, c_r, s_r, gt, wt, ht, det, out):
-    """Land photons (one loop; the uniforms were drawn by numpy in the reference order) and count
-    them per target pixel into ``out`` (flat, ht x wt). Per photon: uniform position in its source
-    block, wavelength uniform in the band, PSF radius from the inverse encircled energy (linear
-    interpolation of the table, as np.interp; the asymptotic tail beyond it), uniform angle, smear,
-    jitter, edge folding, rotation to the target grid, detection mask (``det[0] < 0``: none)."""
-    n = src_idx.size
-    ee_last = ee[ee.size - 1]
-    nb_ = guide.size - 1
-    two_pi = 2.0 * math.pi
-    for i in range(n):
-        by = src_idx[i] // bw
-        bx = src_idx[i] - by * bw
-        x = (bx + ux[i]) * block
-        y = (by + uy[i]) * block
-        if clamp_w > 0.0:
-            x = min(x, clamp_w)
-            y = min(y, clamp_h)
-        lam = lo + (hi - lo) * ul[i]
-        u = upsf[i]
-        if u > ee_last:
-            v = v_max * tail / max(1.0 - u, 1e-300)
-        else:
-            k = int(u * nb_)
-            a = guide[k]
-            b = guide[min(k + 1, nb_)] + 1
-            while b - a > 1:  # ee[a] <= u < ee[b]
-                m = (a + b) >> 1
-                if ee[m] <= u:
-                    a = m
-                else:
-                    b = m
-            d = ee[a + 1] - ee[a]
-            v = vt[a] if d <= 0.0 else vt[a] + (vt[a + 1] - vt[a]) * (u - ee[a]) / d
-        r = v * lam * v_scale
-        phi = two_pi * uphi[i]
-        x += r * math.cos(phi)
-        y += r * math.sin(phi)
-        if usm.size:
-            t = usm[i] - 0.5
-            x += t * smear_x
-            y += t * smear_y
-        if jx.size:
-            x += jx[i]
-            y += jy[i]
-        if reflect:  # x % p is x itself for 0 <= x < p: the modulo only where a photon left the period
-            if x < 0.0 or x >= 2.0 * wm:
-                x = x % (2.0 * wm)
-            if x > wm:
-                x = 2.0 * wm - x
-            if y < 0.0 or y >= 2.0 * hm:
-                y = y % (2.0 * hm)
-            if y > hm:
-                y = 2.0 * hm - y
-        dx = x - cx
-        dy = y - cy
-        col = math.floor((c_r * dx + s_r * dy) / gt + wt / 2)
-        row = math.floor((-s_r * dx + c_r * dy) / gt + ht / 2)
-        if col < 0 or col >= wt or row < 0 or row >= ht:
-            continue
-        pix = int(row) * wt + int(col)
-        if det[0] >= 0 and not det[pix]:
-            continue
-        out[pix] += 1
-
-
 def photon_electrons(source: RawImage, target: TargetSystem, accuracy: Accuracy | None = None,
                      edge: str = "reflect", seed: int | np.random.Generator = 0) -> tuple[np.ndarray, EmulationPlan]:
     """One photon-exact draw of the detected photoelectrons per target pixel (int64), and the plan."""
@@ -602,9 +533,7 @@ def _photons(cells: dict[str, np.ndarray], plan: EmulationPlan, target, rng) -> 
     Hm, Wm = hc * plan.cell_m, wc * plan.cell_m
     c_r, s_r = math.cos(plan.rotation_rad), math.sin(plan.rotation_rad)
     gt = plan.target_gsd_m
-    chunk = 1 << 22
     table = plan.psf_table
-    empty = np.empty(0)
     for c, e in cells.items():
         e = np.maximum(e, 0.0)
         if B > 1:
@@ -613,30 +542,15 @@ def _photons(cells: dict[str, np.ndarray], plan: EmulationPlan, target, rng) -> 
             pad[:hc, :wc] = e
             e = pad.reshape(hb, B, wb, B).sum(axis=(1, 3))
         kept = thin_counts(stochastic_round(e, rng), plan.p[c], rng).ravel()
-        src = np.flatnonzero(kept)
-        reps = kept[src]
-        bw = e.shape[1]
         det = _detect(target, c, plan.frame_shape)
-        det_flat = np.full(1, -1, np.int8) if det is None else det.ravel().astype(np.int8)
+        det_flat = np.ones(ht * wt, np.int8) if det is None else det.ravel().astype(np.int8)
         lo, hi = plan.bands[c]
-        starts = np.concatenate(([0], np.cumsum(reps)))
-        first = 0
-        while first < len(src):
-            last = max(first + 1, int(np.searchsorted(starts, starts[first] + chunk, side="right")) - 1)
-            n = int(starts[last] - starts[first])
-            idx = np.repeat(src[first:last], reps[first:last])
-            # the uniforms in the reference order: position x, y, wavelength, PSF radius, angle, smear, jitter
-            ux, uy, ul, upsf, uphi = (rng.random(n) for _ in range(5))
-            usm = (rng.random(n) if plan.smear_m > 0 else empty)
-            jx = rng.normal(0.0, plan.jitter_m, n) if plan.jitter_m > 0 else empty
-            jy = rng.normal(0.0, plan.jitter_m, n) if plan.jitter_m > 0 else empty
-            _land_photons(idx, bw, block, Wm * (1 - 1e-12) if B > 1 else 0.0, Hm * (1 - 1e-12) if B > 1 else 0.0,
-                          ux, uy, ul, upsf, uphi, usm, jx, jy, lo, hi,
-                          plan.altitude_m / (math.pi * plan.diameter_m), table["ee"], table["v"], table["guide"],
-                          table["v_max"], table["tail"], plan.smear_m * math.cos(plan.smear_angle_rad),
-                          plan.smear_m * math.sin(plan.smear_angle_rad), plan.edge == "reflect", Wm, Hm,
-                          plan.centre_m[0], plan.centre_m[1], c_r, s_r, gt, wt, ht, det_flat, out)
-            first = last
+        key = np.uint64(rng.integers(0, 2**64, dtype=np.uint64))  # this colour's photon stream
+        land_photons(kept, e.shape[1], block, Wm * (1 - 1e-12) if B > 1 else 0.0, Hm * (1 - 1e-12) if B > 1 else 0.0,
+                     key, lo, hi, plan.altitude_m / (math.pi * plan.diameter_m), table["ee"], table["v"],
+                     table["guide"], table["v_max"], table["tail"], plan.smear_m * math.cos(plan.smear_angle_rad),
+                     plan.smear_m * math.sin(plan.smear_angle_rad), plan.jitter_m, plan.edge == "reflect", Wm, Hm,
+                     plan.centre_m[0], plan.centre_m[1], c_r, s_r, gt, wt, ht, det_flat, out)
     return out.reshape(ht, wt)
 
 
