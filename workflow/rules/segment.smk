@@ -17,12 +17,22 @@ def finetune_args(wildcards, input):
     return f"--init {input.init} --epochs {PRETRAIN['finetune_epochs']}" if "init" in input.keys() else ""
 
 
-def source_train_threads(wildcards):
-    """The source profile's torch threads (its `threads`, else TrainConfig's default), at most the cores."""
+def profile_threads(name):
+    """Torch threads of training profile ``name`` (its `threads`, else TrainConfig's default), at most the cores:
+    what its training uses, and its evaluation (`metraw evaluate` runs the model's recorded threads)."""
     from metraw.segment.train import TrainConfig
 
-    name = config["training"].get("source_profile", config["training"]["profile"])
     return min(workflow.cores, int(config["training"]["profiles"][name].get("threads", TrainConfig.threads)))
+
+
+def source_model_threads(wildcards):
+    """The drone-resolution reference's profile threads (train_source, evaluate_source[_real])."""
+    return profile_threads(config["training"].get("source_profile", config["training"]["profile"]))
+
+
+def point_model_threads(wildcards):
+    """The points' profile threads (evaluate, evaluate_real: the models' recorded torch threads)."""
+    return profile_threads(config["training"]["profile"])
 
 
 if PRETRAIN["enabled"]:
@@ -64,7 +74,12 @@ if PRETRAIN["enabled"]:
             nominal=config["target"]["nominal"],  # the box's points are the nominal payload with one change
             pixel_scaling=config["target"].get("pixel_scaling"),
             extra=lambda wildcards, input: " ".join(f"--extra {p}" for p in input.extra),
-        threads: lambda wildcards: workflow.cores  # callable: --report and dry runs need no --cores
+        # all cores but one for the box's field processes (--workers), the training then takes 1 torch thread and the
+        # draws' thread: on 2 cores the job starts beside others as soon as pretrain_scenes ends, instead of waiting
+        # for both cores to be free at once (the default run of 2026-11-26 left it waiting from 335 to 1202 s)
+        threads: lambda wildcards: max(1, workflow.cores - 1)  # callable: --report and dry runs need no --cores
+        # every fine-tuned point waits for it: it runs before the emulations (priority <= ~600, rule emulate)
+        priority: 1000
         resources:
             mem_mb=4000,  # the box's fields: ~0.3 MB per scene and point
             runtime=60,  # minutes
@@ -104,7 +119,8 @@ rule evaluate:
         model="results/points/{point}/model",
     output:
         "results/points/{point}/metrics.json",
-    threads: lambda wildcards: workflow.cores  # callable: --report and dry runs need no --cores
+    # the model's torch threads (1 in the default profile), so that evaluations run beside other jobs
+    threads: point_model_threads
     resources:
         mem_mb=1500,  # measured peak RSS with head room (README, SLURM: resources table)
         runtime=20,  # minutes, a generous bound on the measured wall time
@@ -123,7 +139,7 @@ rule train_source:
         training=config["training"],
         profile=config["training"].get("source_profile", config["training"]["profile"]),
     # the profile's torch threads (1 for the default `source` profile: the job runs beside others)
-    threads: source_train_threads
+    threads: source_model_threads
     resources:
         mem_mb=6000,  # measured peak RSS with head room (README, SLURM: resources table)
         runtime=120,  # minutes, a generous bound on the measured wall time
@@ -140,7 +156,7 @@ rule evaluate_source:
         model="results/source/model",
     output:
         "results/source/metrics.json",
-    threads: lambda wildcards: workflow.cores  # callable: --report and dry runs need no --cores
+    threads: source_model_threads  # the model's torch threads, as rule evaluate
     resources:
         mem_mb=2000,  # measured peak RSS with head room (README, SLURM: resources table)
         runtime=20,  # minutes, a generous bound on the measured wall time

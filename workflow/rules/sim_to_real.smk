@@ -55,7 +55,7 @@ rule evaluate_real:
         model="results/points/{point}/model",
     output:
         REAL_POINT_METRICS,
-    threads: lambda wildcards: workflow.cores  # callable: --report and dry runs need no --cores
+    threads: point_model_threads  # the model's torch threads, as rule evaluate
     resources:
         mem_mb=1500,  # measured peak RSS with head room (README, SLURM: resources table)
         runtime=20,  # minutes, a generous bound on the measured wall time
@@ -71,7 +71,7 @@ rule evaluate_source_real:
         model="results/source/model",
     output:
         SOURCE_REAL_METRICS,
-    threads: lambda wildcards: workflow.cores  # callable: --report and dry runs need no --cores
+    threads: source_model_threads  # the model's torch threads, as rule evaluate_source
     resources:
         mem_mb=1500,  # measured peak RSS with head room (README, SLURM: resources table)
         runtime=20,  # minutes, a generous bound on the measured wall time
