@@ -139,6 +139,6 @@ def _emulated(job: _Job, indices: list[int], workers: int):
     from metraw import codec
     from metraw.parallel import ordered_map
 
-    # with workers, each process decodes its source images on one thread: the processes fill the cores
-    with codec.threads(1 if workers > 1 else codec.THREADS):
+    # each process decodes its source images on one codec thread: --workers is the cores used
+    with codec.threads(1):
         yield from ordered_map(job, indices, workers, chunksize=4)

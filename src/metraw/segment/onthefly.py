@@ -41,8 +41,9 @@ def scene_fields(jobs: Sequence[tuple[Any, int, int, Sequence[TargetSystem]]], o
                  progress: bool | None = None, workers: int = 1, desc: str = "expected fields") -> list[list[PhaseField]]:
     """Per job (RawStore, image index, draw index, targets) the ``PhaseField`` s of that image at its targets, in
     job order (the image is read once for all of them). ``workers`` > 1: in that many worker processes, each
-    reading the stores by path and decoding on one codec thread (``metraw.codec.threads``); the fields do not
-    depend on ``workers``. The draw index seeds the scene's draws (``draw_rng``)."""
+    reading the stores by path; every image is decoded on one codec thread (``metraw.codec.threads``), so that
+    ``workers`` is the cores used (a second codec thread cost ~12 % more CPU per 1 MP source image: 39 against
+    35 ms). The fields depend on neither. The draw index seeds the scene's draws (``draw_rng``)."""
     from metraw import codec
     from metraw.parallel import ordered_map
     from metraw.progress import progress_bar
@@ -53,7 +54,7 @@ def scene_fields(jobs: Sequence[tuple[Any, int, int, Sequence[TargetSystem]]], o
     job = _SceneFields(stores, oversample)
     items = [(str(store.path), int(i), int(index), list(targets)) for store, i, index, targets in jobs]
     disable = None if progress is None else not progress
-    with codec.threads(1 if workers > 1 else codec.THREADS):
+    with codec.threads(1):
         return list(progress_bar(ordered_map(job, items, workers, chunksize=4), total=len(items), desc=desc,
                                  disable=disable))
 
