@@ -173,6 +173,21 @@ def test_a_car_outline_scores_one_against_its_box_only_as_a_box():
     assert "box_iou" not in summarise([score_image(Fixed(), img)])  # exact labels: no box scores
 
 
+def test_set_determinism_switches_deterministic_algorithms_without_importing_inductor():
+    """The eager-mode switch (error on CPU, warn on CUDA), without torch._inductor's ~1 s import."""
+    import subprocess
+    import sys
+
+    code = ("import sys, torch; from metraw.segment.train import set_determinism\n"
+            "set_determinism(0, 1, 'cpu')\n"
+            "a = (torch.are_deterministic_algorithms_enabled(), torch.is_deterministic_algorithms_warn_only_enabled())\n"
+            "set_determinism(0, 1, 'cuda')\n"
+            "b = (torch.are_deterministic_algorithms_enabled(), torch.is_deterministic_algorithms_warn_only_enabled())\n"
+            "print(a, b, torch.get_num_threads(), 'torch._inductor' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split("\n")[0]
+    assert out == "(True, False) (True, True) 1 False", out
+
+
 def test_training_is_deterministic_and_evaluates(tiny_store, tmp_path):
     from metraw.segment.evaluate import evaluate_store
     from metraw.segment.train import CHECKPOINT, TIMINGS, TRAIN_METRICS, train_store

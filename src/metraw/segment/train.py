@@ -19,6 +19,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import sys
 import time
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, fields
@@ -165,7 +166,10 @@ def set_determinism(seed: int, threads: int, device: str) -> None:
 
     os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
     torch.manual_seed(seed)
-    torch.use_deterministic_algorithms(True, warn_only=device != "cpu")
+    if "torch._inductor.config" in sys.modules:  # a caller compiles: its Inductor config is told as well
+        torch.use_deterministic_algorithms(True, warn_only=device != "cpu")
+    else:  # the same eager-mode switch without importing Inductor (~1 s of every metraw train/evaluate process)
+        torch._C._set_deterministic_algorithms(True, warn_only=device != "cpu")
     torch.set_num_threads(threads)
     if device != "cpu":
         torch.backends.cudnn.benchmark = False
