@@ -19,8 +19,9 @@ Two chains of one continuous model, each the other's test:
   no wider than ``max_prebin_fraction_of_psf`` of the PSF FWHM), binomial thinning, then every
   kept photon gets a continuous position: uniform in its cell (block), plus a PSF displacement
   drawn exactly (wavelength uniform in the band, radius by inverse CDF of the annulus encircled
-  energy, its r^-2 tail beyond the table drawn from the asymptote), plus smear and jitter.
-  Cost: O(kept photons).
+  energy, its r^-2 tail beyond the table drawn from the asymptote), plus smear and jitter, in one
+  compiled loop that draws its own random numbers (`metraw.photon_landing`).
+  Cost: O(kept photons): 35 ns a kept photon on one core, thinning included (93 ns with numpy's uniforms; 2026-11-27).
 - expected (FFT): the same model in expectation, evaluated in the Fourier domain where it is exact:
   cell counts are spread onto an oversampled ground grid (Gaussian gridding, separable sparse
   products), multiplied by the transfer functions (cell box, annulus OTF averaged over the band,
