@@ -25,9 +25,13 @@ def profile_threads(name):
     return min(workflow.cores, int(config["training"]["profiles"][name].get("threads", TrainConfig.threads)))
 
 
+# the drone-resolution reference's training profile (train_source's --profile and its jobs' threads)
+SOURCE_PROFILE = config["training"].get("source_profile", config["training"]["profile"])
+
+
 def source_model_threads(wildcards):
     """The drone-resolution reference's profile threads (train_source, evaluate_source[_real])."""
-    return profile_threads(config["training"].get("source_profile", config["training"]["profile"]))
+    return profile_threads(SOURCE_PROFILE)
 
 
 def point_model_threads(wildcards):
@@ -137,7 +141,7 @@ rule train_source:
         directory("results/source/model"),
     params:
         training=config["training"],
-        profile=config["training"].get("source_profile", config["training"]["profile"]),
+        profile=SOURCE_PROFILE,
     # the profile's torch threads (1 for the default `source` profile: the job runs beside others)
     threads: source_model_threads
     resources:
