@@ -17,8 +17,8 @@ A uniform direction phi = 2 pi u is evaluated without a branch or a libm call: c
 the nearest-below multiple of 2 pi / 1024 from a table, rotated by the remainder b < 6.2e-3 rad
 whose cos and sin are Taylor polynomials (truncation < 1e-19, below double rounding). The
 Gaussian jitter pair uses Marsaglia's polar method (a point uniform in the unit disc).
-Both are exact transformations, not approximations. The stream is a function of ``key`` alone (one per colour,
-drawn from the caller's numpy Generator), so the same seed gives the same counts.
+Both are exact transformations, not approximations. The stream is a function of ``key`` alone
+(one per colour, drawn from the caller's numpy Generator), so the same seed gives the same counts.
 """
 
 from __future__ import annotations
@@ -158,4 +158,3 @@ def land_photons(kept, bw, block, clamp_w, clamp_h, key, lo, hi, v_scale, ee, vt
                 continue
             pix = int(row) * wt + int(col)
             out[pix] += det[pix]
-    return state
