@@ -72,3 +72,47 @@ def test_bad_codec_step_is_a_clear_error(tmp_path, step, capsys):
     assert main(["scenes", "--n", "1", "--size", "32", "--out", str(tmp_path / "x.zarr"), "--codec-step", step]) == 2
     assert "--codec-step must be a positive number" in capsys.readouterr().err
     assert not (tmp_path / "x.zarr").exists()
+
+
+def test_decoded_copy_holds_the_same_images_uncompressed(stores, tmp_path, capsys):
+    """`metraw decode STORE OUT`: every image equal (pixels, masks, flags, profile, provenance, meta), the same
+    attributes and shard layout, the raw chunks plain uint16 (2 bytes per pixel on disk), the same content
+    digest (a model trained on the copy recognises the original), and the original named as its origin."""
+    import zarr
+
+    from metraw.segment.train import store_digest
+    from metraw.store import read_shard_index
+
+    _, coded = stores
+    out = tmp_path / "copy.zarr"
+    assert main(["decode", str(coded), str(out), "--threads", "2"]) == 0
+    assert "2 images" in capsys.readouterr().out
+    src, copy = RawStore.open(coded), RawStore.open(out)
+    assert len(copy) == len(src) == 2
+    for a, b in zip(src, copy):
+        assert a.data.dtype == b.data.dtype and np.array_equal(a.data, b.data)
+        assert np.array_equal(a.mask, b.mask) and np.array_equal(a.flags, b.flags)
+        assert a.profile.to_dict() == b.profile.to_dict() and a.provenance == b.provenance and a.meta == b.meta
+    assert copy.attrs == {**src.attrs, "decoded_from": str(coded)}
+    assert copy.origin == str(coded) and src.origin == str(coded)
+    assert copy.images_per_shard == src.images_per_shard
+    assert store_digest(copy) == store_digest(src)
+    raw = zarr.open_group(str(out))["raw"]
+    inner = raw.metadata.codecs[0].to_dict()["configuration"]["codecs"]
+    assert [c["name"] for c in inner] == ["bytes"], inner  # no compressor, no metraw.raw
+    h, w = src.shape(0)
+    index = read_shard_index(out / "raw" / "c" / "0" / "0" / "0", copy.images_per_shard)
+    assert list(index[:2, 1]) == [2 * h * w] * 2
+
+
+def test_decoded_copy_refuses_bad_input_in_one_line(stores, tmp_path, capsys):
+    _, coded = stores
+    (tmp_path / "exists.zarr").mkdir()
+    assert main(["decode", str(coded), str(tmp_path / "exists.zarr")]) == 2
+    assert "already exists" in capsys.readouterr().err
+    (tmp_path / "plain_dir").mkdir()
+    assert main(["decode", str(tmp_path / "plain_dir"), str(tmp_path / "o.zarr")]) == 2
+    assert "not a metraw store" in capsys.readouterr().err
+    assert main(["decode", str(coded), str(tmp_path / "o.zarr"), "--threads", "0"]) == 2
+    assert "--threads must be >= 1" in capsys.readouterr().err
+    assert not (tmp_path / "o.zarr").exists()

@@ -39,9 +39,15 @@ def test_on_the_fly_replicates_are_deterministic_and_scored(stores, tmp_path):
     from metraw.segment.onthefly import train_store_on_the_fly
     from metraw.segment.train import CHECKPOINT, TIMINGS, TRAIN_METRICS, replicate_dirs
 
+    from metraw.store import write_decoded_copy
+
     src, tgt, _ = stores
-    for run in ("a", "b"):
-        rec = train_store_on_the_fly(tgt, src, tmp_path / run, _cfg(), device="cpu", progress=False, codec_step=1.0)
+    # run b reads the source's decoded working copy (the workflow's rule decode_store): the same bytes, train.json
+    # (which names the source) included
+    copy = write_decoded_copy(src, tmp_path / "copy.zarr", progress=False).path
+    for run, source in (("a", src), ("b", copy)):
+        rec = train_store_on_the_fly(tgt, source, tmp_path / run, _cfg(), device="cpu", progress=False, codec_step=1.0)
+    assert rec["source"] == str(src)
     assert rec["on_the_fly"] and rec["replicate_seeds"] == [0, 1] and rec["draws"] == 4 * 2
     for rel in (CHECKPOINT, TRAIN_METRICS, f"replicate-1/{CHECKPOINT}"):
         assert (tmp_path / "a" / rel).read_bytes() == (tmp_path / "b" / rel).read_bytes(), rel

@@ -130,7 +130,7 @@ def test_sweep_through_slurm_matches_local_run(tmp_path, slurm_cluster):
         comment = job_comment(job_id)
         assert comment == f"rule_{rule}" or comment.startswith(f"rule_{rule}_wildcards_"), (job_id, rule, comment)
     rules = sorted(set(submitted.values()))
-    assert rules == ["aggregate", "calibrate_source", "compress", "emulate", "evaluate", "evaluate_source",
+    assert rules == ["aggregate", "calibrate_source", "compress", "decode_store", "emulate", "evaluate", "evaluate_source",
                      "pretrain", "pretrain_scenes", "source_store", "train", "train_source"], rules
 
     # 2. the same bytes as the local run

@@ -207,7 +207,7 @@ def test_changing_one_sweep_value_reruns_only_that_point(tmp_path):
     t0 = time.perf_counter()
     first = _run(["snakemake", "--cores", "2", "--", *targets], root)
     timings["snakemake_first_s"] = time.perf_counter() - t0
-    expected = {"source_store": 1, "pretrain_scenes": 1, "pretrain": 1, "aggregate": 1}
+    expected = {"source_store": 1, "decode_store": 1, "pretrain_scenes": 1, "pretrain": 1, "aggregate": 1}
     for point in points:
         expected.update(point_jobs(point))
     finished, executed, fetched, stored_jobs = snakemake_ran(root, first.stdout + first.stderr)

@@ -36,14 +36,14 @@ def _dry(root: Path, *targets: str) -> tuple[collections.Counter, str]:
 
 
 def _chain_jobs() -> collections.Counter:
-    jobs = collections.Counter({"source_store": 1, "calibrate_source": 1, "train_source": 1, "evaluate_source": 1,
-                                "pretrain_scenes": 1, "pretrain": 1, "aggregate": 1})
+    jobs = collections.Counter({"source_store": 1, "decode_store": 1, "calibrate_source": 1, "train_source": 1,
+                                "evaluate_source": 1, "pretrain_scenes": 1, "pretrain": 1, "aggregate": 1})
     jobs.update({f"{rule}[{p}]": 1 for rule in ("emulate", "train", "evaluate", "compress") for p in POINTS})
     return jobs
 
 
 def _real_jobs() -> collections.Counter:
-    jobs = collections.Counter({"real_store": 1, "evaluate_source_real": 1})
+    jobs = collections.Counter({"real_store": 1, "decode_store": 1, "evaluate_source_real": 1})
     jobs.update({f"{rule}[{p}]": 1 for rule in ("emulate_real", "evaluate_real") for p in POINTS})
     return jobs
 
@@ -59,9 +59,13 @@ def test_dry_run_lists_the_real_jobs(tmp_path, enabled):
     # emulates every real image (the synthetic store holds the test split only: training draws from the source)
     assert re.search(r"metraw ingest real --labels yolo --camera \S+ --gsd-m 0.135 --white-fraction 1.0 --seed 0 "
                      r"--out data/real.zarr --codec-step 1.0 --codec-seed 0", text), text
-    emulate = re.search(r"metraw emulate data/source.zarr results/points/nominal/target.zarr (.*?) 2>", text).group(1)
+    # each emulation reads its store's decoded working copy (rule decode_store)
+    assert re.search(r"metraw decode data/source.zarr data/source.decoded.zarr --threads 1 2>", text), text
+    assert re.search(r"metraw decode data/real.zarr data/real.decoded.zarr --threads 1 2>", text), text
+    emulate = re.search(r"metraw emulate data/source.decoded.zarr results/points/nominal/target.zarr (.*?) 2>",
+                        text).group(1)
     assert "--images test" in emulate
-    assert (f"metraw emulate data/real.zarr results/points/nominal/real.zarr "
+    assert (f"metraw emulate data/real.decoded.zarr results/points/nominal/real.zarr "
             f"{emulate.replace('--images test', '--images all')} 2>") in text
     assert ("metraw evaluate results/points/nominal/real.zarr --model results/points/nominal/model --split all "
             "--out results/points/nominal/real_metrics.json") in text

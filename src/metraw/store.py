@@ -53,6 +53,12 @@ def _default_raw_codecs(profile: CalibrationProfile) -> dict[str, Any]:
     return {"compressors": [_zstd()]}
 
 
+def uncompressed_raw_codecs(profile: CalibrationProfile) -> dict[str, Any]:
+    """The raw array stored as plain little-endian uint16, no compressor: the fastest to read (a working
+    copy that many jobs read, ``write_decoded_copy``), at 2 bytes per pixel on disk."""
+    return {"compressors": None}
+
+
 #: Shard-index entry of a chunk slot that holds no chunk (offset and length all ones).
 _EMPTY_SLOT = np.uint64(2**64 - 1)
 
@@ -83,7 +89,6 @@ class RawStore:
         self._group = group
         self._mode = mode
         self._raw_codecs = raw_codecs or _default_raw_codecs
-        self._images_per_shard = images_per_shard
         self._pending: list[RawImage] = []
         attrs = group.attrs.get("metraw", {})
         if not isinstance(attrs, dict):
@@ -93,6 +98,7 @@ class RawStore:
                 raise MetrawError(f"{root} is not a metraw store (store_version {attrs.get('store_version')!r})")
         self._records: list[dict[str, Any]] = list(attrs.get("images", []))
         self._attrs_extra: dict[str, Any] = dict(attrs.get("extra", {}))
+        self._images_per_shard = images_per_shard or attrs.get("images_per_shard")
         if attrs:
             self._check_records(attrs.get("count"))
 
@@ -166,6 +172,17 @@ class RawStore:
         """Dataset-level descriptive attributes (e.g. generator parameters)."""
         return self._attrs_extra
 
+    @property
+    def images_per_shard(self) -> int | None:
+        """Images per shard file (None before the first image is written)."""
+        return self._images_per_shard
+
+    @property
+    def origin(self) -> str:
+        """The store to name in provenance records: the one this store is a decoded working copy of
+        (``write_decoded_copy``, attribute ``decoded_from``), else this store's own path."""
+        return str(self._attrs_extra.get("decoded_from", self.path))
+
     # ----------------------------------------------------------------- writing
     def append(self, image: RawImage) -> None:
         """Add an image; data is buffered and written a whole shard at a time."""
@@ -177,10 +194,11 @@ class RawStore:
         if len(self._pending) >= self._shard_images(image.shape):
             self.flush()
 
-    def extend(self, images: Iterable[RawImage], progress: bool = False, total: int | None = None) -> None:
+    def extend(self, images: Iterable[RawImage], progress: bool | None = False, total: int | None = None) -> None:
+        """Append every image; ``progress``: a bar on stderr (None: only on a terminal)."""
         from metraw.progress import progress_bar
 
-        for image in progress_bar(images, total=total, desc="store", disable=not progress):
+        for image in progress_bar(images, total=total, desc="store", disable=None if progress is None else not progress):
             self.append(image)
 
     def set_attrs(self, **values: Any) -> None:
@@ -302,6 +320,23 @@ class RawStore:
             "images": self._records,
             "extra": self._attrs_extra,
         }
+
+
+def write_decoded_copy(source_path: str | os.PathLike, out_path: str | os.PathLike, overwrite: bool = False,
+                       progress: bool | None = None) -> RawStore:
+    """Copy the store at ``source_path`` to ``out_path`` with its raw array uncompressed
+    (``uncompressed_raw_codecs``): the same images (pixels, masks, flags, profiles, provenance, meta), the same
+    attributes plus ``decoded_from`` = ``source_path`` as given, and the same shard layout. A store written with
+    the noise-preserving codec (``metraw scenes --codec-step``) is then read without decoding: ~12 instead of
+    ~42 ms of CPU per 1 MP image, at 4x the disk. Returns the copy, open for reading."""
+    source = RawStore.open(source_path)
+    attrs = dict(source.attrs)
+    attrs["decoded_from"] = str(source_path)
+    with RawStore.create(out_path, overwrite=overwrite, raw_codecs=uncompressed_raw_codecs,
+                         images_per_shard=source.images_per_shard) as copy:
+        copy.set_attrs(**attrs)
+        copy.extend(source, progress=progress, total=len(source))
+    return RawStore.open(out_path)
 
 
 class _AtomicStore:

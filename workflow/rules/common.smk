@@ -10,6 +10,14 @@ from metraw.segment.pretrain import draws_extra_scenes, fine_tuned_points, pretr
 
 POINTS = list(parameter_points(config))
 SOURCE_STORE = "data/source.zarr"
+# The stores many jobs read (the source: every emulation, training and the pretraining; the real photos: every
+# point's emulate_real) are read from a decoded working copy, the raw array uncompressed (rule decode_store: ~12
+# instead of ~42 ms of CPU per 1 MP image, at 4x the disk). A reader lists both: the store, whose change reruns it,
+# and the copy, what its command reads, as ancient (a copy a DVC stage wrote after the readers' outputs reruns
+# none of them). The copy is an ordinary intermediate output: deleting it reruns its readers, as deleting a store
+# would. (Not temp(): Snakemake would re-create a deleted temporary copy for one new point and then rerun every
+# reader, since ancient spares only readers of an existing file.)
+SOURCE_DECODED = "data/source.decoded.zarr"
 
 # Pretraining across the box (params.yaml training.pretrain; workflow/rules/segment.smk): the points of the
 # nominal's CFA family fine-tune one pretrained network per replicate; the others train from scratch.
@@ -22,6 +30,7 @@ PRETRAINED_POINTS = set(fine_tuned_points(config))
 # Sim-to-real benchmark (workflow/rules/sim_to_real.smk, when SIM_TO_REAL): the real photos as a store, emulated
 # per point, scored by each point's model; the drone-resolution model scored on the un-emulated store.
 REAL_STORE = "data/real.zarr"
+REAL_DECODED = "data/real.decoded.zarr"
 REAL_POINT_METRICS = "results/points/{point}/real_metrics.json"
 SOURCE_REAL_METRICS = "results/source/real_metrics.json"
 SIM_TO_REAL_METRICS = (expand(REAL_POINT_METRICS, point=POINTS) + [SOURCE_REAL_METRICS]) if SIM_TO_REAL else []

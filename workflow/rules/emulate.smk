@@ -22,7 +22,8 @@ def emulation_priority(wildcards):
 
 rule emulate:
     input:
-        SOURCE_STORE,
+        source=SOURCE_STORE,
+        decoded=ancient(SOURCE_DECODED),  # what the command reads (common.smk)
     output:
         directory("results/points/{point}/target.zarr"),
     params:
@@ -41,6 +42,6 @@ rule emulate:
     log:
         "logs/emulate/{point}.log",
     shell:
-        "metraw emulate {input} {output} --params {PARAMS_FILE} --point '{params.point}'"
+        "metraw emulate {input.decoded} {output} --params {PARAMS_FILE} --point '{params.point}'"
         " --mode {params.emulation[mode]} --seed {params.emulation[seed]} --images {params.images} --workers {threads}"
         " --codec-step {params.codec[step]} --codec-seed {params.codec[seed]} 2> {log}"

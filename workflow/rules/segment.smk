@@ -6,8 +6,9 @@
 
 
 def train_inputs(wildcards):
-    """The point's store and the source; the pretrained model when the point fine-tunes it."""
-    inputs = {"store": f"results/points/{wildcards.point}/target.zarr", "source": SOURCE_STORE}
+    """The point's store and the source (and its decoded copy); the pretrained model when the point fine-tunes it."""
+    inputs = {"store": f"results/points/{wildcards.point}/target.zarr", "source": SOURCE_STORE,
+              "source_decoded": ancient(SOURCE_DECODED)}  # the copy is what the command reads (common.smk)
     if wildcards.point in PRETRAINED_POINTS:
         inputs["init"] = PRETRAINED_MODEL
     return inputs
@@ -69,6 +70,7 @@ if PRETRAIN["enabled"]:
         depend on the sweeps, so a changed sweep value reruns only its point."""
         input:
             source=SOURCE_STORE,
+            decoded=ancient(SOURCE_DECODED),  # what the command reads (common.smk)
             extra=PRETRAIN_EXTRA,
         output:
             directory(PRETRAINED_MODEL),
@@ -90,7 +92,7 @@ if PRETRAIN["enabled"]:
         log:
             "logs/pretrain.log",
         shell:
-            "metraw pretrain {input.source} {params.extra} --codec-step {params.codec[step]} --out {output}"
+            "metraw pretrain {input.decoded} {params.extra} --codec-step {params.codec[step]} --out {output}"
             " --params {PARAMS_FILE} --workers {threads} 2> {log}"
 
 
@@ -113,7 +115,7 @@ rule train:
     log:
         "logs/train/{point}.log",
     shell:
-        "metraw train {input.store} --source {input.source} --codec-step {params.codec[step]} {params.finetune}"
+        "metraw train {input.store} --source {input.source_decoded} --codec-step {params.codec[step]} {params.finetune}"
         " --out {output} --params {PARAMS_FILE} --workers {threads} 2> {log}"
 
 
@@ -136,7 +138,8 @@ rule evaluate:
 
 rule train_source:
     input:
-        SOURCE_STORE,
+        source=SOURCE_STORE,
+        decoded=ancient(SOURCE_DECODED),  # what the command reads (common.smk)
     output:
         directory("results/source/model"),
     params:
@@ -150,13 +153,14 @@ rule train_source:
     log:
         "logs/train/source.log",
     shell:
-        "metraw train {input} --out {output} --params {PARAMS_FILE} --replicates 1"
+        "metraw train {input.decoded} --out {output} --params {PARAMS_FILE} --replicates 1"
         " --profile {params.profile} 2> {log}"
 
 
 rule evaluate_source:
     input:
-        store=SOURCE_STORE,
+        source=SOURCE_STORE,
+        store=ancient(SOURCE_DECODED),  # what the command reads (common.smk)
         model="results/source/model",
     output:
         "results/source/metrics.json",

@@ -27,7 +27,8 @@ rule real_store:
 
 rule emulate_real:
     input:
-        REAL_STORE,
+        real=REAL_STORE,
+        decoded=ancient(REAL_DECODED),  # what the command reads (common.smk)
     output:
         directory("results/points/{point}/real.zarr"),
     params:
@@ -44,7 +45,7 @@ rule emulate_real:
     log:
         "logs/emulate_real/{point}.log",
     shell:
-        "metraw emulate {input} {output} --params {PARAMS_FILE} --point '{params.point}'"
+        "metraw emulate {input.decoded} {output} --params {PARAMS_FILE} --point '{params.point}'"
         " --mode {params.emulation[mode]} --seed {params.emulation[seed]} --images all --workers {threads}"
         " --codec-step {params.codec[step]} --codec-seed {params.codec[seed]} 2> {log}"
 

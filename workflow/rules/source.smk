@@ -41,6 +41,26 @@ else:
             " --codec-step {params.codec[step]} --codec-seed {params.codec[seed]} 2> {log}"
 
 
+rule decode_store:
+    """The decoded working copy of a store many jobs read (workflow/rules/common.smk, SOURCE_DECODED): the same
+    images and attributes, the raw array uncompressed."""
+    input:
+        "data/{name}.zarr",
+    output:
+        directory("data/{name}.decoded.zarr"),
+    wildcard_constraints:
+        name="source|real",
+    threads: 1
+    priority: 2000  # its readers wait for it: right after its store
+    resources:
+        mem_mb=1500,  # measured peak RSS with head room (README, SLURM: resources table)
+        runtime=20,  # minutes, a generous bound on the measured wall time
+    log:
+        "logs/decode_store/{name}.log",
+    shell:
+        "metraw decode {input} {output} --threads {threads} 2> {log}"
+
+
 rule calibrate_source:
     """Single-frame noise calibration of source images against the profile they carry."""
     input:

@@ -65,6 +65,9 @@ HEADER = """\
 # --workflow-profile none: no between-workflow output cache (profiles/default turns it on); DVC has its own,
 # and a --forcerun job would otherwise be fetched from Snakemake's cache instead of run
 SNAKEMAKE = "snakemake --workflow-profile none --cores all"
+# the rules whose command reads a store's decoded working copy (rule decode_store, workflow/rules/common.smk): their
+# stages may write the copy first. It is no DVC dependency or output: the stages depend on the stores themselves.
+READS_DECODED = {"emulate", "emulate_real", "train", "train_source", "evaluate_source", "pretrain"}
 POINT_DIR = "results/points/{point}"
 SOURCE_STORE = "data/source.zarr"
 REAL_STORE = "data/real.zarr"
@@ -89,7 +92,8 @@ AGGREGATE_IN = ["metrics.json", "compression.json", "target.zarr"]
 
 def _cmd(rule: str, targets: list[str], config: str = "") -> str:
     config = f" --config {config}" if config else ""
-    return f"{SNAKEMAKE} --forcerun {rule} --allowed-rules {rule}{config} -- {' '.join(targets)}"
+    allowed = f"{rule} decode_store" if rule in READS_DECODED else rule
+    return f"{SNAKEMAKE} --forcerun {rule} --allowed-rules {allowed}{config} -- {' '.join(targets)}"
 
 
 def _params_for(rule: str, params: dict[str, Any]) -> list[str]:

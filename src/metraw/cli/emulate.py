@@ -82,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
         # a test-split store records which source images it holds (metraw.segment.data.source_indices); a store of
         # all images (or their first --limit) is image i from source image i, a data set of its own
         subset = {"source_images": len(source), "source_indices": [int(i) for i in indices]} if images == "test" else {}
-        out.set_attrs(generator="metraw.emulate", source=str(args.source), target=target.to_dict(), mode=mode,
+        out.set_attrs(generator="metraw.emulate", source=source.origin, target=target.to_dict(), mode=mode,
                       seed=seed, edge=args.edge, accuracy=accuracy.to_dict(), images=images, **subset,
                       **codec.attrs())
         job = _Job(str(args.source), target, mode, seed, accuracy, args.edge)

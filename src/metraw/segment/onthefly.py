@@ -220,7 +220,7 @@ def train_store_on_the_fly(store_path, source_path, out_dir, config: TrainConfig
     runs = fit_replicates(config, lambda cfg: fit_draws(fields, cfg, device, progress,
                                                         init_state=None if inits is None else inits[cfg.seed - config.seed],
                                                         draws_per_epoch=cfg.draws_per_epoch, codec_step=codec_step),
-                          {"store": str(store_path), "store_digest": digest, "source": str(source_path),
+                          {"store": str(store_path), "store_digest": digest, "source": source.origin,
                            "init": None if init_dir is None else str(init_dir),
                            "n_images": len(store), "source_images": n_source, "train_indices": train_idx.tolist(),
                            "test_indices": test_idx.tolist(), "preprocess_time_s": fields_s})

@@ -122,7 +122,7 @@ def pretrain_stores(source_path, make_target: Callable[[dict[str, float]], Targe
     fields_s = time.perf_counter() - t0
     runs = fit_replicates(config, lambda cfg: fit_draws(fields, cfg, device, progress,
                                                         draws_per_epoch=cfg.draws_per_epoch, codec_step=codec_step),
-                          {"pretraining": True, "source": str(source_path), "extra_sources": [str(p) for p in extra_paths],
+                          {"pretraining": True, "source": source.origin, "extra_sources": [RawStore.open(p).origin for p in extra_paths],
                            "n_images": len(source), "train_indices": train_idx.tolist(),
                            "test_indices": test_idx.tolist(), "box": {k: [float(v) for v in r] for k, r in box.items()},
                            "points_per_scene": int(points_per_scene), "preprocess_time_s": fields_s})

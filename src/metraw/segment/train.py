@@ -395,7 +395,7 @@ def train_store(store_path: str | os.PathLike, out_dir: str | os.PathLike, confi
     images = prepare_store(store, train_idx, progress)
     prep_s = time.perf_counter() - t0
     runs = fit_replicates(config, lambda cfg: fit(images, cfg, device, progress),
-                          {"store": str(store_path), "store_digest": digest, "n_images": len(store),
+                          {"store": store.origin, "store_digest": digest, "n_images": len(store),
                            "train_indices": train_idx.tolist(), "test_indices": test_idx.tolist(),
                            "preprocess_time_s": prep_s})
     save_replicates(out_dir, runs, test_idx, overwrite)
