@@ -11,6 +11,7 @@ if config["source"]["dataset"] == "synthetic":
             synthetic=config["source"]["synthetic"],
             camera=config["source"]["camera"],
             codec=config["codec"],
+        priority: 1000  # every job waits for it: before the sim-to-real emulations (priority <= ~600), as pretrain_scenes
         resources:
             mem_mb=3000,  # measured peak RSS with head room (README, SLURM: resources table)
             runtime=60,  # minutes, a generous bound on the measured wall time
@@ -30,6 +31,7 @@ else:
             kit=config["source"]["kit_ais"],
             camera=config["source"]["camera"],
             codec=config["codec"],
+        priority: 1000  # every job waits for it: before the sim-to-real emulations (priority <= ~600), as pretrain_scenes
         resources:
             mem_mb=2000,  # as real_store (the same ingest of the KIT photos)
             runtime=20,  # minutes
