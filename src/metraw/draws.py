@@ -37,9 +37,9 @@ import scipy.sparse as sp
 
 from metraw.accuracy import DEFAULT_ACCURACY, Accuracy
 from metraw.cfa import color_index
-from metraw.emulate import (_cell_mask, _cell_planes, _detect, _Fourier, _saturated_cells, _window_matrix,
-                            plan_emulation)
+from metraw.emulate import _cell_mask, _cell_planes, _detect, _Fourier, _saturated_cells, plan_emulation
 from metraw.errors import MetrawError
+from metraw.gridding import GaussianWindow
 from metraw.image import FLAG_SATURATED, RawImage
 from metraw.sensor import readout, rng_from_seed
 from metraw.target import TargetSystem
@@ -183,11 +183,11 @@ def build_field(source: RawImage, target: TargetSystem, oversample: int = DEFAUL
     cx, cy = plan.centre_m
     v = (np.arange(ny) - (ny - 1) / 2) * gt / k
     u = (np.arange(nx) - (nx - 1) / 2) * gt / k
-    Ty = _window_matrix((v + cy) / hy + oy0, Ny, True, *g).T.tocsr()
-    Tx = _window_matrix((u + cx) / hx + ox0, Nx, True, *g)
+    Ty = GaussianWindow((v + cy) / hy + oy0, Ny, True, *g)
+    Tx = GaussianWindow((u + cx) / hx + ox0, Nx, True, *g)
 
     def lattice(cells: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        return {c: np.asarray((Ty @ four.filtered(four.grid(plan.p[c] * e), c)) @ Tx).astype(np.float32)
+        return {c: Tx.gather_cols(Ty.gather_rows(four.filtered(four.grid(plan.p[c] * e), c))).astype(np.float32)
                 for c, e in cells.items()}
 
     cells = _cell_planes(source, plan)
