@@ -52,35 +52,27 @@ class GaussianWindow:
 
     def scatter_rows(self, a: np.ndarray) -> np.ndarray:
         """S @ a: (n_points, n) -> (n_grid, n)."""
-        a = self._operand(a, 0)
-        return _scatter_rows(a, self.index, self.weight, self.n_grid)
+        return _scatter_rows(self._checked(a, 0, self.n_points, "operand"), self.index, self.weight, self.n_grid)
 
     def scatter_cols(self, a: np.ndarray) -> np.ndarray:
         """a @ S^T: (n, n_points) -> (n, n_grid)."""
-        a = self._operand(a, 1)
-        return _scatter_cols(a, self.index, self.weight, self.n_grid)
+        return _scatter_cols(self._checked(a, 1, self.n_points, "operand"), self.index, self.weight, self.n_grid)
 
     def gather_rows(self, g: np.ndarray) -> np.ndarray:
         """S^T @ g: (n_grid, n) -> (n_points, n)."""
-        g = self._grid_operand(g, 0)
-        return _gather_rows(g, self.index, self.weight)
+        return _gather_rows(self._checked(g, 0, self.n_grid, "grid"), self.index, self.weight)
 
     def gather_cols(self, g: np.ndarray) -> np.ndarray:
         """g @ S: (n, n_grid) -> (n, n_points)."""
-        g = self._grid_operand(g, 1)
-        return _gather_cols(g, self.index, self.weight)
+        return _gather_cols(self._checked(g, 1, self.n_grid, "grid"), self.index, self.weight)
 
-    def _operand(self, a, axis: int) -> np.ndarray:
+    @staticmethod
+    def _checked(a, axis: int, n: int, what: str) -> np.ndarray:
+        """``a`` as C-ordered float64, 2-D with ``n`` along ``axis`` (``what``: operand or grid, for the message)."""
         a = np.ascontiguousarray(a, np.float64)
-        if a.ndim != 2 or a.shape[axis] != self.n_points:
-            raise MetrawError(f"internal error: gridding operand of shape {a.shape}, {self.n_points} points on axis {axis}")
+        if a.ndim != 2 or a.shape[axis] != n:
+            raise MetrawError(f"internal error: gridding {what} of shape {a.shape}, expected {n} along axis {axis}")
         return a
-
-    def _grid_operand(self, g, axis: int) -> np.ndarray:
-        g = np.ascontiguousarray(g, np.float64)
-        if g.ndim != 2 or g.shape[axis] != self.n_grid:
-            raise MetrawError(f"internal error: grid of shape {g.shape}, {self.n_grid} grid points on axis {axis}")
-        return g
 
 
 @nb.njit(cache=True, nogil=True)
