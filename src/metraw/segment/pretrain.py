@@ -111,8 +111,8 @@ def pretrain_stores(source_path, make_target: Callable[[dict[str, float]], Targe
     train_idx, test_idx = split_indices(len(source), config.test_fraction, config.split_seed)
     scenes = [(source, int(i), int(i)) for i in train_idx]
     first = len(source)
-    for path in extra_paths:
-        extra = RawStore.open(path)
+    extras = [RawStore.open(path) for path in extra_paths]
+    for extra in extras:
         scenes += [(extra, i, first + i) for i in range(len(extra))]
         first += len(extra)
     overrides = sample_box(box, len(scenes), points_per_scene, config.seed)
@@ -122,7 +122,7 @@ def pretrain_stores(source_path, make_target: Callable[[dict[str, float]], Targe
     fields_s = time.perf_counter() - t0
     runs = fit_replicates(config, lambda cfg: fit_draws(fields, cfg, device, progress,
                                                         draws_per_epoch=cfg.draws_per_epoch, codec_step=codec_step),
-                          {"pretraining": True, "source": source.origin, "extra_sources": [RawStore.open(p).origin for p in extra_paths],
+                          {"pretraining": True, "source": source.origin, "extra_sources": [extra.origin for extra in extras],
                            "n_images": len(source), "train_indices": train_idx.tolist(),
                            "test_indices": test_idx.tolist(), "box": {k: [float(v) for v in r] for k, r in box.items()},
                            "points_per_scene": int(points_per_scene), "preprocess_time_s": fields_s})
