@@ -137,7 +137,7 @@ class PhaseField:
         haze = np.take(np.array([t.haze_for(c) for c in t.channels]), color_index(t.cfa_pattern, mean.shape))
         # scene and haze photoelectrons in one Poisson draw: a sum of independent Poisson variables is Poisson of
         # the summed means (one draw per pixel instead of two; Poisson sampling is most of a draw's time)
-        counts = rng.poisson(mean + haze if np.any(haze > 0) else mean).astype(np.float64)
+        counts = rng.poisson(mean + haze).astype(np.float64)
         profile = t.profile()
         if self.source_meta.get("approximate"):
             profile = profile.replace(approximate=True, approximate_reason="emulated from an approximate source")
