@@ -24,6 +24,9 @@ def register(subparsers) -> None:
     p.add_argument("--epochs", type=int, default=None, help="override training.pretrain.epochs")
     p.add_argument("--points-per-scene", type=int, default=None,
                    help="override training.pretrain.points_per_scene")
+    p.add_argument("--batches", choices=("payload", "mixed"), default=None,
+                   help="override training.pretrain.batches: payload = each batch one box parameter at neighbouring "
+                   "values; mixed = any payloads in a batch")
     p.add_argument("--codec-step", type=float, default=None,
                    help="pass every draw through the noise-preserving codec at this step (default: no codec)")
     p.add_argument("--replicates", type=int, default=None, help="override the profile's number of replicates")
@@ -56,10 +59,10 @@ def run(args) -> int:
     record = pretrain_stores(args.source, lambda overrides: TargetSystem.from_dict(target_at(params, overrides)),
                              settings["box"], args.out, config, k, args.extra, device=args.device,
                              progress=True if args.progress else None, overwrite=args.overwrite,
-                             codec_step=args.codec_step, workers=args.workers)
+                             codec_step=args.codec_step, workers=args.workers, batches=args.batches or settings["batches"])
     times = record.get("replicate_training_time_s", [record["training_time_s"]])
     print(f"metraw pretrain: {record['n_train']} scenes x {k} points of the box ({', '.join(settings['box'])}), "
           f"{record['epochs']} epoch(s), {len(times)} replicate(s) in {sum(times):.2f} s "
           f"(fields {record['preprocess_time_s']:.2f} s)", file=sys.stderr)
-    print(json.dumps({key: record[key] for key in ("epochs", "n_train", "points_per_scene", "box", "device")}))
+    print(json.dumps({key: record[key] for key in ("epochs", "n_train", "points_per_scene", "batches", "box", "device")}))
     return 0

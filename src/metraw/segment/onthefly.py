@@ -110,7 +110,8 @@ def through_codec(image, step: float, seed: int):
 def fit_draws(fields: list, config: TrainConfig, device: str | None = None,
               progress: bool | None = None, init_state: dict[str, Any] | None = None,
               draws_per_epoch: int = 1, static: bool = False, codec_step: float | None = None,
-              upsample: int | None = None) -> tuple[Any, dict[str, Any]]:
+              upsample: int | None = None, payload_keys: Sequence[Sequence[Any]] | None = None
+              ) -> tuple[Any, dict[str, Any]]:
     """Train on fresh draws of ``fields`` (``draws_per_epoch`` per scene per epoch); returns (model, record).
 
     ``fields``: one ``PhaseField`` per training scene, or per scene a list of fields (one per target
@@ -119,11 +120,18 @@ def fit_draws(fields: list, config: TrainConfig, device: str | None = None,
     schedule as ``train.fit``. ``static=True`` is the baseline of a per-point store: one fixed draw per
     scene for the whole training, with the stores' dihedral augmentation after the CFA (``train.fit``).
     ``upsample``: input upsampling factor overriding ``config.min_grid_px``'s (``train.new_network``).
+    ``payload_keys`` (box fields only): per scene, per field a sortable key of its payload. Each epoch every draw
+    first picks its field, the draws are sorted by key and cut into batches of ``config.batch_size``, and the
+    batches are shuffled: each batch holds one payload, or neighbouring ones (``payload_batches``). Without it a
+    batch mixes payloads at random.
     """
     if not fields:
         raise MetrawError("no training scenes")
     device = device or default_device()
     box = not isinstance(fields[0], PhaseField)
+    if payload_keys is not None and (not box or static or len(payload_keys) != len(fields)
+                                     or any(len(k) != len(f) for k, f in zip(payload_keys, fields))):
+        raise MetrawError("payload_keys needs box fields (per scene a list of fields) and one key per field")
     every = [f for scene in fields for f in ([scene] if isinstance(scene, PhaseField) else scene)]
     first = every[0]
     families = {cfa_family(f.target.cfa_pattern) for f in every}
@@ -147,15 +155,21 @@ def fit_draws(fields: list, config: TrainConfig, device: str | None = None,
     timing = {"draw_s": 0.0}
 
     def epoch_batches(epoch):
-        order = rng.permutation(n)
-        for s in range(steps_per_epoch):
+        if payload_keys is None:
+            order = rng.permutation(n)
+            batches = [order[s * config.batch_size:(s + 1) * config.batch_size] for s in range(steps_per_epoch)]
+        else:
+            batches, chosen = payload_batches(payload_keys, draws_per_epoch, config.batch_size, rng)
+        for ids in batches:
             t0 = time.perf_counter()
-            ids = order[s * config.batch_size:(s + 1) * config.batch_size]
             if static:
                 batch = [fixed[j % len(fields)] for j in ids]
-            else:
+            elif payload_keys is None:
                 batch = [draw_prepared(fields[j % len(fields)], config.seed, epoch * draws_per_epoch + j // len(fields),
                                        codec_step) for j in ids]
+            else:
+                batch = [draw_prepared(fields[j % len(fields)][chosen[j]], config.seed,
+                                       epoch * draws_per_epoch + j // len(fields), codec_step) for j in ids]
             xy = batch_crops(batch, config.crop_px * pool, rng, augment=static)
             timing["draw_s"] += time.perf_counter() - t0
             yield xy
@@ -167,11 +181,29 @@ def fit_draws(fields: list, config: TrainConfig, device: str | None = None,
               "training_time_s": total, "draw_time_s": timing["draw_s"], "device": device, "upsample": f_up,
               "pool": pool, "in_channels": in_ch, "n_train": len(fields), "draws": n * config.epochs,
               "draws_per_epoch": draws_per_epoch, "oversample": first.oversample, "static": static, "codec_step": codec_step,
-              "fine_tuned": init_state is not None,
+              "fine_tuned": init_state is not None, "payload_batches": payload_keys is not None,
               # a box trains at every packed GSD of its targets, not at the first draw's
               "train_packed_gsd_m": packed_gsd_range_m(every) if box else training_packed_gsd_m(probe),
               "on_the_fly": True}
     return model, record
+
+
+def payload_batches(payload_keys: Sequence[Sequence[Any]], draws_per_epoch: int, batch_size: int,
+                    rng: np.random.Generator) -> tuple[list[np.ndarray], np.ndarray]:
+    """One epoch of payload-homogeneous batches: draw j (scene j % n, n scenes, ``draws_per_epoch`` draws each)
+    picks field ``chosen[j]`` of its scene uniformly; the draws sorted by that field's key are cut into batches of
+    ``batch_size`` (the last may be short), returned in random order. Returns (batches of draw ids, chosen).
+
+    Why: the soft Dice term of the loss (``segmentation_loss``) is pooled over a batch. Across a box of payloads a
+    mixed batch's Dice is carried by its bright, sharp images, and a network told each image's payload
+    (``TrainConfig.condition``) then learns to predict no car at the dim corner; batch crops are also cut to the
+    batch's smallest image. Batches of one payload keep the Dice per payload, as fine-tuning at one point does
+    (README, issue #15)."""
+    n = len(payload_keys) * draws_per_epoch
+    chosen = rng.integers(0, np.tile([len(keys) for keys in payload_keys], draws_per_epoch)).astype(np.int64)
+    order = sorted(rng.permutation(n).tolist(), key=lambda j: payload_keys[j % len(payload_keys)][chosen[j]])
+    batches = [np.array(order[s:s + batch_size], np.int64) for s in range(0, n, batch_size)]
+    return [batches[i] for i in rng.permutation(len(batches))], chosen
 
 
 def packed_gsd_range_m(fields: Sequence[PhaseField]) -> list[float]:

@@ -32,7 +32,10 @@ from metraw.target import TargetSystem
 
 #: ``training.pretrain`` of params.yaml, where it leaves a key out (measured settings: README, issue #15).
 PRETRAIN_DEFAULTS = {"enabled": False, "box": {}, "epochs": 20, "points_per_scene": 4, "finetune_epochs": 5,
-                     "extra_scenes": 0}
+                     "extra_scenes": 0, "batches": "payload"}
+#: ``training.pretrain.batches``: "payload" = each batch one box parameter at neighbouring values (``payload_keys``,
+#: ``onthefly.payload_batches``); "mixed" = draws of any payload in a batch.
+BATCHES = ("payload", "mixed")
 
 
 def pretrain_settings(params: dict[str, Any]) -> dict[str, Any]:
@@ -81,6 +84,15 @@ def sample_box(box: dict[str, Sequence[float]], n_scenes: int, points_per_scene:
     return out
 
 
+def payload_keys(box: dict[str, Sequence[float]], overrides: Sequence[Sequence[dict[str, float]]]
+                 ) -> list[list[tuple[int, float]]]:
+    """Per scene, per point of ``sample_box`` the batch key (index of its box parameter, log of its value): sorted,
+    the draws of one parameter come together, in the order of its value."""
+    names = list(box)
+    return [[(names.index(name), math.log(value)) for o in per_scene for name, value in o.items()]
+            for per_scene in overrides]
+
+
 def box_fields(scenes: Sequence[tuple[Any, int, int]], targets: Sequence[Sequence[TargetSystem]],
                oversample: int = DEFAULT_OVERSAMPLE, progress: bool | None = None, workers: int = 1) -> list[list]:
     """Per scene (store, image index, draw index) the ``PhaseField`` s at its ``targets`` (all of one CFA family;
@@ -96,17 +108,19 @@ def box_fields(scenes: Sequence[tuple[Any, int, int]], targets: Sequence[Sequenc
 def pretrain_stores(source_path, make_target: Callable[[dict[str, float]], TargetSystem], box: dict[str, Sequence[float]],
                     out_dir, config: TrainConfig, points_per_scene: int, extra_paths: Sequence = (),
                     device: str | None = None, progress: bool | None = None, overwrite: bool = False,
-                    codec_step: float | None = None, workers: int = 1) -> dict[str, Any]:
+                    codec_step: float | None = None, workers: int = 1, batches: str = "mixed") -> dict[str, Any]:
     """Pretrain ``config.replicates`` networks on ``box`` (``sample_box``, seeded with ``config.seed``;
     ``make_target`` turns an override into the full target) from the training split of ``source_path``
     (the split every point's test set comes from) and every scene of ``extra_paths``; write them like
     ``train.train_store`` (model directory with replicate sub-directories). Returns the first replicate's record.
-    ``workers``: processes building the box's expected fields (``box_fields``)."""
+    ``workers``: processes building the box's expected fields (``box_fields``). ``batches``: one of ``BATCHES``."""
     from metraw.segment.data import split_indices
     from metraw.segment.onthefly import fit_draws
     from metraw.segment.train import fit_replicates, save_replicates
     from metraw.store import RawStore
 
+    if batches not in BATCHES:
+        raise MetrawError(f"pretraining batches must be one of {', '.join(BATCHES)}, got {batches!r}")
     source = RawStore.open(source_path)
     train_idx, test_idx = split_indices(len(source), config.test_fraction, config.split_seed)
     scenes = [(source, int(i), int(i)) for i in train_idx]
@@ -120,11 +134,14 @@ def pretrain_stores(source_path, make_target: Callable[[dict[str, float]], Targe
     fields = box_fields(scenes, [[make_target(o) for o in per_scene] for per_scene in overrides], progress=progress,
                         workers=workers)
     fields_s = time.perf_counter() - t0
+    keys = payload_keys(box, overrides) if batches == "payload" else None
     runs = fit_replicates(config, lambda cfg: fit_draws(fields, cfg, device, progress,
-                                                        draws_per_epoch=cfg.draws_per_epoch, codec_step=codec_step),
+                                                        draws_per_epoch=cfg.draws_per_epoch, codec_step=codec_step,
+                                                        payload_keys=keys),
                           {"pretraining": True, "source": source.origin, "extra_sources": [extra.origin for extra in extras],
                            "n_images": len(source), "train_indices": train_idx.tolist(),
                            "test_indices": test_idx.tolist(), "box": {k: [float(v) for v in r] for k, r in box.items()},
-                           "points_per_scene": int(points_per_scene), "preprocess_time_s": fields_s})
+                           "points_per_scene": int(points_per_scene), "batches": batches,
+                           "preprocess_time_s": fields_s})
     save_replicates(out_dir, runs, test_idx, overwrite)
     return runs[0][2]
