@@ -81,6 +81,12 @@ identical on every frame of ``frames()`` at steps 0.5 / 1 / 2, but 1-thread deco
 the pass alone cost 13 ms of canon_dng's ~47 (8 contexts x 10 taps x 2 MP), and the sequential part fell only
 from ~43 to ~33 ms: the lanes' dependency chain (context -> table -> rANS -> value -> next context), not the
 instruction count, bounds it.
+Tried 2026-11-27, not taken: 8 lanes instead of 4 (the header carries the lane count; the encoder codes any count,
+and a scratch decoder had an 8-lane steady loop, lane j 3 pixels behind lane j - 1). Bits +0.00 to +0.05 %; 1-thread
+decode CPU, medians of three alternating rounds (load ~1): canon_dng 37.2 -> 36.3 ms, micasense 22.4 -> 22.6 ms,
+spacenet_pan 7.3 -> 6.4 ms, each within its rounds' spread. Twice the independent chains (with the spills of twice
+the lane registers) buy no clear gain: past 4 lanes the loop's own work bounds it, so a faster decoder must do less
+per pixel.
 
 A vectorised pass can only take taps whose coefficients do not depend on the activity context (which needs W).
 ``benchmarks/codec_predictors.py`` (2026-11-26; empirical H(r | context, phase) in float arithmetic, no side

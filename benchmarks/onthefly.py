@@ -18,7 +18,7 @@ Sections:
 - ``draws``: nominal IoU against on-the-fly draws per scene per epoch (all training scenes);
 - ``box``: the robust model pretrained as the workflow's ``pretrain`` rule does (``metraw.segment.pretrain``: the
   training scenes, plus ``--more-scenes``' further ones, each drawn at ``training.pretrain.points_per_scene`` points of
-  ``training.pretrain.box`` for ``training.pretrain.epochs``), then at every point of params.yaml: that robust model,
+  ``training.pretrain.box`` for ``training.pretrain.epochs``, in ``training.pretrain.batches``), then at every point of params.yaml: that robust model,
   it fine-tuned on the point's draws for ``--finetune-epochs`` (points of the nominal's CFA family), and a model
   trained from scratch (the profile's epochs);
 - ``ceiling``: where the nominal IoU goes: the nominal payload's ground sampling (focal length and pitch: GSD
@@ -165,14 +165,14 @@ def main(argv=None) -> int:
         return TargetSystem.from_dict(target_params(params, point))
 
     def run(section, point, mode, n_scenes, dpe, seed, fields, test, epochs, init=None, changes=None, lever="",
-            thresholds=()):
+            thresholds=(), keys=None):
         changes = dict(changes or {})
         upsample = changes.pop("upsample", None)
         cfg = dataclasses.replace(base, seed=seed, epochs=epochs, **changes)
         t0 = time.perf_counter()
         model, rec = fit_draws(fields, cfg, "cpu", False, init_state=init, draws_per_epoch=dpe,
                                static=mode == "static", upsample=upsample,
-                               codec_step=args.codec_step)
+                               codec_step=args.codec_step, payload_keys=keys)
         row = {"section": section, "point": point, "mode": mode, "n_scenes": n_scenes, "draws_per_epoch": dpe,
                "seed": seed, "epochs": epochs, "lever": lever, "train_s": round(time.perf_counter() - t0, 1),
                **score(model, test, thresholds)}
@@ -216,7 +216,7 @@ def main(argv=None) -> int:
     if "box" in sections:
         from metraw.points import target_at
         from metraw.cfa import cfa_family
-        from metraw.segment.pretrain import box_fields, pretrain_settings, sample_box
+        from metraw.segment.pretrain import box_fields, payload_keys, pretrain_settings, sample_box
 
         settings = pretrain_settings(params)
         finetune_epochs = args.finetune_epochs or settings["finetune_epochs"]
@@ -231,7 +231,8 @@ def main(argv=None) -> int:
                              workers=args.workers)
             print(f"# box fields: {len(scenes)} scenes x {settings['points_per_scene']} points, "
                   f"{time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
-            robust = run("box", "all", "robust", len(scenes), 1, seed, box, nominal_test, settings["epochs"])
+            keys = payload_keys(settings["box"], overrides) if settings["batches"] == "payload" else None
+            robust = run("box", "all", "robust", len(scenes), 1, seed, box, nominal_test, settings["epochs"], keys=keys)
             del box
             robust_row = rows[-1]
             state = {k: v.clone() for k, v in robust.state_dict().items()}

@@ -279,6 +279,60 @@ def test_box_points_change_one_parameter_log_uniform_in_its_range():
             sample_box(bad, 1, 1, 0)
 
 
+def test_payload_batches_hold_one_payload_each_and_every_draw_once():
+    from metraw.segment.onthefly import payload_batches
+    from metraw.segment.pretrain import payload_keys, sample_box
+    from metraw.sensor import rng_from_seed
+
+    box = {"focal_length_m": [0.8, 2.0], "exposure_s": [1e-4, 5e-4], "diameter_m": [0.1, 0.5]}
+    overrides = sample_box(box, 1500, 4, seed=3)
+    keys = payload_keys(box, overrides)
+    assert keys[0][0] == (list(box).index(next(iter(overrides[0][0]))), math.log(next(iter(overrides[0][0].values()))))
+    batches, chosen = payload_batches(keys, 2, 8, rng_from_seed(5))
+    again, chosen_again = payload_batches(keys, 2, 8, rng_from_seed(5))
+    assert all(np.array_equal(a, b) for a, b in zip(batches, again)) and np.array_equal(chosen, chosen_again)
+    n = 1500 * 2
+    # every draw exactly once, in batches of 8 (the last may be short)
+    ids = np.concatenate(batches)
+    assert np.array_equal(np.sort(ids), np.arange(n)) and len(batches) == math.ceil(n / 8)
+    assert sorted(len(b) for b in batches)[1:] == [8] * (len(batches) - 1)
+    # each batch a run of the sorted keys: one parameter, except where two parameters' runs meet (at most 2 batches)
+    drawn = [[keys[j % 1500][chosen[j]] for j in b] for b in batches]
+    assert sum(len({k[0] for k in d}) > 1 for d in drawn) <= len(box) - 1
+    spans = sorted((min(d), max(d)) for d in drawn)
+    assert all(hi <= lo_next for (_, hi), (lo_next, _) in zip(spans, spans[1:]))
+    # a batch spans a small part of its parameter's log range (about 8 / its ~1000 draws of it)
+    widths = [d[-1][1] - d[0][1] for d in map(sorted, drawn) if len({k[0] for k in d}) == 1]
+    assert np.median(widths) < 0.05 * math.log(5)
+    # the field each draw takes is uniform over its scene's 4 (binomial counts, 5 sigma)
+    counts = np.bincount(chosen, minlength=4)
+    assert np.all(np.abs(counts - n / 4) < 5 * math.sqrt(n * 3 / 16))
+    # batch order is shuffled: not sorted by key
+    assert spans != [(min(d), max(d)) for d in drawn]
+
+
+def test_payload_batched_pretraining_differs_from_mixed_and_is_recorded(stores, pretrained, tmp_path):
+    import torch
+
+    from metraw.segment.pretrain import pretrain_stores
+    from metraw.segment.train import CHECKPOINT
+
+    src, _, target = stores
+    root, rec = pretrained
+    assert rec["batches"] == "payload" and rec["payload_batches"]
+    mixed = pretrain_stores(src, lambda o: dataclasses.replace(target, **o), {"focal_length_m": [1.2, 2.0]},
+                            tmp_path / "m", _cfg(epochs=1), 2, [root / "extra.zarr"], device="cpu", progress=False,
+                            batches="mixed")
+    assert mixed["batches"] == "mixed" and not mixed["payload_batches"]
+    a = torch.load(root / "p" / CHECKPOINT, weights_only=True)["state_dict"]
+    b = torch.load(tmp_path / "m" / CHECKPOINT, weights_only=True)["state_dict"]
+    assert max(float((a[k].float() - b[k].float()).abs().max()) for k in a) > 1e-4
+    with pytest.raises(MetrawError, match="batches must be one of payload, mixed"):
+        pretrain_stores(src, lambda o: dataclasses.replace(target, **o), {"focal_length_m": [1.2, 2.0]},
+                        tmp_path / "x", _cfg(epochs=1), 2, device="cpu", progress=False, batches="sorted")
+    assert not (tmp_path / "x").exists()
+
+
 def test_pretraining_draws_the_training_and_extra_scenes_and_is_deterministic(stores, pretrained):
     from metraw.segment.pretrain import box_fields
     from metraw.segment.train import CHECKPOINT, TRAIN_METRICS

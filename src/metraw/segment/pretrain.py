@@ -108,7 +108,7 @@ def box_fields(scenes: Sequence[tuple[Any, int, int]], targets: Sequence[Sequenc
 def pretrain_stores(source_path, make_target: Callable[[dict[str, float]], TargetSystem], box: dict[str, Sequence[float]],
                     out_dir, config: TrainConfig, points_per_scene: int, extra_paths: Sequence = (),
                     device: str | None = None, progress: bool | None = None, overwrite: bool = False,
-                    codec_step: float | None = None, workers: int = 1, batches: str = "mixed") -> dict[str, Any]:
+                    codec_step: float | None = None, workers: int = 1, batches: str = "payload") -> dict[str, Any]:
     """Pretrain ``config.replicates`` networks on ``box`` (``sample_box``, seeded with ``config.seed``;
     ``make_target`` turns an override into the full target) from the training split of ``source_path``
     (the split every point's test set comes from) and every scene of ``extra_paths``; write them like
