@@ -395,11 +395,15 @@ def test_cli_pretrain_over_the_params_box_then_fine_tune(stores, tmp_path, capsy
     src, tgt, _ = stores
     out = tmp_path / "pre"
     assert main(["pretrain", str(src), "--out", str(out), "--params", str(PARAMS), "--epochs", "1",
-                 "--replicates", "1", "--points-per-scene", "2"]) == 0
-    err = capsys.readouterr().err
+                 "--replicates", "1", "--points-per-scene", "2", "--batches", "mixed"]) == 0
+    captured = capsys.readouterr()
+    err = captured.err
     assert "5 scenes x 2 points of the box (focal_length_m, diameter_m, " in err and "1 replicate(s)" in err
     record = json.loads((out / "train.json").read_text())
     assert record["box"]["focal_length_m"] == [0.8, 2.0] and record["points_per_scene"] == 2
+    # --batches overrides params.yaml's training.pretrain.batches (payload)
+    assert record["batches"] == "mixed" and not record["payload_batches"]
+    assert json.loads(captured.out)["batches"] == "mixed"
     assert main(["train", str(tgt), "--source", str(src), "--init", str(out), "--epochs", "1",
                  "--out", str(tmp_path / "m"), "--params", str(PARAMS)]) == 2
     assert "holds 1 pretrained replicate(s); 3 are asked for" in capsys.readouterr().err
