@@ -158,18 +158,16 @@ def fit_draws(fields: list, config: TrainConfig, device: str | None = None,
         if payload_keys is None:
             order = rng.permutation(n)
             batches = [order[s * config.batch_size:(s + 1) * config.batch_size] for s in range(steps_per_epoch)]
+            chosen = None
         else:
             batches, chosen = payload_batches(payload_keys, draws_per_epoch, config.batch_size, rng)
         for ids in batches:
             t0 = time.perf_counter()
             if static:
                 batch = [fixed[j % len(fields)] for j in ids]
-            elif payload_keys is None:
-                batch = [draw_prepared(fields[j % len(fields)], config.seed, epoch * draws_per_epoch + j // len(fields),
-                                       codec_step) for j in ids]
-            else:
-                batch = [draw_prepared(fields[j % len(fields)][chosen[j]], config.seed,
-                                       epoch * draws_per_epoch + j // len(fields), codec_step) for j in ids]
+            else:  # draw j: its scene's field(s), or the one field payload_batches chose for it
+                batch = [draw_prepared(fields[j % len(fields)] if chosen is None else fields[j % len(fields)][chosen[j]],
+                                       config.seed, epoch * draws_per_epoch + j // len(fields), codec_step) for j in ids]
             xy = batch_crops(batch, config.crop_px * pool, rng, augment=static)
             timing["draw_s"] += time.perf_counter() - t0
             yield xy
