@@ -235,6 +235,44 @@ def test_bfloat16_training_is_deterministic_learns_and_differs_from_float32(tiny
         TrainConfig.from_dict({"precision": "float16"})
 
 
+def test_auto_precision_is_bfloat16_exactly_where_the_hardware_computes_it(tiny_store, monkeypatch):
+    import torch
+
+    from metraw.segment.data import prepare_store
+    from metraw.segment.train import fit, fit_replicates, resolve_precision
+    from metraw.store import RawStore
+
+    def hardware(avx512_bf16: bool, amx: bool = False, cuda_bf16: bool = False):
+        monkeypatch.setattr(torch.cpu, "_is_avx512_bf16_supported", lambda: avx512_bf16)
+        monkeypatch.setattr(torch.cpu, "_is_amx_tile_supported", lambda: amx)
+        monkeypatch.setattr(torch.cuda, "is_bf16_supported", lambda *a, **k: cuda_bf16)
+
+    hardware(False)
+    assert resolve_precision("auto", "cpu") == "float32"
+    assert resolve_precision("bfloat16", "cpu") == "bfloat16" and resolve_precision("float32", "cpu") == "float32"
+    assert resolve_precision("auto", "cuda") == "float32" and resolve_precision("auto", "meta") == "float32"
+    hardware(False, amx=True)
+    assert resolve_precision("auto", "cpu") == "bfloat16"
+    hardware(False, cuda_bf16=True)
+    assert resolve_precision("auto", "cuda") == "bfloat16" and resolve_precision("auto", "cpu") == "float32"
+
+    images = prepare_store(RawStore.open(tiny_store), range(8), progress=False)
+
+    def weights(precision, device_bf16):
+        hardware(device_bf16)
+        runs = fit_replicates(_cfg(epochs=2, precision=precision), lambda cfg: fit(images, cfg, "cpu", progress=False),
+                              {}, "cpu")
+        (model, cfg, record), = runs
+        assert cfg.precision == record["config"]["precision"] != "auto"  # the record says what ran
+        return cfg.precision, torch.cat([p.detach().flatten() for p in model.parameters()])
+
+    auto_native, explicit_bf16 = weights("auto", True), weights("bfloat16", False)
+    auto_plain, explicit_fp32 = weights("auto", False), weights("float32", True)
+    assert auto_native[0] == "bfloat16" and torch.equal(auto_native[1], explicit_bf16[1])
+    assert auto_plain[0] == "float32" and torch.equal(auto_plain[1], explicit_fp32[1])
+    assert not torch.equal(auto_native[1], auto_plain[1])
+
+
 def test_losses_equal_their_formulas_on_saturated_logits():
     import torch
     import torch.nn.functional as F

@@ -152,7 +152,7 @@ def fit_emulated(dataset: EmulatedDataset, config, workers: int = 2, device: str
     import torch
     from torch.utils.data import DataLoader
 
-    from metraw.segment.train import build_model, default_device, set_determinism, train_loop
+    from metraw.segment.train import build_model, default_device, resolve_precision, set_determinism, train_loop
 
     device = device or default_device()
     set_determinism(config.seed, config.threads, device)
@@ -174,5 +174,5 @@ def fit_emulated(dataset: EmulatedDataset, config, workers: int = 2, device: str
     record = {"epochs": config.epochs, "steps": steps * config.epochs, "loss_per_epoch": losses,
               "training_time_s": time.perf_counter() - t0, "device": device, "upsample": upsample,
               "in_channels": in_ch, "n_train": len(dataset), "box": dataset.box, "emulation_mode": dataset.mode,
-              "emulated_on_the_fly": True}
+              "emulated_on_the_fly": True, "precision": resolve_precision(config.precision, device)}
     return model, record

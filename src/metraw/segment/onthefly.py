@@ -253,6 +253,6 @@ def train_store_on_the_fly(store_path, source_path, out_dir, config: TrainConfig
                           {"store": str(store_path), "store_digest": digest, "source": source.origin,
                            "init": None if init_dir is None else str(init_dir),
                            "n_images": len(store), "source_images": n_source, "train_indices": train_idx.tolist(),
-                           "test_indices": test_idx.tolist(), "preprocess_time_s": fields_s})
+                           "test_indices": test_idx.tolist(), "preprocess_time_s": fields_s}, device)
     save_replicates(out_dir, runs, test_idx, overwrite)
     return runs[0][2]

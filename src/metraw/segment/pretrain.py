@@ -142,6 +142,6 @@ def pretrain_stores(source_path, make_target: Callable[[dict[str, float]], Targe
                            "n_images": len(source), "train_indices": train_idx.tolist(),
                            "test_indices": test_idx.tolist(), "box": {k: [float(v) for v in r] for k, r in box.items()},
                            "points_per_scene": int(points_per_scene), "batches": batches,
-                           "preprocess_time_s": fields_s})
+                           "preprocess_time_s": fields_s}, device)
     save_replicates(out_dir, runs, test_idx, overwrite)
     return runs[0][2]

@@ -38,8 +38,8 @@ CHECKPOINT = "model.pt"
 TRAIN_METRICS = "train.json"
 #: Sub-directory of a model directory holding replicate ``r`` (seed + r), a model directory itself.
 REPLICATE_DIR = "replicate-{r}"
-#: ``TrainConfig.precision`` values.
-PRECISIONS = ("float32", "bfloat16")
+#: ``TrainConfig.precision`` values ("auto": ``resolve_precision``).
+PRECISIONS = ("float32", "bfloat16", "auto")
 #: Training losses (``segmentation_loss``): binary cross-entropy plus soft Dice, plus soft IoU (Jaccard), or alone.
 LOSSES = ("bce+dice", "bce+iou", "bce")
 #: ``crops_per_image`` value: enough crops to cover each image's working-grid area once per epoch.
@@ -78,10 +78,11 @@ class TrainConfig:
     ``--cores``: the thread count changes the kernels' summation order, hence the weights' bytes. The batches
     are made in a background thread beside them (``PREFETCH_BATCHES``): on small satellite crops 1 torch thread
     and the draws' thread fill 2 cores best (the ``default`` profile), on drone crops 2 torch threads.
-    ``precision``: arithmetic of the training passes: "float32", or "bfloat16" (autocast: convolutions in
-    bfloat16 with float32 weights, optimiser and loss; on CPUs with AMX, or on a GPU, the network's passes
-    run ~1.6x faster, which pays where they dominate a step: see the README). Evaluation and prediction
-    always run in float32.
+    ``precision``: arithmetic of the training passes: "float32", "bfloat16" (autocast: convolutions in
+    bfloat16 with float32 weights, optimiser and loss; faster where the hardware computes bfloat16, slower
+    where it emulates it: see the README), or "auto": bfloat16 where the device computes it natively, else
+    float32 (``resolve_precision``; every training record and saved config holds the resolved value).
+    Evaluation and prediction always run in float32.
     ``loss``: one of ``LOSSES`` (``segmentation_loss``); "bce+dice", the default, is what the measured profiles use.
     ``predict_transforms``: dihedral transforms of the mosaic (turns, flips; 1, 2, 4 or 8) whose predictions
     ``metraw evaluate`` / ``predict`` average (``metraw.segment.evaluate.averaged_probability``); 1 (default) = a
@@ -158,6 +159,24 @@ def default_device() -> str:
     import torch
 
     return "cuda" if torch.cuda.is_available() else "cpu"
+
+
+def resolve_precision(precision: str, device: str) -> str:
+    """The arithmetic ``precision`` stands for on ``device``: "auto" is "bfloat16" on a CUDA GPU that supports it
+    and on a CPU with bfloat16 instructions (AVX512-BF16 or AMX: oneDNN then runs bfloat16 convolutions natively),
+    else "float32"; "float32" and "bfloat16" stand for themselves. A resolved training is deterministic on a
+    given machine; the same params may train in another arithmetic on another machine, which the record says."""
+    if precision != "auto":
+        return precision
+    import torch
+
+    kind = torch.device(device).type
+    if kind == "cuda":
+        return "bfloat16" if torch.cuda.is_bf16_supported() else "float32"
+    if kind == "cpu":
+        probes = (getattr(torch.cpu, name, None) for name in ("_is_avx512_bf16_supported", "_is_amx_tile_supported"))
+        return "bfloat16" if any(probe is not None and probe() for probe in probes) else "float32"
+    return "float32"
 
 
 def set_determinism(seed: int, threads: int, device: str) -> None:
@@ -276,7 +295,7 @@ def train_loop(model, epoch_batches, steps_per_epoch: int, config: TrainConfig, 
     losses = []
     bar = progress_bar(range(config.epochs), desc="train", disable=None if progress is None else not progress)
     dev_type = torch.device(device).type
-    autocast = config.precision == "bfloat16"
+    autocast = resolve_precision(config.precision, device) == "bfloat16"
     with flush_denormals():
         for epoch in bar:
             model.train()
@@ -397,19 +416,21 @@ def train_store(store_path: str | os.PathLike, out_dir: str | os.PathLike, confi
     runs = fit_replicates(config, lambda cfg: fit(images, cfg, device, progress),
                           {"store": store.origin, "store_digest": digest, "n_images": len(store),
                            "train_indices": train_idx.tolist(), "test_indices": test_idx.tolist(),
-                           "preprocess_time_s": prep_s})
+                           "preprocess_time_s": prep_s}, device)
     save_replicates(out_dir, runs, test_idx, overwrite)
     return runs[0][2]
 
 
-def fit_replicates(config: TrainConfig, fit_one, common: dict[str, Any]) -> list:
+def fit_replicates(config: TrainConfig, fit_one, common: dict[str, Any], device: str | None = None) -> list:
     """``fit_one(cfg)`` -> (model, record) for seeds ``seed`` .. ``seed + replicates - 1`` (at least one); every
-    record gets ``common`` and its own config. Returns [(model, config, record), ...] for ``save_replicates``."""
+    record gets ``common`` and its own config, whose precision is resolved for ``device`` (default:
+    ``default_device()``). Returns [(model, config, record), ...] for ``save_replicates``."""
     from dataclasses import replace
 
+    precision = resolve_precision(config.precision, device or default_device())
     runs = []
     for r in range(max(1, config.replicates)):
-        cfg = replace(config, seed=config.seed + r)
+        cfg = replace(config, seed=config.seed + r, precision=precision)
         model, record = fit_one(cfg)
         record.update({**common, "config": asdict(cfg)})
         runs.append((model, cfg, record))
