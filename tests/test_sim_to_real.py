@@ -143,6 +143,38 @@ def test_aggregate_reports_real_columns_and_the_gap(hand_made, capsys):
     assert plain["iou_gp"] == table["iou_gp"] and plain["tolerances"] == table["tolerances"]
 
 
+def test_real_iou_of_replicate_models_is_their_mean_as_on_the_synthetic_side(hand_made):
+    """With replicates the synthetic IoU is the replicates' mean; the real IoU and the gap must be measured alike
+    (not the first replicate's IoU against the others' mean), for the points and for the source."""
+    from metraw.cli.aggregate import iou_measurement
+
+    root, made, (src_syn, src_real) = hand_made
+    shifted = {}
+    for path, shift in [(root / "results/nominal/metrics.json", 0.01), (root / "results/nominal/real_metrics.json", -0.03),
+                        (root / "results/source/metrics.json", 0.02), (root / "results/source/real_metrics.json", 0.04)]:
+        m = json.loads(path.read_text())
+        m.update(iou_replicate_mean=m["iou"] + shift, iou_replicate_se=0.004, n_replicates=3)
+        path.write_text(json.dumps(m))
+        shifted[path.parent.name, path.name] = m
+    assert _aggregate(root, "--real-metrics-pattern", "{results}/{point}/real_metrics.json",
+                      "--source-real-metrics", str(root / "results/source/real_metrics.json"),
+                      "--source-metrics", str(root / "results/source/metrics.json")) == 0
+    table = json.loads((root / "out" / "aggregate.json").read_text())
+    nominal = next(r for r in table["points"] if r["point"] == "nominal")
+    syn, real = shifted["nominal", "metrics.json"], shifted["nominal", "real_metrics.json"]
+    assert nominal["iou"] == pytest.approx(syn["iou"] + 0.01)
+    assert nominal["real_iou"] == pytest.approx(real["iou"] - 0.03)
+    assert nominal["real_iou_sd"] == pytest.approx(math.sqrt(iou_measurement(real, "r")[1]))
+    assert nominal["real_iou_sd"] ** 2 == pytest.approx(iou_measurement({**real, "iou_replicate_mean": None}, "r")[1]
+                                                        + 0.004 ** 2)
+    assert nominal["sim_to_real_gap"] == pytest.approx(syn["iou"] - real["iou"] + 0.04)
+    source = table["sim_to_real"]["source"]
+    assert source["synthetic_iou"] == pytest.approx(src_syn["iou"] + 0.02)
+    assert source["real_iou"] == pytest.approx(src_real["iou"] + 0.04)
+    assert source["gap"] == pytest.approx(src_syn["iou"] - src_real["iou"] - 0.02)
+    assert table["sim_to_real"]["nominal"]["real_iou"] == pytest.approx(nominal["real_iou"])
+
+
 def test_iou_figures_draw_the_real_series(hand_made, monkeypatch):
     """The per-parameter IoU figures get a second series (the real points, their 2-sd bars) and a legend."""
     from metraw import figures

@@ -57,21 +57,22 @@ def resolve_enabled(params: dict[str, Any], origin: str = "params.yaml", base: s
     return present
 
 
-def real_columns(row: dict[str, Any], real: dict[str, Any], iou_var: float, real_var: float,
+def real_columns(row: dict[str, Any], real: dict[str, Any], real_iou: float, iou_var: float, real_var: float,
                  tolerance: float = GAP_TOLERANCE) -> dict[str, Any]:
-    """The real-image columns of one point's row (``row`` holds its synthetic "iou"): real_iou (+ sd),
-    precision, recall, labels, image count, ``sim_to_real_gap`` = synthetic test IoU - real IoU with its
-    sd (independent image sets: the variances add), whether it is within ``tolerance`` and a note."""
-    rec = _real_fields(real, real_var)
+    """The real-image columns of one point's row (``row`` holds its synthetic "iou", with replicates their mean):
+    real_iou (+ sd) as measured the same way (``real_iou``, ``real_var``: the replicate mean where the record has
+    replicates), precision, recall, labels, image count, ``sim_to_real_gap`` = synthetic test IoU - real IoU with
+    its sd (independent image sets: the variances add), whether it is within ``tolerance`` and a note."""
+    rec = _real_fields(real, real_iou, real_var)
     gap = _gap_fields(row, rec, iou_var, real_var, tolerance)
     return {**rec, "sim_to_real_gap": gap["gap"], "sim_to_real_gap_sd": gap["gap_sd"],
             "sim_to_real_within_tolerance": gap["within_tolerance"], "sim_to_real_note": gap["note"]}
 
 
-def _real_fields(real: dict[str, Any], real_var: float) -> dict[str, Any]:
-    """real_iou (+ sd), precision, recall, labels and image count of a real-image metrics record, and on box
-    labels the predicted objects' bounding boxes against them (real_box_iou, None when not scored)."""
-    return {"real_iou": float(real["iou"]), "real_iou_sd": math.sqrt(max(real_var, 0.0)),
+def _real_fields(real: dict[str, Any], real_iou: float, real_var: float) -> dict[str, Any]:
+    """real_iou (+ sd) as measured, precision, recall, labels and image count of a real-image metrics record,
+    and on box labels the predicted objects' bounding boxes against them (real_box_iou, None when not scored)."""
+    return {"real_iou": float(real_iou), "real_iou_sd": math.sqrt(max(real_var, 0.0)),
             "real_precision": real.get("precision"), "real_recall": real.get("recall"),
             "real_box_iou": real.get("box_iou"), "real_box_precision": real.get("box_precision"),
             "real_labels": real.get("labels"), "real_n_images": real.get("n_images")}
@@ -136,12 +137,14 @@ def summary(rows: list[dict[str, Any]], nominal: str, source: dict[str, Any] | N
     return out
 
 
-def source_record(synthetic: dict[str, Any] | None, real: dict[str, Any], syn_var: float, real_var: float,
-                  tolerance: float = GAP_TOLERANCE) -> dict[str, Any]:
+def source_record(synthetic: dict[str, Any] | None, real: dict[str, Any], syn: tuple[float, float],
+                  real_measured: tuple[float, float], tolerance: float = GAP_TOLERANCE) -> dict[str, Any]:
     """The drone-resolution reference: the source-trained model on its synthetic test split and on the
-    un-emulated real images (resampled by ``metraw evaluate`` to its training GSD)."""
-    rec: dict[str, Any] = _real_fields(real, real_var)
+    un-emulated real images (resampled by ``metraw evaluate`` to its training GSD); ``syn`` and ``real_measured``
+    are the (IoU, variance) measurements of the two records (replicate means where they have replicates)."""
+    rec: dict[str, Any] = _real_fields(real, *real_measured)
     if synthetic is not None and synthetic.get("iou") is not None:
-        rec.update({"synthetic_iou": float(synthetic["iou"]), "synthetic_iou_sd": math.sqrt(max(syn_var, 0.0)),
-                    **_gap_fields(synthetic, rec, syn_var, real_var, tolerance)})
+        syn_iou, syn_var = syn
+        rec.update({"synthetic_iou": float(syn_iou), "synthetic_iou_sd": math.sqrt(max(syn_var, 0.0)),
+                    **_gap_fields({**synthetic, "iou": syn_iou}, rec, syn_var, real_measured[1], tolerance)})
     return rec

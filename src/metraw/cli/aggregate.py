@@ -145,8 +145,8 @@ def load_point_results(params: dict[str, Any], results: str, metrics_pattern: st
                         "_signal": comp.get("signal_e")})
         if rpath is not None:
             real = _read_json(rpath, "real-image metrics file")
-            _, real_var = iou_measurement(real, str(rpath))
-            row.update(real_columns(row, real, iou_var, real_var,
+            real_iou, real_var = iou_measurement(real, str(rpath))
+            row.update(real_columns(row, real, real_iou, iou_var, real_var,
                                     GAP_TOLERANCE if gap_tolerance is None else gap_tolerance))
         rows.append(row)
     if missing:
@@ -174,13 +174,13 @@ def _sim_to_real(args, rows: list[dict[str, Any]]) -> dict[str, Any] | None:
     if args.source_real_metrics:
         rpath = Path(args.source_real_metrics)
         real = _read_json(rpath, "source real-image metrics file")
-        _, real_var = iou_measurement(real, str(rpath))
-        synthetic, syn_var = None, 0.0
+        real_measured = iou_measurement(real, str(rpath))
+        synthetic, syn = None, (0.0, 0.0)
         if args.source_metrics:
             spath = Path(args.source_metrics)
             synthetic = _read_json(spath, "source metrics file")
-            _, syn_var = iou_measurement(synthetic, str(spath))
-        source = sim_to_real.source_record(synthetic, real, syn_var, real_var, tolerance)
+            syn = iou_measurement(synthetic, str(spath))
+        source = sim_to_real.source_record(synthetic, real, syn, real_measured, tolerance)
     return sim_to_real.summary(rows, NOMINAL, source, tolerance)
 
 
