@@ -60,6 +60,29 @@ def test_codec_store_reads_back_in_fresh_process_within_bound(stores, tmp_path):
         assert np.all(np.abs(err) <= error_bound_dn(img.data, img.profile, STEP))
 
 
+HIDE_ENTRY_POINT = """
+import importlib.metadata as md, sys
+def entry_points(**select):  # as in a source tree on PYTHONPATH: metraw's dist-info (and its entry point) absent
+    found = md.EntryPoints(e for d in md.distributions() for e in d.entry_points if not e.value.startswith("metraw."))
+    return found.select(**select) if select else found
+md.entry_points = entry_points
+import zarr.registry
+assert not md.entry_points(group="zarr.codecs", name="metraw.raw")
+"""
+
+
+def test_codec_store_reads_without_the_installed_entry_point(stores, tmp_path):
+    """metraw run from a source tree (not installed) still opens and decodes a codec store, the same pixels."""
+    plain, coded = stores
+    out, ref_out = tmp_path / "hidden.npy", tmp_path / "installed.npy"
+    subprocess.run([sys.executable, "-c", READ, str(coded), str(ref_out)], capture_output=True, text=True, check=True)
+    res = subprocess.run([sys.executable, "-c", HIDE_ENTRY_POINT + READ, str(coded), str(out)], capture_output=True,
+                         text=True)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert "metraw.raw" in json.loads(res.stdout)["codecs"]
+    assert np.array_equal(np.load(out), np.load(ref_out))
+
+
 def test_without_codec_step_store_is_lossless(stores):
     plain, _ = stores
     s = RawStore.open(plain)

@@ -15,6 +15,7 @@ attributes is written last, so an interrupted append never exposes a half-writte
 
 from __future__ import annotations
 
+import functools
 import os
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator
@@ -38,8 +39,16 @@ MAX_IMAGES_PER_SHARD = 256
 RawCodecFactory = Callable[[CalibrationProfile], dict[str, Any]]
 
 
+@functools.cache
 def _zarr():
+    """zarr, able to read the metraw raw codec: installed, metraw declares it through an entry point; run from a
+    source tree (``PYTHONPATH=src``, no entry point) the codec module registers it on import."""
+    from importlib.metadata import entry_points
+
     import zarr
+
+    if not entry_points(group="zarr.codecs", name="metraw.raw"):  # metraw.codec.zarr_codec.CODEC_NAME
+        import metraw.codec.zarr_codec  # noqa: F401
 
     return zarr
 

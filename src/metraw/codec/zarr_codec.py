@@ -1,7 +1,9 @@
 """The metraw raw codec as a zarr v3 array-to-bytes codec (name ``metraw.raw``).
 
 Registered through the ``zarr.codecs`` entry point (pyproject.toml), so
-``zarr.open_array(path)[:]`` decodes with metraw merely installed. The configuration carries
+``zarr.open_array(path)[:]`` decodes with metraw merely installed; importing this module (as
+``metraw.store`` does) also registers it directly, so stores open where metraw runs from a source tree
+without its installed entry point (``PYTHONPATH=src``). The configuration carries
 the step, the array's seed (each image is dithered with ``image_seed(seed, pixels)``, stored
 in its blob) and the calibration profile: one profile per array (the store's ``raw``
 array uses the first image's profile; images with another noise model still decode exactly to
@@ -133,6 +135,16 @@ class MetrawRawCodec(ArrayBytesCodec):
 
     def compute_encoded_size(self, input_byte_length: int, _chunk_spec) -> int:
         raise NotImplementedError  # variable size
+
+
+def register() -> None:
+    """Register ``MetrawRawCodec`` with zarr under ``CODEC_NAME`` (idempotent: the same class each time)."""
+    from zarr.registry import register_codec
+
+    register_codec(CODEC_NAME, MetrawRawCodec)
+
+
+register()
 
 
 def raw_codecs(step: float = 1.0, seed: int = 0) -> Callable[[CalibrationProfile], dict[str, Any]]:
