@@ -145,7 +145,8 @@ def test_aggregate_reports_real_columns_and_the_gap(hand_made, capsys):
 
 def test_real_iou_of_replicate_models_is_their_mean_as_on_the_synthetic_side(hand_made):
     """With replicates the synthetic IoU is the replicates' mean; the real IoU and the gap must be measured alike
-    (not the first replicate's IoU against the others' mean), for the points and for the source."""
+    (not the first replicate's IoU against the others' mean), for the points and for the source, and so must
+    precision, recall and object F1."""
     from metraw.cli.aggregate import iou_measurement
 
     root, made, (src_syn, src_real) = hand_made
@@ -153,7 +154,9 @@ def test_real_iou_of_replicate_models_is_their_mean_as_on_the_synthetic_side(han
     for path, shift in [(root / "results/nominal/metrics.json", 0.01), (root / "results/nominal/real_metrics.json", -0.03),
                         (root / "results/source/metrics.json", 0.02), (root / "results/source/real_metrics.json", 0.04)]:
         m = json.loads(path.read_text())
-        m.update(iou_replicate_mean=m["iou"] + shift, iou_replicate_se=0.004, n_replicates=3)
+        m.update(iou_replicate_mean=m["iou"] + shift, iou_replicate_se=0.004, n_replicates=3,
+                 replicates=[{"seed": k, "iou": m["iou"] + shift, "precision": m["precision"] + d,
+                              "recall": m["recall"] - d, "object_f1": 0.5 + d} for k, d in enumerate((0.0, 0.03, 0.09))])
         path.write_text(json.dumps(m))
         shifted[path.parent.name, path.name] = m
     assert _aggregate(root, "--real-metrics-pattern", "{results}/{point}/real_metrics.json",
@@ -168,6 +171,13 @@ def test_real_iou_of_replicate_models_is_their_mean_as_on_the_synthetic_side(han
     assert nominal["real_iou_sd"] ** 2 == pytest.approx(iou_measurement({**real, "iou_replicate_mean": None}, "r")[1]
                                                         + 0.004 ** 2)
     assert nominal["sim_to_real_gap"] == pytest.approx(syn["iou"] - real["iou"] + 0.04)
+    # precision, recall and object F1 describe the same models as the IoU: the replicates' means
+    assert nominal["precision"] == pytest.approx(syn["precision"] + 0.04)
+    assert nominal["recall"] == pytest.approx(syn["recall"] - 0.04)
+    assert nominal["object_f1"] == pytest.approx(0.54)
+    assert nominal["real_precision"] == pytest.approx(real["precision"] + 0.04)
+    assert nominal["real_recall"] == pytest.approx(real["recall"] - 0.04)
+    assert nominal["real_box_iou"] == pytest.approx(real["box_iou"])  # box scores: the first model's
     source = table["sim_to_real"]["source"]
     assert source["synthetic_iou"] == pytest.approx(src_syn["iou"] + 0.02)
     assert source["real_iou"] == pytest.approx(src_real["iou"] + 0.04)

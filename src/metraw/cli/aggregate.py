@@ -3,6 +3,8 @@
 The point list comes from params.yaml (`metraw.points.parameter_points`), never from a glob;
 every point's metrics (and compression) file must exist. Outputs under ``--out``:
 ``spec.yaml``, ``aggregate.json``, ``figures/*.png`` and ``plots/*.csv`` (for ``dvc plots``).
+With replicate models a point's IoU, precision, recall and object F1 (synthetic and real) are the means over
+the replicates (``iou_measurement``, ``with_replicate_means``); box scores are the first model's.
 
 Sim-to-real (``--real-metrics-pattern``, issue #16): each point's synthetic-trained model scored on the
 real images emulated through the same point. aggregate.json then holds per point ``real_iou`` (+ sd),
@@ -76,6 +78,23 @@ def _read_json(path: Path, what: str) -> dict[str, Any]:
         raise MetrawError(f"{what} {path} is not valid JSON: {exc}") from None
 
 
+#: Scores of a metrics record that ``with_replicate_means`` averages over its replicate models.
+REPLICATE_SCORES = ("precision", "recall", "object_f1")
+
+
+def with_replicate_means(metrics: dict[str, Any]) -> dict[str, Any]:
+    """``metrics`` with precision, recall and object F1 averaged over its replicate models (``metraw evaluate``
+    of a model with replicates lists each model's scores), so they describe the same models as the IoU, which
+    ``iou_measurement`` averages alike; a record without replicates is returned as it is."""
+    reps = metrics.get("replicates") or []
+    out = dict(metrics)
+    for key in REPLICATE_SCORES:
+        values = [r[key] for r in reps if r.get(key) is not None]
+        if len(values) > 1:
+            out[key] = float(np.mean(values))
+    return out
+
+
 def iou_measurement(metrics: dict[str, Any], where: str) -> tuple[float, float]:
     """Test-split IoU and the variance of that estimate.
 
@@ -125,7 +144,7 @@ def load_point_results(params: dict[str, Any], results: str, metrics_pattern: st
                 missing.append(str(path))
         if missing:
             continue
-        metrics = _read_json(mpath, "metrics file")
+        metrics = with_replicate_means(_read_json(mpath, "metrics file"))
         iou, iou_var = iou_measurement(metrics, str(mpath))
         tp = target_params(params, point)
         row = {"point": point, **{n: tp[n] if n in CATEGORICAL else float(tp[n]) for n in names}, "iou": iou, "iou_sd": math.sqrt(iou_var),
@@ -144,7 +163,7 @@ def load_point_results(params: dict[str, Any], results: str, metrics_pattern: st
                                                          if c in im.get("channels", {})]) for c in comp["channels"]},
                         "_signal": comp.get("signal_e")})
         if rpath is not None:
-            real = _read_json(rpath, "real-image metrics file")
+            real = with_replicate_means(_read_json(rpath, "real-image metrics file"))
             real_iou, real_var = iou_measurement(real, str(rpath))
             row.update(real_columns(row, real, real_iou, iou_var, real_var,
                                     GAP_TOLERANCE if gap_tolerance is None else gap_tolerance))
@@ -173,12 +192,12 @@ def _sim_to_real(args, rows: list[dict[str, Any]]) -> dict[str, Any] | None:
     source = None
     if args.source_real_metrics:
         rpath = Path(args.source_real_metrics)
-        real = _read_json(rpath, "source real-image metrics file")
+        real = with_replicate_means(_read_json(rpath, "source real-image metrics file"))
         real_measured = iou_measurement(real, str(rpath))
         synthetic, syn = None, (0.0, 0.0)
         if args.source_metrics:
             spath = Path(args.source_metrics)
-            synthetic = _read_json(spath, "source metrics file")
+            synthetic = with_replicate_means(_read_json(spath, "source metrics file"))
             syn = iou_measurement(synthetic, str(spath))
         source = sim_to_real.source_record(synthetic, real, syn, real_measured, tolerance)
     return sim_to_real.summary(rows, NOMINAL, source, tolerance)
