@@ -25,7 +25,6 @@ def step_times(depth: int, side: int, n_condition: int, rounds: int, device: str
 
     from metraw.segment.model import Segmenter
 
-    torch.manual_seed(0)
     nets, opts = {}, {}
     for precision in ("float32", "bfloat16"):
         torch.manual_seed(0)
@@ -62,14 +61,13 @@ def main() -> None:
 
     import torch
 
-    from metraw.segment.train import resolve_precision
+    from metraw.segment.train import BF16_CPU_PROBES, resolve_precision
 
     torch.set_num_threads(args.threads)
-    probes = {name: getattr(torch.cpu, name, lambda: None)() for name in ("_is_avx512_bf16_supported",
-                                                                         "_is_amx_tile_supported")}
+    probes = ", ".join(f"{name} {getattr(torch.cpu, name, lambda: None)()}" for name in BF16_CPU_PROBES)
     print(f"torch {torch.__version__}, device {args.device}, {args.threads} thread(s), CPU capability "
-          f"{torch.backends.cpu.get_cpu_capability()}, AVX512-BF16 {probes['_is_avx512_bf16_supported']}, "
-          f"AMX {probes['_is_amx_tile_supported']}: precision auto -> {resolve_precision('auto', args.device)}")
+          f"{torch.backends.cpu.get_cpu_capability()}, {probes}: precision auto -> "
+          f"{resolve_precision('auto', args.device)}")
     print(f"{'case':<28} {'float32 ms':>10} {'bfloat16 ms':>11} {'ratio':>6}")
     for name, depth, side, n_condition in (("default, 34 px, conditioned", 2, 34, 6),
                                            ("default, 64 px, conditioned", 2, 64, 6),

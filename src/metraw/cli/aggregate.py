@@ -95,6 +95,13 @@ def with_replicate_means(metrics: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+def _read_measured(path: Path, what: str) -> tuple[dict[str, Any], tuple[float, float]]:
+    """A metrics file with its scores averaged over replicates (``with_replicate_means``), and (IoU, variance of
+    that IoU) (``iou_measurement``)."""
+    metrics = with_replicate_means(_read_json(path, what))
+    return metrics, iou_measurement(metrics, str(path))
+
+
 def iou_measurement(metrics: dict[str, Any], where: str) -> tuple[float, float]:
     """Test-split IoU and the variance of that estimate.
 
@@ -144,8 +151,7 @@ def load_point_results(params: dict[str, Any], results: str, metrics_pattern: st
                 missing.append(str(path))
         if missing:
             continue
-        metrics = with_replicate_means(_read_json(mpath, "metrics file"))
-        iou, iou_var = iou_measurement(metrics, str(mpath))
+        metrics, (iou, iou_var) = _read_measured(mpath, "metrics file")
         tp = target_params(params, point)
         row = {"point": point, **{n: tp[n] if n in CATEGORICAL else float(tp[n]) for n in names}, "iou": iou, "iou_sd": math.sqrt(iou_var),
                "precision": metrics.get("precision"), "recall": metrics.get("recall"),
@@ -163,8 +169,7 @@ def load_point_results(params: dict[str, Any], results: str, metrics_pattern: st
                                                          if c in im.get("channels", {})]) for c in comp["channels"]},
                         "_signal": comp.get("signal_e")})
         if rpath is not None:
-            real = with_replicate_means(_read_json(rpath, "real-image metrics file"))
-            real_iou, real_var = iou_measurement(real, str(rpath))
+            real, (real_iou, real_var) = _read_measured(rpath, "real-image metrics file")
             row.update(real_columns(row, real, real_iou, iou_var, real_var,
                                     GAP_TOLERANCE if gap_tolerance is None else gap_tolerance))
         rows.append(row)
@@ -191,14 +196,10 @@ def _sim_to_real(args, rows: list[dict[str, Any]]) -> dict[str, Any] | None:
     tolerance = sim_to_real.GAP_TOLERANCE if args.gap_tolerance is None else args.gap_tolerance
     source = None
     if args.source_real_metrics:
-        rpath = Path(args.source_real_metrics)
-        real = with_replicate_means(_read_json(rpath, "source real-image metrics file"))
-        real_measured = iou_measurement(real, str(rpath))
+        real, real_measured = _read_measured(Path(args.source_real_metrics), "source real-image metrics file")
         synthetic, syn = None, (0.0, 0.0)
         if args.source_metrics:
-            spath = Path(args.source_metrics)
-            synthetic = with_replicate_means(_read_json(spath, "source metrics file"))
-            syn = iou_measurement(synthetic, str(spath))
+            synthetic, syn = _read_measured(Path(args.source_metrics), "source metrics file")
         source = sim_to_real.source_record(synthetic, real, syn, real_measured, tolerance)
     return sim_to_real.summary(rows, NOMINAL, source, tolerance)
 

@@ -1,9 +1,9 @@
 """The metraw raw codec as a zarr v3 array-to-bytes codec (name ``metraw.raw``).
 
 Registered through the ``zarr.codecs`` entry point (pyproject.toml), so
-``zarr.open_array(path)[:]`` decodes with metraw merely installed; importing this module (as
-``metraw.store`` does) also registers it directly, so stores open where metraw runs from a source tree
-without its installed entry point (``PYTHONPATH=src``). The configuration carries
+``zarr.open_array(path)[:]`` decodes with metraw merely installed; importing this module also registers
+it directly, which ``metraw.store`` does where that entry point is absent (metraw run from a source tree,
+``PYTHONPATH=src``), so its stores open there too. The configuration carries
 the step, the array's seed (each image is dithered with ``image_seed(seed, pixels)``, stored
 in its blob) and the calibration profile: one profile per array (the store's ``raw``
 array uses the first image's profile; images with another noise model still decode exactly to

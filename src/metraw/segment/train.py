@@ -40,6 +40,8 @@ TRAIN_METRICS = "train.json"
 REPLICATE_DIR = "replicate-{r}"
 #: ``TrainConfig.precision`` values ("auto": ``resolve_precision``).
 PRECISIONS = ("float32", "bfloat16", "auto")
+#: ``torch.cpu`` probes of native bfloat16 (AVX512-BF16, AMX): "auto" trains in bfloat16 on a CPU where one is true.
+BF16_CPU_PROBES = ("_is_avx512_bf16_supported", "_is_amx_tile_supported")
 #: Training losses (``segmentation_loss``): binary cross-entropy plus soft Dice, plus soft IoU (Jaccard), or alone.
 LOSSES = ("bce+dice", "bce+iou", "bce")
 #: ``crops_per_image`` value: enough crops to cover each image's working-grid area once per epoch.
@@ -174,7 +176,7 @@ def resolve_precision(precision: str, device: str) -> str:
     if kind == "cuda":
         return "bfloat16" if torch.cuda.is_bf16_supported() else "float32"
     if kind == "cpu":
-        probes = (getattr(torch.cpu, name, None) for name in ("_is_avx512_bf16_supported", "_is_amx_tile_supported"))
+        probes = (getattr(torch.cpu, name, None) for name in BF16_CPU_PROBES)
         return "bfloat16" if any(probe is not None and probe() for probe in probes) else "float32"
     return "float32"
 
