@@ -4,7 +4,7 @@ Steps (per scene):
 
 1. Rasterise the painted shapes on a grid of ``supersample`` x ``supersample`` samples per source
    pixel (scanline spans of convex polygons and discs: exact point-in-shape tests at sample
-   centres, no per-pixel Python). Each sample gets the id of the topmost object (shapes are
+   centres, compiled: ``metraw.scenes.raster``). Each sample gets the id of the topmost object (shapes are
    painted by increasing height, so a tree crown hides the car below it) and the height of the
    tallest shadow caster covering it.
 2. Per sample and band: reflectance x irradiance, with irradiance = direct beam x (n . s) when the
@@ -18,7 +18,8 @@ Steps (per scene):
    Aerosol depth, shadow sky view, bounce and lens blur come from the scene's ``conditions``
    (drawn per scene by ``layout.draw_conditions``: domain randomisation) or, when a scene has
    none, from ``RenderSettings``.
-4. Optics: Gaussian blur of sigma ``blur_px`` source pixels on each band's radiance (diffraction at
+4. Optics: Gaussian blur of sigma ``blur_px`` source pixels on each band's radiance, evaluated only at the
+   pixels of the band's colour (``blur_at_colour``: scipy's filter there, bit for bit; diffraction at
    f/2.8 has sigma ~0.42 lambda N = 0.27 px at 550 nm; the rest stands for lens aberration and
    defocus, typical of a 1" drone camera). The label is not blurred: it is geometry.
 5. Sensor: expected photoelectrons from the radiometry in ``radiance`` with the scene's exposure,
@@ -37,13 +38,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
-from scipy import ndimage
 
 from metraw.cfa import color_index
 from metraw.image import FLAG_SATURATED, RawImage
 from metraw.profile import CalibrationProfile
 from metraw.scenes.layout import Scene
+from metraw.scenes.raster import rasterise
 from metraw.scenes.radiance import electrons_per_reflectance
 from metraw.sensor import readout
 
@@ -82,91 +84,6 @@ class RenderSettings:
         from dataclasses import replace
 
         return replace(self, **scene.conditions)
-
-
-# ---------------------------------------------------------------------- rasterisation
-def _poly_spans(verts_s: np.ndarray, n_rows: int, n_cols: int):
-    """Row indices and [lo, hi) column spans of sample centres inside a convex polygon.
-
-    ``verts_s`` are vertices in sample units (sample (r, c) has its centre at x = c, y = r).
-    """
-    y0 = max(0, math.ceil(float(verts_s[:, 1].min())))
-    y1 = min(n_rows - 1, math.floor(float(verts_s[:, 1].max())))
-    if y1 < y0:
-        return None
-    rows = np.arange(y0, y1 + 1, dtype=np.float64)
-    xmin = np.full(rows.shape, -np.inf)
-    xmax = np.full(rows.shape, np.inf)
-    p, q = verts_s, np.roll(verts_s, -1, axis=0)
-    area2 = float(np.sum(p[:, 0] * q[:, 1] - q[:, 0] * p[:, 1]))
-    sign = 1.0 if area2 >= 0 else -1.0
-    for (px, py), (qx, qy) in zip(p.tolist(), q.tolist()):
-        # inside: sign * ((qx-px)(Y-py) - (qy-py)(X-px)) >= 0  ->  a X + b >= 0
-        a = -sign * (qy - py)
-        b = sign * ((qx - px) * (rows - py) + (qy - py) * px)
-        if a > 0:
-            xmin = np.maximum(xmin, -b / a)
-        elif a < 0:
-            xmax = np.minimum(xmax, -b / a)
-        else:
-            xmax = np.where(b >= 0, xmax, -np.inf)
-    lo = np.clip(np.ceil(xmin), 0, n_cols)
-    hi = np.clip(np.floor(xmax) + 1, 0, n_cols)
-    return rows.astype(np.int64), lo.astype(np.int64), hi.astype(np.int64)
-
-
-def _disc_spans(cx: float, cy: float, r: float, n_rows: int, n_cols: int):
-    y0, y1 = max(0, math.ceil(cy - r)), min(n_rows - 1, math.floor(cy + r))
-    if y1 < y0:
-        return None
-    rows = np.arange(y0, y1 + 1, dtype=np.float64)
-    half = np.sqrt(np.maximum(r * r - (rows - cy) ** 2, 0.0))
-    lo = np.clip(np.ceil(cx - half), 0, n_cols)
-    hi = np.clip(np.floor(cx + half) + 1, 0, n_cols)
-    return rows.astype(np.int64), lo.astype(np.int64), hi.astype(np.int64)
-
-
-def _fill(target: np.ndarray, spans, value) -> None:
-    if spans is None:
-        return
-    for r, a, b in zip(*(s.tolist() for s in spans)):
-        if b > a:
-            target[r, a:b] = value
-
-
-def rasterise(scene: Scene, size_px: int, gsd_m: float, supersample: int):
-    """Object id and caster height per sample, and the tree-crown discs painted.
-
-    Returns ``(obj, caster_h, crowns)``: two arrays of shape (size_px * supersample,) * 2 and a
-    list of ``(object, cx, cy, r, spans)`` in sample units.
-    """
-    n = size_px * supersample
-    d = gsd_m / supersample  # metres per sample
-    heights = np.asarray(scene.height_m)
-    obj = np.zeros((n, n), np.uint16)
-    if len(heights) > 65535:
-        raise ValueError("too many objects in one scene")
-    order = sorted(range(len(scene.shapes)), key=lambda i: (heights[_shape_obj(scene.shapes[i])], i))
-    crowns = []
-    for i in order:
-        shape = scene.shapes[i]
-        if isinstance(shape[0], str):
-            _, cx, cy, r, o = shape
-            spans = _disc_spans(cx / d - 0.5, cy / d - 0.5, r / d, n, n)
-            _fill(obj, spans, o)
-            if scene.crown[o] and spans is not None:
-                crowns.append((o, cx / d - 0.5, cy / d - 0.5, r / d, spans))
-        else:
-            verts, o = shape
-            _fill(obj, _poly_spans(verts / d - 0.5, n, n), o)
-    caster_h = np.zeros((n, n), np.float32)
-    for poly, h in sorted(scene.casters, key=lambda c: c[1]):
-        _fill(caster_h, _poly_spans(poly / d - 0.5, n, n), np.float32(h))
-    return obj, caster_h, crowns
-
-
-def _shape_obj(shape) -> int:
-    return shape[4] if isinstance(shape[0], str) else shape[1]
 
 
 def _crown_shading(obj: np.ndarray, crowns, sun: np.ndarray) -> np.ndarray | None:
@@ -209,12 +126,74 @@ def value_noise(rng: np.random.Generator, size: int, cells_px: tuple[int, ...], 
         i0 = np.floor(t).astype(np.int64)
         w = (t - i0).astype(np.float32)
         w = w * w * (np.float32(3) - np.float32(2) * w)  # smoothstep, no lattice creases
-        rows = g[i0] * (1 - w)[:, None] + g[i0 + 1] * w[:, None]
-        field = rows[:, i0] * (1 - w)[None, :] + rows[:, i0 + 1] * w[None, :]
         amp = np.float32(float(cell) ** slope)
-        out += amp * field
+        _add_bilinear(out, g, i0, w, (1 - w).astype(np.float32), amp)
         total += float(amp) ** 2
     return out / np.float32(math.sqrt(total) * 0.6)
+
+
+@nb.njit(cache=True, nogil=True)
+def _add_bilinear(out, g, i0, w, omw, amp):
+    """out += amp * field, field the lattice ``g`` interpolated at the (size,) nodes i0 + w along both axes
+    (``omw`` = 1 - w): rows[i, j] = g[i0_i, j] omw_i + g[i0_i + 1, j] w_i, then the same along the columns.
+    float32 throughout, each element's operations as numpy's array expression of it (no fused multiply-add):
+    bit-identical to it, in one pass over ``out``."""
+    size = i0.size
+    rows = np.empty((size, g.shape[1]), np.float32)
+    for i in range(size):
+        a, wi, oi = i0[i], w[i], omw[i]
+        for j in range(g.shape[1]):
+            rows[i, j] = g[a, j] * oi + g[a + 1, j] * wi
+    for i in range(size):
+        for x in range(size):
+            a = i0[x]
+            out[i, x] += amp * (rows[i, a] * omw[x] + rows[i, a + 1] * w[x])
+
+
+# ---------------------------------------------------------------------- lens blur
+def gaussian_weights(sigma_px: float, truncate: float = 4.0) -> np.ndarray:
+    """The correlation weights ``scipy.ndimage.gaussian_filter1d`` uses for ``sigma_px`` (radius
+    int(truncate sigma + 1/2), normalised to sum 1), computed as it does."""
+    radius = int(truncate * float(sigma_px) + 0.5)
+    x = np.arange(-radius, radius + 1)
+    phi = np.exp(-0.5 / (sigma_px * sigma_px) * x ** 2)
+    return (phi / phi.sum())[::-1].copy()
+
+
+@nb.njit(cache=True, nogil=True)
+def _reflect(i, n):
+    return -i - 1 if i < 0 else (2 * n - i - 1 if i >= n else i)
+
+
+@nb.njit(cache=True, nogil=True)
+def blur_at_colour(px, weights, cidx, ci, out):
+    """out[r, c] = ``scipy.ndimage.gaussian_filter(px, sigma, mode="reflect")``[r, c] (px float32, ``weights`` =
+    ``gaussian_weights(sigma)``, odd length <= 2 min(px.shape) + 1) at the pixels where cidx == ci, bit for bit:
+    scipy's symmetric correlation in float64, rows first, the intermediate rounded to float32 as scipy stores it.
+    Only the rows that hold colour ``ci`` are filtered and only its pixels along them: a quarter to a half of
+    the full filter's work on a Bayer mosaic. Other pixels of ``out`` are left as they are."""
+    h, w = px.shape
+    rad = (weights.size - 1) // 2
+    tmp = np.empty(w, np.float32)
+    for r in range(h):
+        hit = False
+        for c in range(w):
+            if cidx[r, c] == ci:
+                hit = True
+                break
+        if not hit:
+            continue
+        for c in range(w):
+            acc = np.float64(px[r, c]) * weights[rad]
+            for k in range(rad, 0, -1):
+                acc += (np.float64(px[_reflect(r - k, h), c]) + np.float64(px[_reflect(r + k, h), c])) * weights[rad - k]
+            tmp[c] = np.float32(acc)
+        for c in range(w):
+            if cidx[r, c] == ci:
+                acc = np.float64(tmp[c]) * weights[rad]
+                for k in range(rad, 0, -1):
+                    acc += (np.float64(tmp[_reflect(c - k, w)]) + np.float64(tmp[_reflect(c + k, w)])) * weights[rad - k]
+                out[r, c] = np.float32(acc)
 
 
 # ---------------------------------------------------------------------- main entry
@@ -303,9 +282,10 @@ def render(scene: Scene, camera: CalibrationProfile, size_px: int, rng: np.rando
         px = np.take(refl[:, ci], obj0) * tex0 * (kd * d_mean + ks * s_mean)
         px.ravel()[mixed] = (refl[m_obj, ci] * m_tex * (kd * m_dir + ks * m_sky)).sum(axis=1) * inv
         if settings.blur_px > 0:
-            px = ndimage.gaussian_filter(px, settings.blur_px, mode="reflect", truncate=4.0)
-        sel = cidx == ci
-        mean_e[sel] = px[sel]
+            blur_at_colour(px, gaussian_weights(settings.blur_px), cidx, ci, mean_e)
+        else:
+            sel = cidx == ci
+            mean_e[sel] = px[sel]
     mask = np.take(is_veh, obj0).astype(np.float32)
     mask.ravel()[mixed] = is_veh[m_obj].sum(axis=1).astype(np.float32) * inv
 
