@@ -168,13 +168,17 @@ def _reflect(i, n):
 @nb.njit(cache=True, nogil=True)
 def blur_at_colour(px, weights, cidx, ci, out):
     """out[r, c] = ``scipy.ndimage.gaussian_filter(px, sigma, mode="reflect")``[r, c] (px float32, ``weights`` =
-    ``gaussian_weights(sigma)``, odd length <= 2 min(px.shape) + 1) at the pixels where cidx == ci, bit for bit:
-    scipy's symmetric correlation in float64, rows first, the intermediate rounded to float32 as scipy stores it.
-    Only the rows that hold colour ``ci`` are filtered and only its pixels along them: a quarter to a half of
-    the full filter's work on a Bayer mosaic. Other pixels of ``out`` are left as they are."""
+    ``gaussian_weights(sigma)``, radius <= min(px.shape)) at the pixels where cidx == ci, bit for bit: scipy's
+    symmetric correlation in float64 (centre term first, then the pairs from the outermost in), rows first, the
+    intermediate rounded to float32 as scipy stores it. Only the rows that hold colour ``ci`` are filtered: half
+    of them on a Bayer mosaic. Other pixels of ``out`` are left as they are."""
     h, w = px.shape
     rad = (weights.size - 1) // 2
-    tmp = np.empty(w, np.float32)
+    if rad > min(h, w):
+        raise ValueError("blur radius exceeds the image")
+    acc = np.empty(w, np.float64)
+    tmp = np.empty(w + 2 * rad, np.float32)  # the row pass's output, padded by reflection
+    wc = weights[rad]
     for r in range(h):
         hit = False
         for c in range(w):
@@ -184,16 +188,25 @@ def blur_at_colour(px, weights, cidx, ci, out):
         if not hit:
             continue
         for c in range(w):
-            acc = np.float64(px[r, c]) * weights[rad]
-            for k in range(rad, 0, -1):
-                acc += (np.float64(px[_reflect(r - k, h), c]) + np.float64(px[_reflect(r + k, h), c])) * weights[rad - k]
-            tmp[c] = np.float32(acc)
+            acc[c] = np.float64(px[r, c]) * wc
+        for k in range(rad, 0, -1):
+            ra, rb, wk = _reflect(r - k, h), _reflect(r + k, h), weights[rad - k]
+            for c in range(w):
+                acc[c] += (np.float64(px[ra, c]) + np.float64(px[rb, c])) * wk
+        for c in range(w):
+            tmp[rad + c] = np.float32(acc[c])
+        for k in range(1, rad + 1):
+            tmp[rad - k] = tmp[rad + _reflect(-k, w)]
+            tmp[rad + w - 1 + k] = tmp[rad + _reflect(w - 1 + k, w)]
+        for c in range(w):
+            acc[c] = np.float64(tmp[rad + c]) * wc
+        for k in range(rad, 0, -1):
+            wk = weights[rad - k]
+            for c in range(w):
+                acc[c] += (np.float64(tmp[rad + c - k]) + np.float64(tmp[rad + c + k])) * wk
         for c in range(w):
             if cidx[r, c] == ci:
-                acc = np.float64(tmp[c]) * weights[rad]
-                for k in range(rad, 0, -1):
-                    acc += (np.float64(tmp[_reflect(c - k, w)]) + np.float64(tmp[_reflect(c + k, w)])) * weights[rad - k]
-                out[r, c] = np.float32(acc)
+                out[r, c] = np.float32(acc[c])
 
 
 # ---------------------------------------------------------------------- main entry
@@ -206,6 +219,65 @@ def scene_exposure_s(camera: CalibrationProfile, k: dict[str, tuple[float, float
     peak_per_s = max(kd * sun_cos_flat + ks for kd, ks in k.values()) * settings.white_reflectance
     t = settings.target_fill * camera.saturation_e / peak_per_s
     return float(min(t_max, t))
+
+
+@nb.njit(cache=True, nogil=True)
+def _flat_pixels(obj, caster_h, ss, h_eps, sun_cos, sky_view, tex_amp, refl, is_crown, crowns, coarse, fine, bounce,
+                 v_shadow, inv, kd, ks):
+    """Per pixel of ``obj``'s (ss x ss)-sample grid, as if its samples all saw the object o of its first sample:
+    the lit fraction L (samples not below a taller caster), direct d = n.s(o) L + bounce (1 - L), sky
+    s = sky_view(o) (v_shadow + (1 - v_shadow) L), texture t = max(1 + a(o) coarse + b(o) fine, 0.05), and per
+    band c the expected electrons refl(o, c) t (kd_c d + ks_c s). Returns (those, (bands, n, n) float32; the
+    pixels that need their samples one by one: mixed objects, or a tree crown where ``crowns``). float32
+    arithmetic in the order of the former numpy expressions (bit-identical to them)."""
+    n = obj.shape[0] // ss
+    nb_ = kd.size
+    px = np.empty((nb_, n, n), np.float32)
+    special = np.empty((n, n), np.bool_)
+    one, floor_ = np.float32(1.0), np.float32(0.05)
+    for y in range(n):
+        for x in range(n):
+            o = obj[y * ss, x * ss]
+            h0 = h_eps[o]
+            uniform = True
+            lit = np.float32(0.0)
+            for dy in range(ss):
+                for dx in range(ss):
+                    if obj[y * ss + dy, x * ss + dx] != o:
+                        uniform = False
+                    if caster_h[y * ss + dy, x * ss + dx] <= h0:
+                        lit += one
+            lit *= inv
+            special[y, x] = (not uniform) or (crowns and is_crown[o])
+            d = sun_cos[o] * lit
+            d += bounce * (one - lit)
+            s = sky_view[o] * (v_shadow + (one - v_shadow) * lit)
+            t = max(one + tex_amp[o, 0] * coarse[y, x] + tex_amp[o, 1] * fine[y, x], floor_)
+            for c in range(nb_):
+                px[c, y, x] = refl[o, c] * t * (kd[c] * d + ks[c] * s)
+    return px, special
+
+
+@nb.njit(cache=True, nogil=True)
+def _saturation_flags(counts, data, full_well, white):
+    """FLAG_SATURATED where the photoelectron count reached the full well or the DN the white level."""
+    flags = np.zeros(counts.shape, np.uint8)
+    for y in range(counts.shape[0]):
+        for x in range(counts.shape[1]):
+            if counts[y, x] >= full_well or data[y, x] >= white:
+                flags[y, x] = FLAG_SATURATED
+    return flags
+
+
+@nb.njit(cache=True, nogil=True)
+def _seen(obj, n_objects):
+    """Whether each object id occurs in ``obj`` (uint16), for ids 0 .. max(n_objects, largest id + 1) - 1."""
+    seen = np.zeros(65536, np.bool_)
+    top = 0
+    for v in obj.ravel():
+        seen[v] = True
+        top = max(top, np.int64(v) + 1)
+    return seen[:max(n_objects, top)]
 
 
 def render(scene: Scene, camera: CalibrationProfile, size_px: int, rng: np.random.Generator,
@@ -243,24 +315,12 @@ def render(scene: Scene, camera: CalibrationProfile, size_px: int, rng: np.rando
     h_eps = heights + np.float32(0.05)
     inv = np.float32(1.0 / (ss * ss))
     ob = obj.reshape(size_px, ss, size_px, ss)
-    obj0 = ob[:, 0, :, 0]
-    h0 = np.take(h_eps, obj0)
-    uniform = np.ones((size_px, size_px), bool)
-    lit_mean = np.zeros((size_px, size_px), np.float32)
-    for dy in range(ss):
-        for dx in range(ss):
-            if dy or dx:
-                uniform &= ob[:, dy, :, dx] == obj0
-            lit_mean += caster_h[dy::ss, dx::ss] <= h0
-    lit_mean *= inv
     crown_cos = _crown_shading(obj, crowns, scene.sun_vector)
-    special = ~uniform
-    if crown_cos is not None:
-        special |= np.take(is_crown, obj0)
-    d_mean = np.take(sun_cos, obj0) * lit_mean
     v_shadow, bounce = np.float32(settings.shadow_sky_view), np.float32(settings.bounce * scene.sun_vector[2])
-    d_mean += bounce * (1 - lit_mean)
-    s_mean = np.take(sky_view, obj0) * (v_shadow + (1 - v_shadow) * lit_mean)
+    kd = np.array([k[0] for k in kd_ks], np.float32)
+    ks = np.array([k[1] for k in kd_ks], np.float32)
+    px_all, special = _flat_pixels(obj, caster_h, ss, h_eps, sun_cos, sky_view, tex_amp, refl, is_crown,
+                                   crown_cos is not None, coarse, fine, bounce, v_shadow, inv, kd, ks)
     mixed = np.flatnonzero(special)
     my, mx = np.divmod(mixed, size_px)
     m_obj = ob[my, :, mx, :].reshape(len(mixed), ss * ss).astype(np.intp)
@@ -273,28 +333,25 @@ def render(scene: Scene, camera: CalibrationProfile, size_px: int, rng: np.rando
     m_sky = sky_view[m_obj] * np.where(m_lit, np.float32(1.0), v_shadow)
     tc, tf = coarse.ravel()[mixed][:, None], fine.ravel()[mixed][:, None]
     m_tex = np.maximum(1 + tex_amp[m_obj, 0] * tc + tex_amp[m_obj, 1] * tf, np.float32(0.05))
-    tex0 = np.maximum(1 + np.take(tex_amp[:, 0], obj0) * coarse + np.take(tex_amp[:, 1], obj0) * fine,
-                      np.float32(0.05))
 
     cidx = color_index(camera.cfa_pattern, (size_px, size_px))
     mean_e = np.zeros((size_px, size_px), np.float64)
     for ci, (kd, ks) in enumerate(kd_ks):
-        px = np.take(refl[:, ci], obj0) * tex0 * (kd * d_mean + ks * s_mean)
+        px = px_all[ci]
         px.ravel()[mixed] = (refl[m_obj, ci] * m_tex * (kd * m_dir + ks * m_sky)).sum(axis=1) * inv
         if settings.blur_px > 0:
             blur_at_colour(px, gaussian_weights(settings.blur_px), cidx, ci, mean_e)
         else:
             sel = cidx == ci
             mean_e[sel] = px[sel]
-    mask = np.take(is_veh, obj0).astype(np.float32)
+    mask = np.take(is_veh, obj[::ss, ::ss]).astype(np.float32)
     mask.ravel()[mixed] = is_veh[m_obj].sum(axis=1).astype(np.float32) * inv
 
     counts = rng.poisson(mean_e)
-    flags = np.where(counts >= (profile.full_well_e or np.inf), FLAG_SATURATED, 0).astype(np.uint8)
     data = readout(counts, profile, rng)
-    flags |= np.where(data >= profile.white_level_dn, FLAG_SATURATED, 0).astype(np.uint8)
+    flags = _saturation_flags(counts, data, float(profile.full_well_e or np.inf), profile.white_level_dn)
 
-    vis = np.bincount(obj.ravel(), minlength=len(heights))
+    vis = _seen(obj, len(heights))
     vehicles = [dict(v, visible_fraction=None) for v in scene.vehicles]
     visible_ids = set(np.flatnonzero(vis).tolist())
     meta = {
