@@ -9,9 +9,9 @@ filtered grid at target pixel centres with S^T (type-2):
 - ``scatter_rows(A)`` = S @ A and ``scatter_cols(A)`` = A @ S^T;
 - ``gather_rows(G)`` = S^T @ G and ``gather_cols(G)`` = G @ S.
 
-Compiled loops over the band (numba), reading and writing whole rows of C-ordered float64 arrays: no sparse
-matrix and no transposed copy of the operand (scipy's dense @ sparse copies its operand's transpose). The sums
-are the sparse products' to rounding (the order of the band's terms differs: ~1e-16 relative).
+Compiled loops over the band (numba), reading and writing whole rows of C-ordered float64 arrays (the column
+scatter works on transposed copies, which pays for itself): no sparse matrix. The sums are the sparse products'
+to rounding (the order of the band's terms differs: ~1e-16 relative).
 """
 
 from __future__ import annotations
@@ -88,13 +88,17 @@ def _scatter_rows(a, index, weight, n_grid):
 
 @nb.njit(cache=True, nogil=True)
 def _scatter_cols(a, index, weight, n_grid):
-    out = np.zeros((a.shape[0], n_grid))
-    for r in range(a.shape[0]):
-        for j in range(a.shape[1]):
-            v = a[r, j]
-            for o in range(index.shape[1]):
-                out[r, index[j, o]] += weight[j, o] * v
-    return out
+    # on the transposes, so that the innermost loop runs along contiguous rows (it vectorises; ~1.5x faster than
+    # scattered writes at the emulator's 384 x 512 cells); each element's sum takes its terms in the same order
+    n = a.shape[0]
+    at = np.ascontiguousarray(a.T)
+    out_t = np.zeros((n_grid, n))
+    for j in range(at.shape[0]):
+        for o in range(index.shape[1]):
+            k, w = index[j, o], weight[j, o]
+            for r in range(n):
+                out_t[k, r] += w * at[j, r]
+    return np.ascontiguousarray(out_t.T)
 
 
 @nb.njit(cache=True, nogil=True)
