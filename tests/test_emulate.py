@@ -412,3 +412,39 @@ def test_expected_chain_matches_optics_kernel_for_a_point_source():
                                         tgt.obscuration_ratio, center_offset_px=off)
     ref *= 8000.0 / n**2
     assert np.abs(arrivals - ref).max() <= 5e-4 * ref.max()
+
+
+# --------------------------------------------------------------------------- plan arrays: cached parts, exact shortcuts
+def test_axis_aligned_sinc_shortcut_is_the_grid_form_bit_for_bit():
+    """``_sinc_along`` takes the vector form only where the other axis's factor is exactly zero (signed zeros
+    included): it then equals the full grid's sines element for element, and elsewhere it is the full form."""
+    from metraw.emulate import _sinc_along
+
+    fy = np.fft.fftfreq(37, 0.31)[:, None]
+    fx = np.fft.rfftfreq(40, 0.29)[None, :]
+    for c, s in ((1.0, 0.0), (1.0, -0.0), (-0.0, 1.0), (0.0, -1.0), (math.cos(0.3), math.sin(0.3)),
+                 (math.cos(math.pi / 2), 1.0)):
+        for scale in (0.88, 1.24, 3.7):
+            want = np.sinc(scale * (fx * c + fy * s))
+            got = np.broadcast_to(_sinc_along(fx, fy, c, s, scale), want.shape)
+            assert np.array_equal(got, want), (c, s, scale)
+
+
+def test_plans_are_the_same_with_their_cached_arrays_and_without():
+    """A plan made after others (its grid, OTF table and OTF on the grid taken from the caches) has the transfer
+    functions of one made from empty caches, and the cached arrays cannot be written to."""
+    from metraw import emulate as E
+
+    src = flat_source((400, 600), 5000.0)
+    targets = [gsd_ratio_target(6.0), gsd_ratio_target(7.5), gsd_ratio_target(6.0, exposure_s=3e-4),
+               gsd_ratio_target(6.0, diameter_m=0.35), gsd_ratio_target(6.0, frame_rotation_rad=0.4)]
+    warm = [plan_emulation(src.profile, src.shape, t) for t in targets]
+    for t, plan in zip(targets, warm):
+        E._PLAN_CACHE.clear()
+        for cached in (E._grid_arrays, E._grid_otf, E._poly_otf_table):
+            cached.cache_clear()
+        cold = plan_emulation(src.profile, src.shape, t)
+        assert plan.transfer.keys() == cold.transfer.keys()
+        assert all(np.array_equal(plan.transfer[c], cold.transfer[c]) for c in plan.transfer)
+    with pytest.raises(ValueError):
+        E._grid_arrays(64, 64, 0.5, 0.5, 0.7)[3][0, 0] = 1.0

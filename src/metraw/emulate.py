@@ -176,8 +176,10 @@ class EmulationPlan:
         }
 
 
+@lru_cache(maxsize=32)
 def _poly_otf_table(band, diameter, obscuration, altitude, n_lambda, f_max):
-    """Radial table (f [cycles/m], OTF) of the band-averaged annulus OTF on the ground."""
+    """Radial table (f [cycles/m], OTF) of the band-averaged annulus OTF on the ground. Cached (read-only arrays),
+    as the plan arrays below: the pretraining makes a plan per box point, and most points share the optics."""
     from metraw.optics import annulus_otf, band_wavelengths
 
     lam, w = band_wavelengths(band, n_lambda)
@@ -185,7 +187,40 @@ def _poly_otf_table(band, diameter, obscuration, altitude, n_lambda, f_max):
     otf = np.zeros_like(f)
     for lk, wk in zip(lam, w):
         otf += wk * annulus_otf(f * altitude * lk / diameter, obscuration)
-    return f, otf
+    return _read_only(f), _read_only(otf)
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    a.flags.writeable = False
+    return a
+
+
+@lru_cache(maxsize=8)
+def _grid_arrays(ny: int, nx: int, hy: float, hx: float, plan_s: float):
+    """(fy (ny, 1), fx (1, nx // 2 + 1), |f|, hx hy win^2) of a plan's real-FFT grid, win the Gaussian gridding
+    window's transform; read-only, cached per grid."""
+    fy = sfft.fftfreq(ny, hy)[:, None]
+    fx = sfft.rfftfreq(nx, hx)[None, :]
+    win = (math.sqrt(2 * math.pi) * plan_s) ** 2 * np.exp(-2 * math.pi**2 * plan_s**2 * ((fx * hx) ** 2 + (fy * hy) ** 2))
+    return _read_only(fy), _read_only(fx), _read_only(np.hypot(fy, fx)), _read_only(hx * hy * win**2)
+
+
+@lru_cache(maxsize=32)
+def _grid_otf(grid: tuple, band, diameter, obscuration, altitude, n_lambda):
+    """The band-averaged OTF (``_poly_otf_table``) at every frequency of ``_grid_arrays(*grid)``; read-only, cached."""
+    f_tab, otf_tab = _poly_otf_table(band, diameter, obscuration, altitude, n_lambda, diameter / (band[0] * altitude))
+    return _read_only(np.interp(_grid_arrays(*grid)[2], f_tab, otf_tab, right=0.0))
+
+
+def _sinc_along(fx: np.ndarray, fy: np.ndarray, c: float, s: float, scale: float) -> np.ndarray:
+    """np.sinc(scale (fx c + fy s)) on the grid, as a vector along one axis where the other's factor is exactly 0
+    (fx c + fy s is then exactly fx c or fy s: a signed zero added changes no other value, and sinc(+-0) = 1),
+    so an axis-aligned frame and track cost one vector, not a grid, of sines; bit-identical to the full form."""
+    if s == 0.0:
+        return np.sinc(scale * (fx * c))
+    if c == 0.0:
+        return np.sinc(scale * (fy * s))
+    return np.sinc(scale * (fx * c + fy * s))
 
 
 _GUIDE_BINS = 1 << 16  # guide table of the inverse encircled energy (photon chain): O(1) start of a lookup
@@ -332,28 +367,25 @@ def _make_plan(source_profile, source_shape, target: TargetSystem, acc: Accuracy
         Ny = sfft.next_fast_len(ny_in + 2 * oy0 + 1, real=True)
         Nx = sfft.next_fast_len(nx_in + 2 * ox0 + 1, real=True)
     hy, hx = Hm / ny_in, Wm / nx_in
-    fy = sfft.fftfreq(Ny, hy)[:, None]
-    fx = sfft.rfftfreq(Nx, hx)[None, :]
-    fr = np.hypot(fy, fx)
+    grid = (Ny, Nx, hy, hx, plan_s)
+    fy, fx, fr, denom = _grid_arrays(*grid)
     base = (np.sinc(cell * fx) * np.sinc(cell * fy)  # uniform in the source cell
-            * np.sinc(gt * (fx * math.cos(theta) + fy * math.sin(theta)))  # target pixel box (rotated)
-            * np.sinc(gt * (-fx * math.sin(theta) + fy * math.cos(theta))))
+            * _sinc_along(fx, fy, math.cos(theta), math.sin(theta), gt)  # target pixel box (rotated)
+            * _sinc_along(fx, fy, -math.sin(theta), math.cos(theta), gt))
     if smear_on:
         a = target.track_angle_rad
-        base = base * np.sinc(smear * (fx * math.cos(a) + fy * math.sin(a)))
+        base = base * _sinc_along(fx, fy, math.cos(a), math.sin(a), smear)
     if jitter_on:
         base = base * np.exp(-2 * math.pi**2 * jitter**2 * fr**2)
-    win = (math.sqrt(2 * math.pi) * plan_s) ** 2 * np.exp(-2 * math.pi**2 * plan_s**2 * ((fx * hx) ** 2 + (fy * hy) ** 2))
     transfer, tables = {}, {}
     n_lams = {}
     for c in channels:
         pix_rad = min(hy, hx) / h_alt
         n_lam = n_band_wavelengths(bands[c], d, pix_rad, (65, 65), eps, acc)
         n_lams[c] = n_lam
-        f_tab, otf_tab = _poly_otf_table(bands[c], d, eps, h_alt, n_lam, d / (bands[c][0] * h_alt))
-        otf = np.interp(fr, f_tab, otf_tab, right=0.0)
+        otf = _grid_otf(grid, tuple(bands[c]), d, eps, h_alt, n_lam)
         # target pixel box as a mean (sinc) times its area gives photons per target pixel
-        transfer[c] = otf * base * (gt * gt) / (hx * hy * win**2)
+        transfer[c] = otf * base * (gt * gt) / denom
     if "band_truncation" in bounds:
         nyq = 1 / (2 * max(hx, hy))
         bounds["band_truncation"] = float(np.abs(otf * base)[fr > nyq].max(initial=0.0))
