@@ -201,7 +201,8 @@ def _grid_arrays(ny: int, nx: int, hy: float, hx: float, plan_s: float):
     window's transform; read-only, cached per grid."""
     fy = sfft.fftfreq(ny, hy)[:, None]
     fx = sfft.rfftfreq(nx, hx)[None, :]
-    win = (math.sqrt(2 * math.pi) * plan_s) ** 2 * np.exp(-2 * math.pi**2 * plan_s**2 * ((fx * hx) ** 2 + (fy * hy) ** 2))
+    win = (math.sqrt(2 * math.pi) * plan_s) ** 2 * np.exp(
+        -2 * math.pi**2 * plan_s**2 * ((fx * hx) ** 2 + (fy * hy) ** 2))
     return _read_only(fy), _read_only(fx), _read_only(np.hypot(fy, fx)), _read_only(hx * hy * win**2)
 
 

@@ -45,8 +45,8 @@ from metraw.cfa import color_index
 from metraw.image import FLAG_SATURATED, RawImage
 from metraw.profile import CalibrationProfile
 from metraw.scenes.layout import Scene
-from metraw.scenes.raster import rasterise
 from metraw.scenes.radiance import electrons_per_reflectance
+from metraw.scenes.raster import rasterise
 from metraw.sensor import readout
 
 #: Relative diffuse-sky irradiance on a surface in a cast shadow (sky partly hidden by the caster).
@@ -227,8 +227,8 @@ def _flat_pixels(obj, caster_h, ss, h_eps, sun_cos, sky_view, tex_amp, refl, is_
     """Per pixel of ``obj``'s (ss x ss)-sample grid, as if its samples all saw the object o of its first sample:
     the lit fraction L (samples not below a taller caster), direct d = n.s(o) L + bounce (1 - L), sky
     s = sky_view(o) (v_shadow + (1 - v_shadow) L), texture t = max(1 + a(o) coarse + b(o) fine, 0.05), and per
-    band c the expected electrons refl(o, c) t (kd_c d + ks_c s). Returns (those, (bands, n, n) float32; the
-    pixels that need their samples one by one: mixed objects, or a tree crown where ``crowns``). float32
+    band c the expected electrons refl(o, c) t (kd_c d + ks_c s). Returns (those values, (bands, n, n) float32;
+    the pixels whose samples must be taken one by one: mixed objects, or a tree crown where ``crowns``). float32
     arithmetic in the order of the former numpy expressions (bit-identical to them)."""
     n = obj.shape[0] // ss
     nb_ = kd.size
@@ -317,10 +317,10 @@ def render(scene: Scene, camera: CalibrationProfile, size_px: int, rng: np.rando
     ob = obj.reshape(size_px, ss, size_px, ss)
     crown_cos = _crown_shading(obj, crowns, scene.sun_vector)
     v_shadow, bounce = np.float32(settings.shadow_sky_view), np.float32(settings.bounce * scene.sun_vector[2])
-    kd = np.array([k[0] for k in kd_ks], np.float32)
-    ks = np.array([k[1] for k in kd_ks], np.float32)
     px_all, special = _flat_pixels(obj, caster_h, ss, h_eps, sun_cos, sky_view, tex_amp, refl, is_crown,
-                                   crown_cos is not None, coarse, fine, bounce, v_shadow, inv, kd, ks)
+                                   crown_cos is not None, coarse, fine, bounce, v_shadow, inv,
+                                   np.array([k[0] for k in kd_ks], np.float32),
+                                   np.array([k[1] for k in kd_ks], np.float32))
     mixed = np.flatnonzero(special)
     my, mx = np.divmod(mixed, size_px)
     m_obj = ob[my, :, mx, :].reshape(len(mixed), ss * ss).astype(np.intp)
