@@ -132,7 +132,7 @@ def test_compiled_readout_is_the_numpy_model_bit_for_bit(fields):
     p = make_profile(exposure_s=1e-3, **fields)
     rng = rng_from_seed(4)
     for counts in (rng.poisson(rng.uniform(0, 5000, (64, 48))), rng.uniform(0, 6000, 1000),
-                   np.arange(0, 4000, 0.5)[::3], np.full((3, 5), 2.5e6)):
+                   np.arange(0, 4000, 0.5)[::3], np.full((3, 5), 2.5e6), np.float64(1234.5)):
         got = readout(counts, p, rng_from_seed(11), exposure_s=2e-3)
         want = _numpy_readout(counts, p, rng_from_seed(11), exposure_s=2e-3)
         assert got.dtype == np.uint16 and got.shape == np.shape(counts) and np.array_equal(got, want)

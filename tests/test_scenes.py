@@ -396,3 +396,29 @@ def test_value_noise_octave_is_the_numpy_bilinear_expression_bit_for_bit():
         got = start.copy()
         _add_bilinear(got, g, i0, w, (1 - w).astype(np.float32), amp)
         assert got.dtype == np.float32 and np.array_equal(got, want)
+
+
+@pytest.mark.parametrize("blur_px", [1.5, 6.0])
+def test_lens_blur_of_a_shadow_edge_is_the_gaussian_filter_of_the_bands(blur_px):
+    """A 16 px ground half in shadow, blurred by 1.5 px (the compiled per-colour filter) and by 6 px (a kernel wider
+    than the image, reflected more than once: scipy's own filter): every pixel's expected electrons are the
+    Gaussian filter of its band's two-level image, read at the pixel."""
+    from scipy import ndimage
+
+    cam = default_camera()
+    size = 16
+    size_m = size * cam.gsd_m
+    scene = _flat_scene(size_m, refl=(0.2, 0.2, 0.2))
+    scene.conditions = {"aerosol_depth_550": 0.3, "shadow_sky_view": 0.7, "bounce": 0.1, "blur_px": blur_px}
+    scene.casters.append((rect(size_m / 2, size_m * 0.25, 3 * size_m, size_m / 2, 0.0), 20.0))  # top half
+    img, mean_e = render(scene, cam, size, rng_from_seed(0))
+    k = electrons_per_reflectance(cam, 45.0, img.profile.exposure_s, aerosol_depth_550=0.3)
+    sin_e = math.sin(math.radians(45.0))
+    cidx = img.color_index()
+    for ci, c in enumerate("RGB"):
+        kd, ks = k[c]
+        band = np.where(np.arange(size)[:, None] < size // 2, 0.2 * (kd * 0.1 * sin_e + ks * 0.7),
+                        0.2 * (kd * sin_e + ks)) * np.ones((1, size))
+        want = ndimage.gaussian_filter(band, blur_px, mode="reflect", truncate=4.0)
+        sel = cidx == ci
+        np.testing.assert_allclose(mean_e[sel], want[sel], rtol=1e-5)

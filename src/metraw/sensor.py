@@ -31,17 +31,18 @@ def readout(counts_e: np.ndarray, profile: CalibrationProfile, rng: np.random.Ge
     (``exposure_s`` defaults to ``profile.exposure_s``; no dark term when both are unknown).
     Returns uint16 DN clipped to [0, white_level_dn].
     """
-    charge = np.ascontiguousarray(counts_e, dtype=np.float64)
+    charge = np.asarray(counts_e, dtype=np.float64)
+    shape = charge.shape
     t = profile.exposure_s if exposure_s is None else exposure_s
     dark = _NONE_INT
     if profile.dark_current_e_per_s > 0 and t:
-        dark = rng.poisson(profile.dark_current_e_per_s * t, size=charge.shape).reshape(-1)
+        dark = np.asarray(rng.poisson(profile.dark_current_e_per_s * t, size=shape), np.int64).reshape(-1)
     noise = _NONE_FLOAT
     if profile.read_noise_e > 0:
-        noise = rng.normal(0.0, profile.read_noise_e, size=charge.shape).reshape(-1)
+        noise = np.asarray(rng.normal(0.0, profile.read_noise_e, size=shape), np.float64).reshape(-1)
     full_well = np.inf if profile.full_well_e is None else float(profile.full_well_e)
-    out = np.empty(charge.shape, np.uint16)
-    _digitise(charge.reshape(-1), dark, noise, full_well, float(profile.gain_dn_per_e),
+    out = np.empty(shape, np.uint16)
+    _digitise(np.ascontiguousarray(charge).reshape(-1), dark, noise, full_well, float(profile.gain_dn_per_e),
               float(profile.black_level_dn), float(profile.white_level_dn), out.reshape(-1))
     return out
 

@@ -40,6 +40,7 @@ from dataclasses import dataclass
 
 import numba as nb
 import numpy as np
+from scipy import ndimage
 
 from metraw.cfa import color_index
 from metraw.image import FLAG_SATURATED, RawImage
@@ -339,9 +340,12 @@ def render(scene: Scene, camera: CalibrationProfile, size_px: int, rng: np.rando
     for ci, (kd, ks) in enumerate(kd_ks):
         px = px_all[ci]
         px.ravel()[mixed] = (refl[m_obj, ci] * m_tex * (kd * m_dir + ks * m_sky)).sum(axis=1) * inv
-        if settings.blur_px > 0:
-            blur_at_colour(px, gaussian_weights(settings.blur_px), cidx, ci, mean_e)
-        else:
+        weights = gaussian_weights(settings.blur_px) if settings.blur_px > 0 else None
+        if weights is not None and (weights.size - 1) // 2 <= size_px:
+            blur_at_colour(px, weights, cidx, ci, mean_e)
+        else:  # no blur, or one wider than the image (reflected more than once: scipy's own filter)
+            if weights is not None:
+                px = ndimage.gaussian_filter(px, settings.blur_px, mode="reflect", truncate=4.0)
             sel = cidx == ci
             mean_e[sel] = px[sel]
     mask = np.take(is_veh, obj[::ss, ::ss]).astype(np.float32)
