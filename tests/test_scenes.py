@@ -297,11 +297,21 @@ def _reference_poly_spans(verts_s, n_rows, n_cols):
     return rows.astype(np.int64), lo.astype(np.int64), hi.astype(np.int64)
 
 
-def _reference_paint(target, shapes, values):
-    from metraw.scenes.raster import disc_spans
+def _reference_disc_spans(cx, cy, r, n_rows, n_cols):
+    """The scanline spans of a disc as plain numpy (the renderer's former code)."""
+    y0, y1 = max(0, math.ceil(cy - r)), min(n_rows - 1, math.floor(cy + r))
+    if y1 < y0:
+        return None
+    rows = np.arange(y0, y1 + 1, dtype=np.float64)
+    half = np.sqrt(np.maximum(r * r - (rows - cy) ** 2, 0.0))
+    lo, hi = np.clip(np.ceil(cx - half), 0, n_cols), np.clip(np.floor(cx + half) + 1, 0, n_cols)
+    return rows.astype(np.int64), lo.astype(np.int64), hi.astype(np.int64)
 
+
+def _reference_paint(target, shapes, values):
     for s, v in zip(shapes, values):
-        spans = disc_spans(*s, *target.shape) if isinstance(s, tuple) else _reference_poly_spans(s, *target.shape)
+        spans = (_reference_disc_spans(*s, *target.shape) if isinstance(s, tuple)
+                 else _reference_poly_spans(s, *target.shape))
         if spans is not None:
             for r, a, b in zip(*(x.tolist() for x in spans)):
                 if b > a:
@@ -354,6 +364,9 @@ def test_compiled_painting_is_the_numpy_scanline_bit_for_bit():
         _reference_paint(ref_h, [p / d - 0.5 for p, _ in casters], [np.float32(h) for _, h in casters])
         assert np.array_equal(obj, ref_obj) and np.array_equal(caster_h, ref_h)
         assert all(scene.crown[o] for o, *_ in crowns)
+        for _, cx, cy, r, spans in crowns:  # the crowns' spans (shading boxes) are those painted
+            want = _reference_disc_spans(cx, cy, r, *obj.shape)
+            assert all(np.array_equal(a, b) for a, b in zip(spans, want))
 
 
 def test_colour_blur_is_scipy_gaussian_filter_bit_for_bit():
@@ -377,6 +390,10 @@ def test_colour_blur_is_scipy_gaussian_filter_bit_for_bit():
             sel = cidx == ci
             assert np.array_equal(out[sel], want[sel].astype(np.float64)), (pattern, h, w, sigma, ci)
             assert np.all(out[~sel] == -1.0)
+    out = np.full((12, 12), -1.0)  # a radius beyond the image would need repeated reflections: refused, untouched
+    cidx = color_index("RGGB", (12, 12))
+    assert not blur_at_colour(np.ones((12, 12), np.float32), gaussian_weights(3.5), cidx, 0, out)
+    assert np.all(out == -1.0)
 
 
 def test_value_noise_octave_is_the_numpy_bilinear_expression_bit_for_bit():

@@ -110,17 +110,38 @@ def _paint_polygon(target, vx, vy, lo_v, hi_v, value, sign, cross):
 
 
 @nb.njit(cache=True, nogil=True)
+def _disc_rows(cy, rad, n_rows):
+    """First and last row of a disc's samples (last < first when none)."""
+    return max(0, int(np.ceil(cy - rad))), min(n_rows - 1, int(np.floor(cy + rad)))
+
+
+@nb.njit(cache=True, nogil=True)
+def _disc_span(cx, cy, rad, r, n_cols):
+    """[lo, hi) columns of the disc's samples on row ``r``."""
+    dy = float(r) - cy
+    half = math.sqrt(max(rad * rad - dy * dy, 0.0))
+    return (int(min(max(np.ceil(cx - half), 0.0), float(n_cols))),
+            int(min(max(np.floor(cx + half) + 1.0, 0.0), float(n_cols))))
+
+
+@nb.njit(cache=True, nogil=True)
 def _paint_disc(target, cx, cy, rad, value):
     """Paint the disc of centre (cx, cy) and radius ``rad`` (sample units) with ``value``."""
     n_rows, n_cols = target.shape
-    y0 = max(0, int(np.ceil(cy - rad)))
-    y1 = min(n_rows - 1, int(np.floor(cy + rad)))
+    y0, y1 = _disc_rows(cy, rad, n_rows)
     for r in range(y0, y1 + 1):
-        dy = float(r) - cy
-        half = math.sqrt(max(rad * rad - dy * dy, 0.0))
-        lo = int(min(max(np.ceil(cx - half), 0.0), float(n_cols)))
-        hi = int(min(max(np.floor(cx + half) + 1.0, 0.0), float(n_cols)))
+        lo, hi = _disc_span(cx, cy, rad, r, n_cols)
         _fill_row(target, r, lo, hi, value)
+
+
+@nb.njit(cache=True, nogil=True)
+def _disc_spans(cx, cy, rad, n_rows, n_cols):
+    y0, y1 = _disc_rows(cy, rad, n_rows)
+    n = max(y1 - y0 + 1, 0)
+    rows, lo, hi = np.arange(y0, y0 + n), np.empty(n, np.int64), np.empty(n, np.int64)
+    for k in range(n):
+        lo[k], hi[k] = _disc_span(cx, cy, rad, y0 + k, n_cols)
+    return rows, lo, hi
 
 
 @nb.njit(cache=True, nogil=True)
@@ -164,15 +185,10 @@ def paint(target: np.ndarray, shapes: list, values: np.ndarray) -> None:
 
 
 def disc_spans(cx: float, cy: float, r: float, n_rows: int, n_cols: int):
-    """Row indices and [lo, hi) column spans of the sample centres in a disc (sample units), or None."""
-    y0, y1 = max(0, math.ceil(cy - r)), min(n_rows - 1, math.floor(cy + r))
-    if y1 < y0:
-        return None
-    rows = np.arange(y0, y1 + 1, dtype=np.float64)
-    half = np.sqrt(np.maximum(r * r - (rows - cy) ** 2, 0.0))
-    lo = np.clip(np.ceil(cx - half), 0, n_cols)
-    hi = np.clip(np.floor(cx + half) + 1, 0, n_cols)
-    return rows.astype(np.int64), lo.astype(np.int64), hi.astype(np.int64)
+    """Row indices and [lo, hi) column spans (int64 arrays) of the sample centres in a disc (sample units), as
+    ``paint`` covers them, or None when it covers no row."""
+    rows, lo, hi = _disc_spans(float(cx), float(cy), float(r), int(n_rows), int(n_cols))
+    return (rows, lo, hi) if rows.size else None
 
 
 def rasterise(scene, size_px: int, gsd_m: float, supersample: int):

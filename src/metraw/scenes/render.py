@@ -169,14 +169,15 @@ def _reflect(i, n):
 @nb.njit(cache=True, nogil=True)
 def blur_at_colour(px, weights, cidx, ci, out):
     """out[r, c] = ``scipy.ndimage.gaussian_filter(px, sigma, mode="reflect")``[r, c] (px float32, ``weights`` =
-    ``gaussian_weights(sigma)``, radius <= min(px.shape)) at the pixels where cidx == ci, bit for bit: scipy's
+    ``gaussian_weights(sigma)``) at the pixels where cidx == ci, bit for bit: scipy's
     symmetric correlation in float64 (centre term first, then the pairs from the outermost in), rows first, the
     intermediate rounded to float32 as scipy stores it. Only the rows that hold colour ``ci`` are filtered: half
-    of them on a Bayer mosaic. Other pixels of ``out`` are left as they are."""
+    of them on a Bayer mosaic. Other pixels of ``out`` are left as they are. Returns False, writing nothing, when
+    the radius exceeds the image (the reflection would have to repeat), else True."""
     h, w = px.shape
     rad = (weights.size - 1) // 2
     if rad > min(h, w):
-        raise ValueError("blur radius exceeds the image")
+        return False
     acc = np.empty(w, np.float64)
     tmp = np.empty(w + 2 * rad, np.float32)  # the row pass's output, padded by reflection
     wc = weights[rad]
@@ -208,6 +209,7 @@ def blur_at_colour(px, weights, cidx, ci, out):
         for c in range(w):
             if cidx[r, c] == ci:
                 out[r, c] = np.float32(acc[c])
+    return True
 
 
 # ---------------------------------------------------------------------- main entry
@@ -337,14 +339,12 @@ def render(scene: Scene, camera: CalibrationProfile, size_px: int, rng: np.rando
 
     cidx = color_index(camera.cfa_pattern, (size_px, size_px))
     mean_e = np.zeros((size_px, size_px), np.float64)
+    weights = gaussian_weights(settings.blur_px) if settings.blur_px > 0 else None
     for ci, (kd, ks) in enumerate(kd_ks):
         px = px_all[ci]
         px.ravel()[mixed] = (refl[m_obj, ci] * m_tex * (kd * m_dir + ks * m_sky)).sum(axis=1) * inv
-        weights = gaussian_weights(settings.blur_px) if settings.blur_px > 0 else None
-        if weights is not None and (weights.size - 1) // 2 <= size_px:
-            blur_at_colour(px, weights, cidx, ci, mean_e)
-        else:  # no blur, or one wider than the image (reflected more than once: scipy's own filter)
-            if weights is not None:
+        if weights is None or not blur_at_colour(px, weights, cidx, ci, mean_e):
+            if weights is not None:  # a blur wider than the image (reflected more than once): scipy's own filter
                 px = ndimage.gaussian_filter(px, settings.blur_px, mode="reflect", truncate=4.0)
             sel = cidx == ci
             mean_e[sel] = px[sel]
