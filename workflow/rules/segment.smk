@@ -58,6 +58,7 @@ if PRETRAIN["enabled"]:
             # the start of the run's longest chain (pretrain_scenes -> pretrain -> the fine-tuned points): before the
             # sim-to-real emulations (priority <= ~600), which took the core from 15 to 679 s on 2026-11-27 without it
             priority: 1000
+            threads: 1  # --workers, as source_store
             resources:
                 mem_mb=3000,  # as source_store
                 runtime=60,  # minutes
@@ -65,7 +66,7 @@ if PRETRAIN["enabled"]:
                 "logs/pretrain_scenes.log",
             shell:
                 "metraw scenes --n {params.n} --seed {params.seed}"
-                " --size {params.synthetic[size_px]} --camera {PARAMS_FILE} --out {output}"
+                " --size {params.synthetic[size_px]} --camera {PARAMS_FILE} --out {output} --workers {threads}"
                 " --codec-step {params.codec[step]} --codec-seed {params.codec[seed]} 2> {log}"
 
     rule pretrain:

@@ -12,6 +12,10 @@ if config["source"]["dataset"] == "synthetic":
             camera=config["source"]["camera"],
             codec=config["codec"],
         priority: 1000  # every job waits for it: before the sim-to-real emulations (priority <= ~600), as pretrain_scenes
+        # the scenes render in --workers {threads} processes (the bytes do not depend on it); 1 locally: the run
+        # starts with this job and pretrain_scenes side by side, and 2 worker processes each (beside the process that
+        # codes and stores) cost ~20 % more CPU per scene (pickled 7 MB scenes, 3 busy processes per job)
+        threads: 1
         resources:
             mem_mb=3000,  # measured peak RSS with head room (README, SLURM: resources table)
             runtime=60,  # minutes, a generous bound on the measured wall time
@@ -19,7 +23,7 @@ if config["source"]["dataset"] == "synthetic":
             "logs/source_store.log",
         shell:
             "metraw scenes --n {params.synthetic[n_scenes]} --seed {params.synthetic[seed]}"
-            " --size {params.synthetic[size_px]} --camera {PARAMS_FILE} --out {output}"
+            " --size {params.synthetic[size_px]} --camera {PARAMS_FILE} --out {output} --workers {threads}"
             " --codec-step {params.codec[step]} --codec-seed {params.codec[seed]} 2> {log}"
 
 else:
