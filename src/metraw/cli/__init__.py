@@ -13,7 +13,7 @@ import importlib
 import importlib.util
 import sys
 
-from metraw import __version__
+from metraw import __version__, allocator
 from metraw.errors import MetrawError
 
 #: Subcommand modules in the order shown by ``metraw --help``.
@@ -41,6 +41,7 @@ def one_line(text: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    allocator.tune()  # before the commands' large arrays (their worker processes inherit it)
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
