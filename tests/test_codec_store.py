@@ -128,6 +128,36 @@ def test_decoded_copy_holds_the_same_images_uncompressed(stores, tmp_path, capsy
     assert list(index[:2, 1]) == [2 * h * w] * 2
 
 
+def test_codec_decoded_store_holds_what_the_coded_store_decodes_to(stores, tmp_path, capsys):
+    """`metraw scenes --codec-step S --codec-decoded`: the images a --codec-step store of the same scenes reads as
+    (pixels bit for bit, masks, flags, profile, provenance with its quantisation record, meta, content digest),
+    the raw chunks plain uint16, attributes `raw_codec` as the coded store's plus `raw_stored: decoded`."""
+    import zarr
+
+    from metraw.segment.train import store_digest
+
+    _, coded = stores
+    out = tmp_path / "decoded.zarr"
+    assert main(["scenes", "--n", "2", "--size", "96", "--workers", "1", "--out", str(out),
+                 "--codec-step", str(STEP), "--codec-seed", "3", "--codec-decoded"]) == 0
+    src, direct = RawStore.open(coded), RawStore.open(out)
+    assert len(direct) == len(src) == 2
+    for a, b in zip(src, direct):
+        assert b.data.dtype == np.uint16 and np.array_equal(a.data, b.data)
+        assert np.array_equal(a.mask, b.mask) and np.array_equal(a.flags, b.flags)
+        assert a.profile.to_dict() == b.profile.to_dict() and a.provenance == b.provenance and a.meta == b.meta
+    assert direct.attrs == {**src.attrs, "raw_stored": "decoded"}
+    assert store_digest(direct) == store_digest(src)
+    inner = zarr.open_group(str(out))["raw"].metadata.codecs[0].to_dict()["configuration"]["codecs"]
+    assert [c["name"] for c in inner] == ["bytes"], inner
+    # the pixels are the codec's, not the scenes' own: quantised at the step, so some differ from a lossless store
+    plain = RawStore.open(stores[0])
+    assert any(not np.array_equal(p.data, d.data) for p, d in zip(plain, direct))
+    assert main(["scenes", "--n", "1", "--size", "32", "--out", str(tmp_path / "x.zarr"), "--codec-decoded"]) == 2
+    assert "--codec-decoded needs --codec-step" in capsys.readouterr().err
+    assert not (tmp_path / "x.zarr").exists()
+
+
 def test_decoded_copy_refuses_bad_input_in_one_line(stores, tmp_path, capsys):
     _, coded = stores
     (tmp_path / "exists.zarr").mkdir()

@@ -1,8 +1,11 @@
-"""Shared ``--codec-step`` / ``--codec-seed`` options of the commands that write RawStores.
+"""Shared ``--codec-step`` / ``--codec-seed`` / ``--codec-decoded`` options of the commands that write RawStores.
 
 Absent ``--codec-step``: the raw array is stored losslessly (zstd, ``RawStore`` default). With
 it: the noise-preserving codec ``metraw.raw`` at that step (``metraw.codec.zarr_codec``), the
-store's attributes record it (``raw_codec``) and every image's provenance says so."""
+store's attributes record it (``raw_codec``) and every image's provenance says so. With
+``--codec-decoded`` as well: the pixels that store would decode to (``codec.round_trip`` with the
+array's profile and each image's dither seed), stored uncompressed (attribute ``raw_stored``:
+``decoded``): the same images, read without decoding, at ~4x the disk (a working store)."""
 
 from __future__ import annotations
 
@@ -19,6 +22,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "[noise sigmas] (default: lossless zstd)")
     parser.add_argument("--codec-seed", dest="codec_seed", type=int, default=0,
                         help="dither seed of the codec (default 0)")
+    parser.add_argument("--codec-decoded", dest="codec_decoded", action="store_true",
+                        help="with --codec-step: store the pixels the codec decodes to, uncompressed, instead of "
+                             "its stream (the same images, read without decoding, at ~4x the disk)")
 
 
 class StoreCodec:
@@ -32,6 +38,9 @@ class StoreCodec:
             raise MetrawError(f"--codec-step must be a positive number of sigmas, got {self.step}")
         if not 0 <= self.seed < 2**63:
             raise MetrawError(f"--codec-seed must be in [0, 2^63), got {self.seed}")
+        self.decoded = bool(getattr(args, "codec_decoded", False))
+        if self.decoded and self.step is None:
+            raise MetrawError("--codec-decoded needs --codec-step")
         self._first = None
 
     @property
@@ -41,6 +50,10 @@ class StoreCodec:
     def create_kwargs(self) -> dict[str, Any]:
         if not self.lossy:
             return {}
+        if self.decoded:
+            from metraw.store import uncompressed_raw_codecs
+
+            return {"raw_codecs": uncompressed_raw_codecs}
         from metraw.codec.zarr_codec import raw_codecs
 
         return {"raw_codecs": raw_codecs(self.step, self.seed)}
@@ -52,11 +65,23 @@ class StoreCodec:
 
         if self._first is None:
             self._first = image.profile
-        return mark_quantised(image, self.step, self.seed, self._first)
+        marked = mark_quantised(image, self.step, self.seed, self._first)
+        if not self.decoded:
+            return marked
+        from dataclasses import replace
+
+        from metraw.codec import round_trip
+        from metraw.codec.zarr_codec import image_seed
+        from metraw.image import RawImage
+
+        # what MetrawRawCodec stores and decodes: the array's (first image's) profile, the image's dither seed
+        pixels = round_trip(RawImage(image.data, self._first), self.step, image_seed(self.seed, image.data))
+        return replace(marked, data=pixels)
 
     def attrs(self) -> dict[str, Any]:
         if not self.lossy:
             return {}
         from metraw.codec.zarr_codec import quantisation_record
 
-        return {"raw_codec": quantisation_record(self.step, self.seed)}
+        record = {"raw_codec": quantisation_record(self.step, self.seed)}
+        return {**record, "raw_stored": "decoded"} if self.decoded else record
