@@ -3,8 +3,8 @@
 Absent ``--codec-step``: the raw array is stored losslessly (zstd, ``RawStore`` default). With
 it: the noise-preserving codec ``metraw.raw`` at that step (``metraw.codec.zarr_codec``), the
 store's attributes record it (``raw_codec``) and every image's provenance says so. With
-``--codec-decoded`` as well: the pixels that store would decode to (``codec.round_trip`` with the
-array's profile and each image's dither seed), stored uncompressed (attribute ``raw_stored``:
+``--codec-decoded`` as well: the pixels that store would decode to (``zarr_codec.decoded_pixels``),
+stored uncompressed (attribute ``raw_stored``:
 ``decoded``): the same images, read without decoding, at ~4x the disk (a working store)."""
 
 from __future__ import annotations
@@ -70,13 +70,10 @@ class StoreCodec:
             return marked
         from dataclasses import replace
 
-        from metraw.codec import round_trip
-        from metraw.codec.zarr_codec import image_seed
-        from metraw.image import RawImage
+        from metraw.codec.zarr_codec import decoded_pixels
 
-        # what MetrawRawCodec stores and decodes: the array's (first image's) profile, the image's dither seed
-        pixels = round_trip(RawImage(image.data, self._first), self.step, image_seed(self.seed, image.data))
-        return replace(marked, data=pixels)
+        # what a coded store's array (profile: its first image's) reads back for this image
+        return replace(marked, data=decoded_pixels(image.data, self.step, self.seed, self._first))
 
     def attrs(self) -> dict[str, Any]:
         if not self.lossy:

@@ -43,6 +43,22 @@ def image_seed(seed: int, image: np.ndarray) -> int:
     return _splitmix64((int(seed) << 32) ^ crc32c(image.tobytes())) & (2**63 - 1)
 
 
+def coded_image(pixels: np.ndarray, profile: CalibrationProfile, seed: int) -> tuple[RawImage, int]:
+    """What ``MetrawRawCodec`` (array seed ``seed``, array profile ``profile``) codes for one image of its array:
+    the image (uint16, C-ordered, with the array's profile) and its dither seed (``image_seed``)."""
+    pixels = np.ascontiguousarray(pixels, dtype=np.uint16)
+    return RawImage(pixels, profile), image_seed(seed, pixels)
+
+
+def decoded_pixels(pixels: np.ndarray, step: float, seed: int, profile: CalibrationProfile) -> np.ndarray:
+    """The uint16 pixels a ``MetrawRawCodec(step=step, seed=seed, profile=profile)`` array reads back for an
+    image written as ``pixels`` (``codec.round_trip`` of its ``coded_image``), without coding them."""
+    from metraw import codec
+
+    image, image_dither_seed = coded_image(pixels, profile, seed)
+    return codec.round_trip(image, step, image_dither_seed)
+
+
 @dataclass(frozen=True)
 class MetrawRawCodec(ArrayBytesCodec):
     """zarr v3 array -> bytes codec: noise-preserving quantisation + rANS (``metraw.codec``)."""
@@ -94,9 +110,8 @@ class MetrawRawCodec(ArrayBytesCodec):
         lead = arr.reshape((-1,) + arr.shape[-2:])
         blobs = []
         for img in lead:
-            img = np.ascontiguousarray(img, dtype=np.uint16)
-            blobs.append(codec.encode(RawImage(img, prof), self.step, image_seed(self.seed, img),
-                                      check_profile=False, embed_profile=False))
+            image, image_dither_seed = coded_image(img, prof, self.seed)
+            blobs.append(codec.encode(image, self.step, image_dither_seed, check_profile=False, embed_profile=False))
         parts: list[bytes] = []
         put_varint(parts, len(blobs))
         for b in blobs:
