@@ -128,6 +128,36 @@ def test_prefetched_batches_train_the_same_network(stores, monkeypatch):
     assert all(states[0][k].equal(states[1][k]) for k in states[0])
 
 
+def test_draw_processes_train_the_same_network_and_leave_the_codec_threads(stores, monkeypatch):
+    # draws made in 2 forked processes (fit_draws' draw_workers) against the training process's own: every draw has
+    # its own seed and the crops are cut in batch order, so the network is the same tensor for tensor. Box fields
+    # with payload batches (the pretraining's path: a chosen field per draw) and plain fields through the codec.
+    from metraw import codec
+    from metraw.segment import onthefly
+    from metraw.segment.onthefly import _DRAWING, build_fields, fit_draws
+
+    monkeypatch.setattr(onthefly, "DRAWS_AHEAD", 2)  # fewer than an epoch's batches: the window moves
+    src, _, target = stores
+    store = RawStore.open(src)
+    plain = build_fields(store, range(4), target, progress=False)
+    coarse = dataclasses.replace(target, focal_length_m=1.2)
+    box = [list(pair) for pair in zip(plain, build_fields(store, range(4), coarse, progress=False))]
+    keys = [[(0, math.log(t.focal_length_m)) for t in (target, coarse)] for _ in box]
+    threads = codec.THREADS
+    for fields, kw in ((box, dict(payload_keys=keys)), (plain, dict(codec_step=1.0, draws_per_epoch=2))):
+        states, records = [], []
+        for workers in (0, 2):
+            model, rec = fit_draws(fields, _cfg(epochs=2), "cpu", False, draw_workers=workers, **kw)
+            states.append(model.state_dict())
+            records.append(rec)
+        assert all(states[0][k].equal(states[1][k]) for k in states[0])
+        assert records[0]["loss_per_epoch"] == records[1]["loss_per_epoch"]
+        assert records[1]["draws"] == len(fields) * kw.get("draws_per_epoch", 1) * 2
+    assert codec.THREADS == threads and not _DRAWING  # nothing of the training is left behind
+    with pytest.raises(MetrawError, match="draw workers must be >= 0"):
+        fit_draws(plain, _cfg(epochs=1), "cpu", False, draw_workers=-1)
+
+
 def test_a_box_of_targets_trains_within_a_cfa_family_and_refuses_a_mix(stores):
     from metraw.segment.onthefly import build_fields, fit_draws
 
@@ -171,6 +201,11 @@ def test_cli_on_the_fly_and_its_errors(stores, tmp_path, capsys):
     assert main(["train", str(tgt), "--source", str(src), "--workers", "0", "--out", str(tmp_path / "m3"),
                  "--params", str(params)]) == 2
     assert "--workers must be >= 1, got 0" in capsys.readouterr().err
+    assert main(["train", str(tgt), "--draw-workers", "2", "--out", str(tmp_path / "m3"), "--params", str(params)]) == 2
+    assert "--draw-workers applies to on-the-fly draws only" in capsys.readouterr().err
+    assert main(["train", str(tgt), "--source", str(src), "--draw-workers", "-1", "--out", str(tmp_path / "m3"),
+                 "--params", str(params)]) == 2
+    assert "--draw-workers must be >= 0, got -1" in capsys.readouterr().err
     assert not (tmp_path / "m3").exists()
 
 
@@ -395,7 +430,7 @@ def test_cli_pretrain_over_the_params_box_then_fine_tune(stores, tmp_path, capsy
     src, tgt, _ = stores
     out = tmp_path / "pre"
     assert main(["pretrain", str(src), "--out", str(out), "--params", str(PARAMS), "--epochs", "1",
-                 "--replicates", "1", "--points-per-scene", "2", "--batches", "mixed"]) == 0
+                 "--replicates", "1", "--points-per-scene", "2", "--batches", "mixed", "--draw-workers", "2"]) == 0
     captured = capsys.readouterr()
     err = captured.err
     assert "5 scenes x 2 points of the box (focal_length_m, diameter_m, " in err and "1 replicate(s)" in err
@@ -408,11 +443,12 @@ def test_cli_pretrain_over_the_params_box_then_fine_tune(stores, tmp_path, capsy
                  "--out", str(tmp_path / "m"), "--params", str(PARAMS)]) == 2
     assert "holds 1 pretrained replicate(s); 3 are asked for" in capsys.readouterr().err
     assert main(["train", str(tgt), "--source", str(src), "--init", str(out), "--epochs", "1", "--replicates", "1",
-                 "--out", str(tmp_path / "m"), "--params", str(PARAMS)]) == 0
+                 "--out", str(tmp_path / "m"), "--params", str(PARAMS), "--draw-workers", "2"]) == 0
     assert json.loads((tmp_path / "m" / "train.json").read_text())["init"] == str(out)
     for bad, message in ((["--epochs", "0"], "--epochs must be >= 1"),
                          (["--points-per-scene", "0"], "--points-per-scene must be >= 1"),
-                         (["--workers", "0"], "--workers must be >= 1")):
+                         (["--workers", "0"], "--workers must be >= 1"),
+                         (["--draw-workers", "-1"], "--draw-workers must be >= 0")):
         assert main(["pretrain", str(src), "--out", str(tmp_path / "bad"), "--params", str(PARAMS), *bad]) == 2
         assert message in capsys.readouterr().err
     assert main(["train", str(tgt), "--init", str(out), "--out", str(tmp_path / "m4"), "--params", str(PARAMS)]) == 2

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from metraw import codec
-from metraw.parallel import ordered_map, prefetch
+from metraw.errors import MetrawError
+from metraw.parallel import fork_pool, ordered_ahead, ordered_map, prefetch
 
 
 def _square(x: int) -> int:
@@ -19,6 +20,33 @@ def _square(x: int) -> int:
 def test_ordered_map_gives_the_same_results_in_order_for_any_worker_count():
     assert list(ordered_map(_square, range(9), 1)) == list(ordered_map(_square, range(9), 2, chunksize=2)) == [
         x * x for x in range(9)]
+
+
+def _slow_first(x: int) -> int:
+    time.sleep(0.2 if x == 0 else 0.0)  # the first item finishes last: the results must still come in order
+    return x * x
+
+
+def test_ordered_ahead_keeps_order_and_bounds_the_items_in_flight(monkeypatch):
+    with fork_pool(2) as pool:
+        for ahead in (1, 3, 20):
+            assert list(ordered_ahead(pool, _slow_first, range(7), ahead)) == [x * x for x in range(7)]
+        submitted = []
+        real = pool.apply_async
+        monkeypatch.setattr(pool, "apply_async", lambda fn, args: submitted.append(args[0]) or real(fn, args))
+        made = ordered_ahead(pool, _square, range(10), 3)
+        assert next(made) == 0 and submitted == [0, 1, 2]  # 3 in flight when the first is handed over
+        assert list(made) == [x * x for x in range(1, 10)]
+        with pytest.raises(ValueError, match="ahead must be >= 1"):
+            next(ordered_ahead(pool, _square, range(2), 0))
+
+
+def test_fork_pool_refuses_a_platform_without_fork_in_one_line(monkeypatch):
+    import multiprocessing
+
+    monkeypatch.setattr(multiprocessing, "get_all_start_methods", lambda: ["spawn"])
+    with pytest.raises(MetrawError, match="need fork"):
+        fork_pool(2)
 
 
 def test_prefetch_yields_a_seeded_generator_unchanged_and_runs_ahead_in_another_thread():

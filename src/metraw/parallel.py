@@ -1,6 +1,7 @@
 """Parallel helpers whose results do not depend on the parallelism: an ordered map over worker
 processes (fork where available; outputs independent of the number of workers when each item carries
-its own seed), and ``prefetch``, which makes a sequence's items ahead in one background thread."""
+its own seed), ``ordered_ahead``, the same over a pool the caller keeps across several maps, and ``prefetch``,
+which makes a sequence's items ahead in one background thread."""
 
 from __future__ import annotations
 
@@ -25,6 +26,35 @@ def ordered_map(fn: Callable[[T], R], items: Iterable[T], workers: int, chunksiz
     ctx = mp.get_context("fork" if os.name == "posix" else "spawn")
     with ctx.Pool(min(workers, len(items))) as pool:
         yield from pool.imap(fn, items, chunksize=chunksize)
+
+
+def fork_pool(workers: int):
+    """A process pool of ``workers`` forked processes: they inherit the parent's objects (large read-only inputs
+    set before the call reach them without pickling). Fork only: where the platform has none, one clear error."""
+    import multiprocessing as mp
+
+    from metraw.errors import MetrawError
+
+    if "fork" not in mp.get_all_start_methods():
+        raise MetrawError("worker processes that share the training fields need fork(), which this platform lacks: "
+                          "use 0 draw workers")
+    return mp.get_context("fork").Pool(workers)
+
+
+def ordered_ahead(pool, fn: Callable[[T], R], items: Iterable[T], ahead: int) -> Iterator[R]:
+    """Yield ``fn(item)`` for each item, in order, computed in ``pool`` (``multiprocessing.pool.Pool``) with at most
+    ``ahead`` items in flight, so a slow consumer bounds the memory the results take. ``fn`` must be picklable."""
+    from collections import deque
+
+    if ahead < 1:
+        raise ValueError(f"ahead must be >= 1, got {ahead}")
+    pending: deque = deque()
+    for item in items:
+        pending.append(pool.apply_async(fn, (item,)))
+        if len(pending) >= ahead:
+            yield pending.popleft().get()
+    while pending:
+        yield pending.popleft().get()
 
 
 def prefetch(items: Iterable[T], depth: int = 2) -> Iterator[T]:

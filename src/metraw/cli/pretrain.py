@@ -32,6 +32,10 @@ def register(subparsers) -> None:
     p.add_argument("--replicates", type=int, default=None, help="override the profile's number of replicates")
     p.add_argument("--workers", type=int, default=2,
                    help="processes building the box's expected fields (the models do not depend on it; default 2)")
+    p.add_argument("--draw-workers", type=int, default=0,
+                   help="processes making the on-the-fly draws during the training (0: the training process's prefetch thread, "
+                   "as on a CPU, where training takes the cores; on a GPU, which trains faster than one core draws, "
+                   "most of the machine's cores). The models do not depend on it (default 0)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output directory")
     p.add_argument("--progress", action="store_true", help="show progress bars even when not on a terminal")
     p.set_defaults(func=run)
@@ -52,6 +56,8 @@ def run(args) -> int:
     for name, value in (("--epochs", config.epochs), ("--points-per-scene", k), ("--workers", args.workers)):
         if value < 1:
             raise MetrawError(f"{name} must be >= 1, got {value}")
+    if args.draw_workers < 0:
+        raise MetrawError(f"--draw-workers must be >= 0, got {args.draw_workers}")
     if args.replicates is not None:
         if args.replicates < 1:
             raise MetrawError(f"--replicates must be >= 1, got {args.replicates}")
@@ -59,7 +65,8 @@ def run(args) -> int:
     record = pretrain_stores(args.source, lambda overrides: TargetSystem.from_dict(target_at(params, overrides)),
                              settings["box"], args.out, config, k, args.extra, device=args.device,
                              progress=True if args.progress else None, overwrite=args.overwrite,
-                             codec_step=args.codec_step, workers=args.workers, batches=args.batches or settings["batches"])
+                             codec_step=args.codec_step, workers=args.workers, batches=args.batches or settings["batches"],
+                             draw_workers=args.draw_workers)
     times = record.get("replicate_training_time_s", [record["training_time_s"]])
     print(f"metraw pretrain: {record['n_train']} scenes x {k} points of the box ({', '.join(settings['box'])}), "
           f"{record['epochs']} epoch(s), {len(times)} replicate(s) in {sum(times):.2f} s "

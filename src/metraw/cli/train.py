@@ -32,6 +32,10 @@ def register(subparsers) -> None:
     p.add_argument("--workers", type=int, default=None,
                    help="with --source: processes building the scenes' expected fields (the models do not depend "
                         "on it; default 2)")
+    p.add_argument("--draw-workers", type=int, default=None,
+                   help="with --source: " + "processes making the on-the-fly draws during the training (0: the training process's prefetch thread, "
+                   "as on a CPU, where training takes the cores; on a GPU, which trains faster than one core draws, "
+                   "most of the machine's cores). The models do not depend on it (default 0)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output directory")
     p.add_argument("--progress", action="store_true", help="show progress bars even when not on a terminal")
     p.set_defaults(func=run)
@@ -55,14 +59,18 @@ def run(args) -> int:
     progress = True if args.progress else None
     if args.workers is not None and args.workers < 1:
         raise MetrawError(f"--workers must be >= 1, got {args.workers}")
+    if args.draw_workers is not None and args.draw_workers < 0:
+        raise MetrawError(f"--draw-workers must be >= 0, got {args.draw_workers}")
     if args.source is not None:
         from metraw.segment.onthefly import train_store_on_the_fly
 
         record = train_store_on_the_fly(args.store, args.source, args.out, config, device=args.device,
                                         progress=progress, overwrite=args.overwrite, codec_step=args.codec_step,
-                                        init_dir=args.init, workers=2 if args.workers is None else args.workers)
+                                        init_dir=args.init, workers=2 if args.workers is None else args.workers,
+                                        draw_workers=args.draw_workers or 0)
     else:
-        for name, value in (("--codec-step", args.codec_step), ("--init", args.init), ("--workers", args.workers)):
+        for name, value in (("--codec-step", args.codec_step), ("--init", args.init), ("--workers", args.workers),
+                            ("--draw-workers", args.draw_workers)):
             if value is not None:
                 raise MetrawError(f"{name} applies to on-the-fly draws only (give --source)")
         record = train_store(args.store, args.out, config, device=args.device, progress=progress,

@@ -24,6 +24,7 @@ import numpy as np
 from metraw.cfa import cell_size, cfa_family
 from metraw.draws import DEFAULT_OVERSAMPLE, PhaseField, build_field
 from metraw.errors import MetrawError
+from metraw.parallel import fork_pool, ordered_ahead
 from metraw.segment.data import batch_crops, prepare
 from metraw.segment.train import TrainConfig, default_device, new_network, train_loop, training_packed_gsd_m
 from metraw.sensor import rng_from_seed
@@ -110,8 +111,8 @@ def through_codec(image, step: float, seed: int):
 def fit_draws(fields: list, config: TrainConfig, device: str | None = None,
               progress: bool | None = None, init_state: dict[str, Any] | None = None,
               draws_per_epoch: int = 1, static: bool = False, codec_step: float | None = None,
-              upsample: int | None = None, payload_keys: Sequence[Sequence[Any]] | None = None
-              ) -> tuple[Any, dict[str, Any]]:
+              upsample: int | None = None, payload_keys: Sequence[Sequence[Any]] | None = None,
+              draw_workers: int = 0) -> tuple[Any, dict[str, Any]]:
     """Train on fresh draws of ``fields`` (``draws_per_epoch`` per scene per epoch); returns (model, record).
 
     ``fields``: one ``PhaseField`` per training scene, or per scene a list of fields (one per target
@@ -123,10 +124,15 @@ def fit_draws(fields: list, config: TrainConfig, device: str | None = None,
     ``payload_keys`` (box fields only): per scene, per field a sortable key of its payload. Each epoch every draw
     first picks its field, the draws are sorted by key and cut into batches of ``config.batch_size``, and the
     batches are shuffled: each batch holds one payload, or neighbouring ones (``payload_batches``). Without it a
-    batch mixes payloads at random.
+    batch mixes payloads at random. ``draw_workers`` > 0: the draws are made in that many forked processes (they
+    inherit ``fields``), up to ``DRAWS_AHEAD`` batches ahead of the training, for a device that trains faster than
+    one core draws (a GPU); 0 makes them in the training process's prefetch thread. Every draw has its own seed
+    and the crops are cut here in batch order, so the model does not depend on ``draw_workers``.
     """
     if not fields:
         raise MetrawError("no training scenes")
+    if draw_workers < 0:
+        raise MetrawError(f"draw workers must be >= 0, got {draw_workers}")
     device = device or default_device()
     box = not isinstance(fields[0], PhaseField)
     if payload_keys is not None and (not box or static or len(payload_keys) != len(fields)
@@ -154,26 +160,42 @@ def fit_draws(fields: list, config: TrainConfig, device: str | None = None,
     # so it overlaps training_time_s (not a part of it to subtract)
     timing = {"draw_s": 0.0}
 
-    def epoch_batches(epoch):
+    def epoch_batches(epoch, draw_pool=None):
         if payload_keys is None:
             order = rng.permutation(n)
             batches = [order[s * config.batch_size:(s + 1) * config.batch_size] for s in range(steps_per_epoch)]
             chosen = None
         else:
             batches, chosen = payload_batches(payload_keys, draws_per_epoch, config.batch_size, rng)
-        for ids in batches:
-            t0 = time.perf_counter()
-            if static:
-                batch = [fixed[j % len(fields)] for j in ids]
-            else:  # draw j: its scene's field(s), or the one field payload_batches chose for it
-                batch = [draw_prepared(fields[j % len(fields)] if chosen is None else fields[j % len(fields)][chosen[j]],
-                                       config.seed, epoch * draws_per_epoch + j // len(fields), codec_step) for j in ids]
+        if static:
+            made = ([fixed[j % len(fields)] for j in ids] for ids in batches)
+        else:  # draw j: its scene's field(s) (-1), or the one field payload_batches chose for it
+            specs = [[(int(j % len(fields)), -1 if chosen is None else int(chosen[j]),
+                       epoch * draws_per_epoch + int(j) // len(fields)) for j in ids] for ids in batches]
+            made = (map(_draw_batch, specs) if draw_pool is None
+                    else ordered_ahead(draw_pool, _draw_batch, specs, DRAWS_AHEAD))
+        t0 = time.perf_counter()
+        for batch in made:
             xy = batch_crops(batch, config.crop_px * pool, rng, augment=static)
             timing["draw_s"] += time.perf_counter() - t0
             yield xy
+            t0 = time.perf_counter()
 
     t0 = time.perf_counter()
-    losses = train_loop(model, epoch_batches, steps_per_epoch, config, device, progress)
+    _DRAWING.update(fields=fields, seed=config.seed, codec_step=codec_step)
+    try:
+        if draw_workers and not static:
+            from metraw import codec
+
+            with codec.threads(1):  # forked inside: each draw process codes on one thread (the bytes do not change)
+                draw_pool = fork_pool(draw_workers)
+            with draw_pool:
+                losses = train_loop(model, lambda epoch: epoch_batches(epoch, draw_pool), steps_per_epoch, config,
+                                    device, progress)
+        else:
+            losses = train_loop(model, epoch_batches, steps_per_epoch, config, device, progress)
+    finally:
+        _DRAWING.clear()
     total = time.perf_counter() - t0
     record = {"epochs": config.epochs, "steps": steps_per_epoch * config.epochs, "loss_per_epoch": losses,
               "training_time_s": total, "draw_time_s": timing["draw_s"], "device": device, "upsample": f_up,
@@ -184,6 +206,22 @@ def fit_draws(fields: list, config: TrainConfig, device: str | None = None,
               "train_packed_gsd_m": packed_gsd_range_m(every) if box else training_packed_gsd_m(probe),
               "on_the_fly": True}
     return model, record
+
+
+# batches of draws a draw process pool makes ahead of the training (fit_draws' draw_workers): enough to keep its
+# processes busy while the training takes one, few enough that the waiting batches take little memory
+DRAWS_AHEAD = 32
+# what fit_draws is drawing from: the fields, the training seed and the codec step. The training process's own
+# draws read it, and a draw pool's processes inherit it when they fork (the fields are not pickled).
+_DRAWING: dict[str, Any] = {}
+
+
+def _draw_batch(specs: Sequence[tuple[int, int, int]]) -> list:
+    """The prepared draws of one batch: per draw (scene, chosen field or -1 for the scene's own choice, draw epoch)
+    of ``_DRAWING``'s fields (``draw_prepared``)."""
+    fields, seed, codec_step = _DRAWING["fields"], _DRAWING["seed"], _DRAWING["codec_step"]
+    return [draw_prepared(fields[scene] if field < 0 else fields[scene][field], seed, epoch, codec_step)
+            for scene, field, epoch in specs]
 
 
 def payload_batches(payload_keys: Sequence[Sequence[Any]], draws_per_epoch: int, batch_size: int,
@@ -222,13 +260,15 @@ def store_target(store) -> TargetSystem:
 
 def train_store_on_the_fly(store_path, source_path, out_dir, config: TrainConfig, device: str | None = None,
                            progress: bool | None = None, overwrite: bool = False,
-                           codec_step: float | None = None, init_dir=None, workers: int = 1) -> dict[str, Any]:
+                           codec_step: float | None = None, init_dir=None, workers: int = 1,
+                           draw_workers: int = 0) -> dict[str, Any]:
     """Train ``config.replicates`` models on fresh draws of ``source_path``'s training scenes at the target of the
     emulated store ``store_path`` (emulated from that source: all its images, or only its test split with
     ``metraw emulate --images test``); write them like ``train.train_store``. The source's test split, held by the
     store, stays the fixed test set. ``init_dir``: a pretrained model
     directory (``metraw pretrain``): replicate r fine-tunes its replicate r (``config.epochs`` epochs). ``workers``:
-    processes building the scenes' expected fields (``scene_fields``)."""
+    processes building the scenes' expected fields (``scene_fields``); ``draw_workers``: processes drawing from them
+    during the training (``fit_draws``)."""
     from metraw.segment.data import source_indices, split_indices, split_positions
     from metraw.segment.train import fit_replicates, pretrained_states, save_replicates, store_digest
     from metraw.store import RawStore
@@ -249,7 +289,8 @@ def train_store_on_the_fly(store_path, source_path, out_dir, config: TrainConfig
     digest = store_digest(store)
     runs = fit_replicates(config, lambda cfg: fit_draws(fields, cfg, device, progress,
                                                         init_state=None if inits is None else inits[cfg.seed - config.seed],
-                                                        draws_per_epoch=cfg.draws_per_epoch, codec_step=codec_step),
+                                                        draws_per_epoch=cfg.draws_per_epoch, codec_step=codec_step,
+                                                        draw_workers=draw_workers),
                           {"store": str(store_path), "store_digest": digest, "source": source.origin,
                            "init": None if init_dir is None else str(init_dir),
                            "n_images": len(store), "source_images": n_source, "train_indices": train_idx.tolist(),

@@ -108,12 +108,14 @@ def box_fields(scenes: Sequence[tuple[Any, int, int]], targets: Sequence[Sequenc
 def pretrain_stores(source_path, make_target: Callable[[dict[str, float]], TargetSystem], box: dict[str, Sequence[float]],
                     out_dir, config: TrainConfig, points_per_scene: int, extra_paths: Sequence = (),
                     device: str | None = None, progress: bool | None = None, overwrite: bool = False,
-                    codec_step: float | None = None, workers: int = 1, batches: str = "payload") -> dict[str, Any]:
+                    codec_step: float | None = None, workers: int = 1, batches: str = "payload",
+                    draw_workers: int = 0) -> dict[str, Any]:
     """Pretrain ``config.replicates`` networks on ``box`` (``sample_box``, seeded with ``config.seed``;
     ``make_target`` turns an override into the full target) from the training split of ``source_path``
     (the split every point's test set comes from) and every scene of ``extra_paths``; write them like
     ``train.train_store`` (model directory with replicate sub-directories). Returns the first replicate's record.
-    ``workers``: processes building the box's expected fields (``box_fields``). ``batches``: one of ``BATCHES``."""
+    ``workers``: processes building the box's expected fields (``box_fields``); ``draw_workers``: processes drawing
+    from them during the training (``onthefly.fit_draws``). ``batches``: one of ``BATCHES``."""
     from metraw.segment.data import split_indices
     from metraw.segment.onthefly import fit_draws
     from metraw.segment.train import fit_replicates, save_replicates
@@ -137,7 +139,7 @@ def pretrain_stores(source_path, make_target: Callable[[dict[str, float]], Targe
     keys = payload_keys(box, overrides) if batches == "payload" else None
     runs = fit_replicates(config, lambda cfg: fit_draws(fields, cfg, device, progress,
                                                         draws_per_epoch=cfg.draws_per_epoch, codec_step=codec_step,
-                                                        payload_keys=keys),
+                                                        payload_keys=keys, draw_workers=draw_workers),
                           {"pretraining": True, "source": source.origin, "extra_sources": [extra.origin for extra in extras],
                            "n_images": len(source), "train_indices": train_idx.tolist(),
                            "test_indices": test_idx.tolist(), "box": {k: [float(v) for v in r] for k, r in box.items()},
