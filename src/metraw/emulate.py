@@ -381,6 +381,8 @@ def _make_plan(source_profile, source_shape, target: TargetSystem, acc: Accuracy
         base = base * np.exp(-2 * math.pi**2 * jitter**2 * fr**2)
     transfer, tables = {}, {}
     n_lams = {}
+    beyond = fr > 1 / (2 * max(hx, hy)) if "band_truncation" in bounds else None  # outside the grid's band
+    truncation = 0.0  # the largest over the channels (the bluest band reaches farthest)
     for c in channels:
         pix_rad = min(hy, hx) / h_alt
         n_lam = n_band_wavelengths(bands[c], d, pix_rad, (65, 65), eps, acc)
@@ -388,9 +390,10 @@ def _make_plan(source_profile, source_shape, target: TargetSystem, acc: Accuracy
         otf = _grid_otf(grid, tuple(bands[c]), d, eps, h_alt, n_lam)
         # target pixel box as a mean (sinc) times its area gives photons per target pixel
         transfer[c] = otf * base * (gt * gt) / denom
-    if "band_truncation" in bounds:
-        nyq = 1 / (2 * max(hx, hy))
-        bounds["band_truncation"] = float(np.abs(otf * base)[fr > nyq].max(initial=0.0))
+        if beyond is not None:
+            truncation = max(truncation, float(np.abs(otf * base)[beyond].max(initial=0.0)))
+    if beyond is not None:
+        bounds["band_truncation"] = truncation
     # photon chain: PSF radial table out to where the outside flux <= kernel_flux_loss / 10 (asymptote beyond)
     v_max = max(50.0, math.pi * 2.0 / (math.pi**2 * (acc.kernel_flux_loss / 10) * (1 - eps)))
     tables = _ee_table(eps, v_max)
