@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import signal
 import threading
 import time
 
@@ -32,13 +34,44 @@ def test_ordered_ahead_keeps_order_and_bounds_the_items_in_flight(monkeypatch):
         for ahead in (1, 3, 20):
             assert list(ordered_ahead(pool, _slow_first, range(7), ahead)) == [x * x for x in range(7)]
         submitted = []
-        real = pool.apply_async
-        monkeypatch.setattr(pool, "apply_async", lambda fn, args: submitted.append(args[0]) or real(fn, args))
+        real = pool.submit
+        monkeypatch.setattr(pool, "submit", lambda fn, item: submitted.append(item) or real(fn, item))
         made = ordered_ahead(pool, _square, range(10), 3)
         assert next(made) == 0 and submitted == [0, 1, 2]  # 3 in flight when the first is handed over
         assert list(made) == [x * x for x in range(1, 10)]
         with pytest.raises(ValueError, match="ahead must be >= 1"):
             next(ordered_ahead(pool, _square, range(2), 0))
+
+
+def _dies_at_3(x: int) -> int:
+    if x == 3:
+        os._exit(9)  # as the kernel's out-of-memory killer ends a worker: no result, no exception
+    return x
+
+
+def test_a_worker_that_dies_is_one_clear_error_not_a_map_that_waits_for_ever():
+    signal.alarm(60)  # the failure this guards against is a hang: end the test instead of the suite
+    try:
+        for workers in (2, 3):
+            with pytest.raises(MetrawError, match="worker process died"):
+                list(ordered_map(_dies_at_3, range(8), workers))
+        with fork_pool(2) as pool, pytest.raises(MetrawError, match="worker process died"):
+            list(ordered_ahead(pool, _dies_at_3, range(8), 2))
+    finally:
+        signal.alarm(0)
+
+
+def _slow(x: int) -> int:
+    time.sleep(0.2)
+    return x
+
+
+def test_a_consumer_that_stops_early_stops_the_work():
+    made = ordered_map(_slow, range(64), 2)
+    assert next(made) == 0
+    start = time.perf_counter()
+    made.close()  # the chunks not started are dropped (64 x 0.2 s would take ~6 s on 2 workers)
+    assert time.perf_counter() - start < 2.0
 
 
 def test_fork_pool_refuses_a_platform_without_fork_in_one_line(monkeypatch):

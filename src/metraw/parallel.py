@@ -5,6 +5,7 @@ which makes a sequence's items ahead in one background thread."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 from collections.abc import Callable, Iterable, Iterator
 from typing import TypeVar
@@ -15,22 +16,47 @@ R = TypeVar("R")
 
 def ordered_map(fn: Callable[[T], R], items: Iterable[T], workers: int, chunksize: int = 1) -> Iterator[R]:
     """Yield ``fn(item)`` for each item, in order; ``workers`` > 1 runs them in a process pool
-    (``fn`` and the items must be picklable), otherwise in this process."""
+    (``fn`` and the items must be picklable), otherwise in this process. A worker process that dies (killed:
+    out of memory, a signal) raises ``MetrawError`` here instead of leaving the map waiting for ever."""
     items = list(items)
     if workers <= 1 or len(items) <= 1:
         for item in items:
             yield fn(item)
         return
+    pool = _process_pool(min(workers, len(items)), "fork" if os.name == "posix" else "spawn")
+    try:
+        with _died_as_error():
+            yield from pool.map(fn, items, chunksize=chunksize)
+    finally:  # a consumer that stops early: the chunks not started are dropped, not worked through
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _process_pool(workers: int, start_method: str):
+    from concurrent.futures import ProcessPoolExecutor
     import multiprocessing as mp
 
-    ctx = mp.get_context("fork" if os.name == "posix" else "spawn")
-    with ctx.Pool(min(workers, len(items))) as pool:
-        yield from pool.imap(fn, items, chunksize=chunksize)
+    return ProcessPoolExecutor(workers, mp_context=mp.get_context(start_method))
+
+
+@contextlib.contextmanager
+def _died_as_error():
+    """``BrokenProcessPool`` (a worker process ended without its result) as one clear ``MetrawError``."""
+    from concurrent.futures.process import BrokenProcessPool
+
+    from metraw.errors import MetrawError
+
+    try:
+        yield
+    except BrokenProcessPool:
+        raise MetrawError("a worker process died before its result (killed, e.g. out of memory: fewer workers "
+                          "need less memory)") from None
 
 
 def fork_pool(workers: int):
-    """A process pool of ``workers`` forked processes: they inherit the parent's objects (large read-only inputs
-    set before the call reach them without pickling). Fork only: where the platform has none, one clear error."""
+    """A pool (``concurrent.futures.ProcessPoolExecutor``) of ``workers`` processes forked now, in the calling
+    thread: they inherit the parent's objects (large read-only inputs set before the call reach them without
+    pickling), and no fork happens later from a thread. Fork only: where the platform has none, one clear error.
+    Use it as a context manager (``with fork_pool(n) as pool``)."""
     import multiprocessing as mp
 
     from metraw.errors import MetrawError
@@ -38,23 +64,32 @@ def fork_pool(workers: int):
     if "fork" not in mp.get_all_start_methods():
         raise MetrawError("worker processes that share the training fields need fork(), which this platform lacks: "
                           "use 0 draw workers")
-    return mp.get_context("fork").Pool(workers)
+    pool = _process_pool(workers, "fork")
+    with _died_as_error():
+        pool.submit(int).result()  # a fork-context executor starts all its processes at its first task
+    return pool
 
 
 def ordered_ahead(pool, fn: Callable[[T], R], items: Iterable[T], ahead: int) -> Iterator[R]:
-    """Yield ``fn(item)`` for each item, in order, computed in ``pool`` (``multiprocessing.pool.Pool``) with at most
-    ``ahead`` items in flight, so a slow consumer bounds the memory the results take. ``fn`` must be picklable."""
+    """Yield ``fn(item)`` for each item, in order, computed in ``pool`` (an executor, ``fork_pool``) with at most
+    ``ahead`` items in flight, so a slow consumer bounds the memory the results take. ``fn`` must be picklable.
+    A worker process that dies raises ``MetrawError``."""
     from collections import deque
 
     if ahead < 1:
         raise ValueError(f"ahead must be >= 1, got {ahead}")
     pending: deque = deque()
-    for item in items:
-        pending.append(pool.apply_async(fn, (item,)))
-        if len(pending) >= ahead:
-            yield pending.popleft().get()
-    while pending:
-        yield pending.popleft().get()
+    try:
+        with _died_as_error():
+            for item in items:
+                pending.append(pool.submit(fn, item))
+                if len(pending) >= ahead:
+                    yield pending.popleft().result()
+            while pending:
+                yield pending.popleft().result()
+    finally:  # a consumer that stops early: what it will not take is not computed
+        for future in pending:
+            future.cancel()
 
 
 def prefetch(items: Iterable[T], depth: int = 2) -> Iterator[T]:
