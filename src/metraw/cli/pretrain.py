@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 import sys
 
+from metraw.cli.train import DRAW_WORKERS_HELP
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser("pretrain", help="pretrain the segmenter on draws across the tolerance box",
@@ -32,10 +34,7 @@ def register(subparsers) -> None:
     p.add_argument("--replicates", type=int, default=None, help="override the profile's number of replicates")
     p.add_argument("--workers", type=int, default=2,
                    help="processes building the box's expected fields (the models do not depend on it; default 2)")
-    p.add_argument("--draw-workers", type=int, default=0,
-                   help="processes making the on-the-fly draws during the training (0: the training process's prefetch thread, "
-                   "as on a CPU, where training takes the cores; on a GPU, which trains faster than one core draws, "
-                   "most of the machine's cores). The models do not depend on it (default 0)")
+    p.add_argument("--draw-workers", type=int, default=0, help=DRAW_WORKERS_HELP)
     p.add_argument("--overwrite", action="store_true", help="replace an existing output directory")
     p.add_argument("--progress", action="store_true", help="show progress bars even when not on a terminal")
     p.set_defaults(func=run)

@@ -5,6 +5,10 @@ from __future__ import annotations
 import json
 import sys
 
+#: ``--draw-workers`` of ``metraw train --source`` and ``metraw pretrain`` (``onthefly.fit_draws``' draw_workers)
+DRAW_WORKERS_HELP = ("processes making the on-the-fly draws during the training (0: the training process's prefetch "
+                     "thread, as on a CPU, where the training takes the cores; on a GPU, which trains faster than one "
+                     "core draws, most of the machine's cores). The models do not depend on it (default 0)")
 
 def register(subparsers) -> None:
     p = subparsers.add_parser("train", help="train the car segmenter on a store's training split",
@@ -32,10 +36,7 @@ def register(subparsers) -> None:
     p.add_argument("--workers", type=int, default=None,
                    help="with --source: processes building the scenes' expected fields (the models do not depend "
                         "on it; default 2)")
-    p.add_argument("--draw-workers", type=int, default=None,
-                   help="with --source: " + "processes making the on-the-fly draws during the training (0: the training process's prefetch thread, "
-                   "as on a CPU, where training takes the cores; on a GPU, which trains faster than one core draws, "
-                   "most of the machine's cores). The models do not depend on it (default 0)")
+    p.add_argument("--draw-workers", type=int, default=None, help="with --source: " + DRAW_WORKERS_HELP)
     p.add_argument("--overwrite", action="store_true", help="replace an existing output directory")
     p.add_argument("--progress", action="store_true", help="show progress bars even when not on a terminal")
     p.set_defaults(func=run)
