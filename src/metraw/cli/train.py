@@ -10,6 +10,7 @@ DRAW_WORKERS_HELP = ("processes making the on-the-fly draws during the training 
                      "thread, as on a CPU, where the training takes the cores; on a GPU, which trains faster than one "
                      "core draws, most of the machine's cores). The models do not depend on it (default 0)")
 
+
 def register(subparsers) -> None:
     p = subparsers.add_parser("train", help="train the car segmenter on a store's training split",
                               description="Train the compact U-Net on packed, variance-stabilised raw planes "
