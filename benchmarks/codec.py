@@ -94,6 +94,14 @@ information, steps 1 / 2) measured such predictors against today's: one shared p
 micasense +5.5 / +8.3 %, spacenet_pan +1.7 / +2.7 %; a shared sum of the 10 taps above plus per-context W, WW, N
 and bias +1.1 / +1.7, +2.5 / +3.9, +1.0 / +1.5 %; per-context N, NW, NE, NN, WW and bias plus a shared sum of the
 6 farther taps +0.9 / +1.4, +1.2 / +1.6, +0.2 / +0.3 %. None stays within issue #18's 1 % on every frame.
+
+``--speed`` on a quiet machine (2026-11-27 17:30, load 0.4-1.5; 21 rounds; the streams as above), metraw 1-thread CPU /
+JPEG-LS CPU, encode / decode at steps 1 and 2: canon_dng 0.84 / 0.94 both; micasense 0.64 / 0.91 and 0.63 / 0.91;
+spacenet_pan 0.78 / 0.91 and 0.77 / 0.90. 2-thread wall, JPEG-LS / metraw: 2.16 / 2.00, 2.19 / 2.02; 2.82 / 2.01,
+2.81 / 2.04; 2.28 / 1.86, 2.34 / 1.94, with metraw's CPU / wall at 1.84-1.94 (the tiles run concurrently). 20 MP
+frame (7 rounds): 2-thread 239 / 218 ms (step 1) and 237 / 195 ms (step 2), 83-84 / 92-102 Mpix/s; 1-thread CPU
+0.94 / 1.06 and 0.95 / 0.88 of JPEG-LS. With two cores busy 1.9 of the time, 3x JPEG-LS on two threads needs a
+1-thread CPU ratio <= ~0.63: encode is there on micasense only, decode is ~1.45x away on every frame.
 """
 
 from __future__ import annotations
