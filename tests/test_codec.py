@@ -392,6 +392,17 @@ def test_context_table_matches_threshold_compares(monkeypatch):
     assert np.array_equal(predictive.decode_planes(blob, [u])[0], s)
 
 
+def test_frames_up_to_5_mp_keep_two_tiles_and_larger_ones_get_tiles_of_at_most_2_5_mp():
+    # the shared real frames (canon_dng 2 MP, micasense 1.2 MP, spacenet_pan 0.4 MP) and the workflow's 1 MP scenes
+    # keep the 2 tiles their streams were measured with; a 20 MP frame gets 8 (codec.TILE_PIXELS)
+    for h, w in ((1296, 1728), (960, 1280), (650, 650), (1024, 1024), (2048, 2440)):
+        assert len(codec._tiles(h, w, 2)) == 2, (h, w)
+    tiles = codec._tiles(3648, 5472, 2)
+    assert len(tiles) == 8 and max((r1 - r0) * 5472 for r0, r1 in tiles) <= 1.01 * codec.TILE_PIXELS
+    assert tiles[0][0] == 0 and tiles[-1][1] == 3648 and all(a[1] == b[0] for a, b in zip(tiles, tiles[1:]))
+    assert all(r0 % 2 == 0 for r0, _ in tiles)  # on CFA cell boundaries
+
+
 @pytest.mark.parametrize("threads", [1, 2, 3, 5])
 def test_many_tiles_bytes_independent_of_threads(monkeypatch, threads):
     """Frames of more than 2 x TILE_PIXELS are cut into more row tiles (shared among the threads, the
