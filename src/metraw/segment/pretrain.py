@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
 from metraw.cfa import cfa_family
@@ -31,8 +32,9 @@ from metraw.sensor import rng_from_seed
 from metraw.target import TargetSystem
 
 #: ``training.pretrain`` of params.yaml, where it leaves a key out (measured settings: README, issue #15).
+#: ``batch_size`` None: the training profile's (the fine-tunings always keep the profile's).
 PRETRAIN_DEFAULTS = {"enabled": False, "box": {}, "epochs": 20, "points_per_scene": 4, "finetune_epochs": 5,
-                     "extra_scenes": 0, "batches": "payload"}
+                     "extra_scenes": 0, "batches": "payload", "batch_size": None}
 #: ``training.pretrain.batches``: "payload" = each batch one box parameter at neighbouring values (``payload_keys``,
 #: ``onthefly.payload_batches``); "mixed" = draws of any payload in a batch.
 BATCHES = ("payload", "mixed")
@@ -105,20 +107,23 @@ def box_fields(scenes: Sequence[tuple[Any, int, int]], targets: Sequence[Sequenc
                         oversample, progress, workers, desc="box fields")
 
 
-def pretrain_stores(source_path, make_target: Callable[[dict[str, float]], TargetSystem], box: dict[str, Sequence[float]],
-                    out_dir, config: TrainConfig, points_per_scene: int, extra_paths: Sequence = (),
-                    device: str | None = None, progress: bool | None = None, overwrite: bool = False,
-                    codec_step: float | None = None, workers: int = 1, batches: str = "payload",
-                    draw_workers: int = 0) -> dict[str, Any]:
-    """Pretrain ``config.replicates`` networks on ``box`` (``sample_box``, seeded with ``config.seed``;
-    ``make_target`` turns an override into the full target) from the training split of ``source_path``
-    (the split every point's test set comes from) and every scene of ``extra_paths``; write them like
-    ``train.train_store`` (model directory with replicate sub-directories). Returns the first replicate's record.
-    ``workers``: processes building the box's expected fields (``box_fields``); ``draw_workers``: processes drawing
-    from them during the training (``onthefly.fit_draws``). ``batches``: one of ``BATCHES``."""
+@dataclass
+class BoxDraws:
+    """What a pretraining draws from: the box fields of its scenes, their batch keys and the record's common part."""
+    fields: list            # per scene the PhaseFields at its box points (``box_fields``)
+    keys: list | None       # per scene, per field the batch key (``payload_keys``); None for mixed batches
+    test_indices: Any       # the source's test split (never drawn)
+    common: dict[str, Any]  # what every replicate's record holds about the data
+
+
+def prepare_box(source_path, make_target: Callable[[dict[str, float]], TargetSystem], box: dict[str, Sequence[float]],
+                config: TrainConfig, points_per_scene: int, extra_paths: Sequence = (), progress: bool | None = None,
+                workers: int = 1, batches: str = "payload", max_scenes: int | None = None) -> BoxDraws:
+    """The box fields of the training split of ``source_path`` and every scene of ``extra_paths`` (``sample_box``
+    seeded with ``config.seed``; ``make_target`` turns an override into the full target), built by ``workers``
+    processes. ``max_scenes``: only the first that many scenes (source first; the box points of a scene do not
+    depend on how many follow it)."""
     from metraw.segment.data import split_indices
-    from metraw.segment.onthefly import fit_draws
-    from metraw.segment.train import fit_replicates, save_replicates
     from metraw.store import RawStore
 
     if batches not in BATCHES:
@@ -131,19 +136,50 @@ def pretrain_stores(source_path, make_target: Callable[[dict[str, float]], Targe
     for extra in extras:
         scenes += [(extra, i, first + i) for i in range(len(extra))]
         first += len(extra)
+    if max_scenes is not None:
+        scenes = scenes[:max_scenes]
     overrides = sample_box(box, len(scenes), points_per_scene, config.seed)
     t0 = time.perf_counter()
     fields = box_fields(scenes, [[make_target(o) for o in per_scene] for per_scene in overrides], progress=progress,
                         workers=workers)
-    fields_s = time.perf_counter() - t0
-    keys = payload_keys(box, overrides) if batches == "payload" else None
-    runs = fit_replicates(config, lambda cfg: fit_draws(fields, cfg, device, progress,
+    common = {"pretraining": True, "source": source.origin, "extra_sources": [extra.origin for extra in extras],
+              "n_images": len(source), "train_indices": train_idx.tolist(), "test_indices": test_idx.tolist(),
+              "box": {k: [float(v) for v in r] for k, r in box.items()}, "points_per_scene": int(points_per_scene),
+              "batches": batches, "preprocess_time_s": time.perf_counter() - t0}
+    return BoxDraws(fields, payload_keys(box, overrides) if batches == "payload" else None, test_idx, common)
+
+
+def fit_box(draws: BoxDraws, config: TrainConfig, device: str | None = None, progress: bool | None = None,
+            codec_step: float | None = None, draw_workers: int = 0, n_scenes: int | None = None) -> list:
+    """``config.replicates`` networks trained on fresh draws of ``draws`` (``onthefly.fit_draws``; ``n_scenes``: of
+    its first that many scenes only); [(model, config, record), ...] for ``train.save_replicates``."""
+    from metraw.segment.onthefly import fit_draws
+    from metraw.segment.train import fit_replicates
+
+    n = len(draws.fields) if n_scenes is None else n_scenes
+    if not 0 < n <= len(draws.fields):
+        raise MetrawError(f"n_scenes must be in 1..{len(draws.fields)}, got {n}")
+    keys = None if draws.keys is None else draws.keys[:n]
+    return fit_replicates(config, lambda cfg: fit_draws(draws.fields[:n], cfg, device, progress,
                                                         draws_per_epoch=cfg.draws_per_epoch, codec_step=codec_step,
                                                         payload_keys=keys, draw_workers=draw_workers),
-                          {"pretraining": True, "source": source.origin, "extra_sources": [extra.origin for extra in extras],
-                           "n_images": len(source), "train_indices": train_idx.tolist(),
-                           "test_indices": test_idx.tolist(), "box": {k: [float(v) for v in r] for k, r in box.items()},
-                           "points_per_scene": int(points_per_scene), "batches": batches,
-                           "preprocess_time_s": fields_s}, device)
-    save_replicates(out_dir, runs, test_idx, overwrite)
+                          draws.common, device)
+
+
+def pretrain_stores(source_path, make_target: Callable[[dict[str, float]], TargetSystem], box: dict[str, Sequence[float]],
+                    out_dir, config: TrainConfig, points_per_scene: int, extra_paths: Sequence = (),
+                    device: str | None = None, progress: bool | None = None, overwrite: bool = False,
+                    codec_step: float | None = None, workers: int = 1, batches: str = "payload",
+                    draw_workers: int = 0) -> dict[str, Any]:
+    """Pretrain ``config.replicates`` networks on ``box`` (``sample_box``, seeded with ``config.seed``;
+    ``make_target`` turns an override into the full target) from the training split of ``source_path``
+    (the split every point's test set comes from) and every scene of ``extra_paths``; write them like
+    ``train.train_store`` (model directory with replicate sub-directories). Returns the first replicate's record.
+    ``workers``: processes building the box's expected fields (``box_fields``); ``draw_workers``: processes drawing
+    from them during the training (``onthefly.fit_draws``). ``batches``: one of ``BATCHES``."""
+    from metraw.segment.train import save_replicates
+
+    draws = prepare_box(source_path, make_target, box, config, points_per_scene, extra_paths, progress, workers, batches)
+    runs = fit_box(draws, config, device, progress, codec_step, draw_workers)
+    save_replicates(out_dir, runs, draws.test_indices, overwrite)
     return runs[0][2]
