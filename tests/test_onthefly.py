@@ -425,12 +425,16 @@ def test_fine_tuning_starts_each_replicate_from_its_pretrained_replicate(stores,
 
 
 def test_cli_pretrain_over_the_params_box_then_fine_tune(stores, tmp_path, capsys):
+    import yaml
+
     from metraw.cli import main
+    from metraw.segment.train import load_config
 
     src, tgt, _ = stores
     out = tmp_path / "pre"
     assert main(["pretrain", str(src), "--out", str(out), "--params", str(PARAMS), "--epochs", "1",
-                 "--replicates", "1", "--points-per-scene", "2", "--batches", "mixed", "--draw-workers", "2"]) == 0
+                 "--replicates", "1", "--points-per-scene", "2", "--batches", "mixed", "--draw-workers", "2",
+                 "--batch-size", "3"]) == 0
     captured = capsys.readouterr()
     err = captured.err
     assert "5 scenes x 2 points of the box (focal_length_m, diameter_m, " in err and "1 replicate(s)" in err
@@ -439,14 +443,18 @@ def test_cli_pretrain_over_the_params_box_then_fine_tune(stores, tmp_path, capsy
     # --batches overrides params.yaml's training.pretrain.batches (payload)
     assert record["batches"] == "mixed" and not record["payload_batches"]
     assert json.loads(captured.out)["batches"] == "mixed"
+    # --batch-size overrides the profile's batch size for the pretraining only: the fine-tuning below keeps the profile's
+    assert record["config"]["batch_size"] == 3 and "1 epoch(s) in batches of 3" in err
     assert main(["train", str(tgt), "--source", str(src), "--init", str(out), "--epochs", "1",
                  "--out", str(tmp_path / "m"), "--params", str(PARAMS)]) == 2
     assert "holds 1 pretrained replicate(s); 3 are asked for" in capsys.readouterr().err
     assert main(["train", str(tgt), "--source", str(src), "--init", str(out), "--epochs", "1", "--replicates", "1",
                  "--out", str(tmp_path / "m"), "--params", str(PARAMS), "--draw-workers", "2"]) == 0
-    assert json.loads((tmp_path / "m" / "train.json").read_text())["init"] == str(out)
+    fine_tuned = json.loads((tmp_path / "m" / "train.json").read_text())
+    assert fine_tuned["init"] == str(out) and fine_tuned["config"]["batch_size"] == load_config(PARAMS).batch_size != 3
     for bad, message in ((["--epochs", "0"], "--epochs must be >= 1"),
                          (["--points-per-scene", "0"], "--points-per-scene must be >= 1"),
+                         (["--batch-size", "0"], "--batch-size must be >= 1"),
                          (["--workers", "0"], "--workers must be >= 1"),
                          (["--draw-workers", "-1"], "--draw-workers must be >= 0")):
         assert main(["pretrain", str(src), "--out", str(tmp_path / "bad"), "--params", str(PARAMS), *bad]) == 2
@@ -454,3 +462,10 @@ def test_cli_pretrain_over_the_params_box_then_fine_tune(stores, tmp_path, capsy
     assert main(["train", str(tgt), "--init", str(out), "--out", str(tmp_path / "m4"), "--params", str(PARAMS)]) == 2
     assert "--init applies to on-the-fly draws only" in capsys.readouterr().err
     assert not (tmp_path / "bad").exists() and not (tmp_path / "m4").exists()
+    # training.pretrain.batch_size in params sets the pretraining's batches (the schema takes it)
+    params = yaml.safe_load(PARAMS.read_text())
+    params["training"]["pretrain"]["batch_size"] = 2
+    (tmp_path / "p.yaml").write_text(yaml.safe_dump(params))
+    assert main(["pretrain", str(src), "--out", str(tmp_path / "p2"), "--params", str(tmp_path / "p.yaml"),
+                 "--epochs", "1", "--replicates", "1", "--points-per-scene", "1"]) == 0
+    assert json.loads((tmp_path / "p2" / "train.json").read_text())["config"]["batch_size"] == 2

@@ -24,6 +24,9 @@ def register(subparsers) -> None:
     p.add_argument("--profile", default=None, help="training profile name (default: training.profile in params)")
     p.add_argument("--device", default=None, help="torch device (default: cuda when present, else cpu)")
     p.add_argument("--epochs", type=int, default=None, help="override training.pretrain.epochs")
+    p.add_argument("--batch-size", type=int, default=None,
+                   help="override training.pretrain.batch_size (default: the training profile's batch size; larger "
+                        "batches pay on a GPU, README 'GPUs')")
     p.add_argument("--points-per-scene", type=int, default=None,
                    help="override training.pretrain.points_per_scene")
     p.add_argument("--batches", choices=("payload", "mixed"), default=None,
@@ -51,8 +54,10 @@ def run(args) -> int:
     config = load_config(args.params, args.profile)
     settings = pretrain_settings(params)
     config.epochs = args.epochs if args.epochs is not None else settings["epochs"]
+    config.batch_size = next(b for b in (args.batch_size, settings["batch_size"], config.batch_size) if b is not None)
     k = args.points_per_scene if args.points_per_scene is not None else settings["points_per_scene"]
-    for name, value in (("--epochs", config.epochs), ("--points-per-scene", k), ("--workers", args.workers)):
+    for name, value in (("--epochs", config.epochs), ("--batch-size", config.batch_size), ("--points-per-scene", k),
+                        ("--workers", args.workers)):
         if value < 1:
             raise MetrawError(f"{name} must be >= 1, got {value}")
     if args.draw_workers < 0:
@@ -68,7 +73,7 @@ def run(args) -> int:
                              draw_workers=args.draw_workers)
     times = record.get("replicate_training_time_s", [record["training_time_s"]])
     print(f"metraw pretrain: {record['n_train']} scenes x {k} points of the box ({', '.join(settings['box'])}), "
-          f"{record['epochs']} epoch(s), {len(times)} replicate(s) in {sum(times):.2f} s "
+          f"{record['epochs']} epoch(s) in batches of {config.batch_size}, {len(times)} replicate(s) in {sum(times):.2f} s "
           f"(fields {record['preprocess_time_s']:.2f} s)", file=sys.stderr)
     print(json.dumps({key: record[key] for key in ("epochs", "n_train", "points_per_scene", "batches", "box", "device")}))
     return 0
