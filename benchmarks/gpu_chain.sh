@@ -5,54 +5,17 @@
 #   2. the default pretraining (20 epochs, 3 replicates), fine-tuned (4 epochs) and scored at both points;
 #   3. more pretraining epochs in the time left, fine-tuned and scored.
 # Run from the repository root: OUT=dir bash benchmarks/gpu_chain.sh [BUDGET_S, default 540]; RESULT lines in
-# $OUT/progress.txt. Where the machine lacks zarr or jsonschema, wheels in .whl/ are installed to /tmp/site.
+# $OUT/progress.txt. The environment and the data: benchmarks/gpu_common.sh.
 # A dry run on a CPU: OUT=/tmp/o NS=12 NX=8 SIZE=256 DEV=cpu ESPEED=1 EDEF=2 EMIN=2 DW=2 bash benchmarks/gpu_chain.sh 300
 # Measured 2026-11-27 on one H100 (16 cores), budget 515 s: scenes 61 s, test stores 27 s, step 1 115 s, the
 # default pretraining 202 s (+ 20 s of fields), the nominal's fine-tune 19 s, nominal IoU 0.209 +- 0.009; the
 # D 0.5 m fine-tune and step 3 ran out of time (README, "GPUs").
 set -uo pipefail
-BUDGET=${1:-540}; T0=$(date +%s); DEADLINE=$((T0 + BUDGET))
-: "${OUT:?set OUT to a directory for the results}"
-NS=${NS:-480}; NX=${NX:-960}; SIZE=${SIZE:-1024}; DEV=${DEV:-cuda}; ESPEED=${ESPEED:-5}; EDEF=${EDEF:-20}; EMIN=${EMIN:-40}
-export PYTHONUNBUFFERED=1
-L=$OUT/logs; mkdir -p "$L"
-log() { echo "[$(( $(date +%s) - T0 )) s] $*" | tee -a "$OUT/progress.txt"; }
-left() { echo $(( DEADLINE - $(date +%s) )); }
-if [ -d .whl ] && ! python3 -c "import zarr, jsonschema" 2>/dev/null; then
-  python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl \
-    || { log "wheel install failed"; exit 1; }
-  export PYTHONPATH=/tmp/site
-fi
-export PYTHONPATH=$PWD/src${PYTHONPATH:+:$PYTHONPATH}
-M="python3 -m metraw"
-NC=$(nproc); DW=${DW:-$((NC - 2))}; W1=$(( NC / 3 > 0 ? NC / 3 : 1 )); W2=$(( NC - W1 > 0 ? NC - W1 : 1 ))
-python3 -c "import torch, numpy, numba, zarr; print('torch', torch.__version__, 'cuda', torch.cuda.is_available(),
-torch.cuda.get_device_name(0) if torch.cuda.is_available() else '', 'numpy', numpy.__version__, 'numba', numba.__version__,
-'zarr', zarr.__version__)" 2>&1 | tee -a "$OUT/progress.txt"
+BUDGET=${1:-540}
+. benchmarks/gpu_common.sh
+ESPEED=${ESPEED:-5}; EDEF=${EDEF:-20}; EMIN=${EMIN:-40}; DW=${DW:-$((NC - 2))}
 log "cores $NC, draw workers $DW, budget $BUDGET s"
-WORK=${WORK:-/tmp/metraw_gpu_chain}; rm -rf "$WORK"; D=$WORK/d; R=$WORK/r; mkdir -p $D $R  # stores and models (~2.5 GB)
-point() { python3 -c "
-from metraw.points import load_params, target_params
-t = target_params(load_params('params.yaml'), '$1')
-print(','.join(f'{k}={v}' for k, v in t.items() if not isinstance(v, (dict, list))))"; }
-NOM=$(point nominal) && D05=$(point diameter_m-0.5) || { log "points failed"; exit 1; }
-
-log "scenes: $NS source (seed 0) + $NX pretraining (seed 1), $SIZE px, quantised and stored decoded"
-$M scenes --n $NS --seed 0 --size $SIZE --camera params.yaml --out $D/source.zarr --workers $W1 \
-  --codec-step 1.0 --codec-seed 0 --codec-decoded 2> $L/scenes_source.log &
-$M scenes --n $NX --seed 1 --size $SIZE --camera params.yaml --out $D/extra.zarr --workers $W2 \
-  --codec-step 1.0 --codec-seed 0 --codec-decoded 2> $L/scenes_extra.log &
-wait
-tail -q -n 1 $L/scenes_source.log $L/scenes_extra.log | tee -a "$OUT/progress.txt"
-[ -d $D/extra.zarr ] && [ -d $D/source.zarr ] || { log "scenes failed"; exit 1; }
-log "emulate the nominal and D 0.5 m test stores"
-for p in nominal d05; do
-  P=$NOM; [ $p = d05 ] && P=$D05
-  $M emulate $D/source.zarr $D/$p.zarr --params params.yaml --point "$P" --mode auto --seed 0 --images test \
-    --workers $W2 --codec-step 1.0 --codec-seed 0 2> $L/emulate_$p.log &
-done
-wait
-[ -d $D/nominal.zarr ] && [ -d $D/d05.zarr ] || { log "emulate failed"; tail -3 $L/emulate_*.log; exit 1; }
+gpu_data || exit 1
 
 pretrain() {  # name epochs replicates draw-workers
   log "pretrain $1: $2 epochs, $3 replicate(s), $4 draw workers"

@@ -1,0 +1,126 @@
+"""Pretraining past the 2-core budget: IoU against training samples, batch size and distinct scenes (issue #15).
+
+    python benchmarks/pretrain_scale.py SOURCE.zarr --extra EXTRA.zarr --out DIR --device cuda \\
+        --variants b8e20,b32e80,b32e160,b64e160,b32e93s2304 [--workers 16] [--codec-step 1.0]
+
+The workflow's pretraining (``metraw pretrain``: the params' training profile and ``training.pretrain`` box, payload
+batches, one replicate, seed 0) with other batch sizes, epochs and numbers of scenes. The box fields are built once
+for the most scenes any variant asks for; then every variant trains in its own forked process, all side by side on
+the device (several trainings share a GPU that one launch-bound training leaves idle), and is saved like ``metraw
+pretrain``'s output in DIR/NAME, to be scored with ``metraw evaluate STORE --model DIR/NAME``. A variant is
+``b<batch>e<epochs>[s<scenes>][w<draw workers>]``: s = the first that many training scenes (source training split
+first, then the extra stores; default all), w = draw processes (default 2). Prints one line per variant: steps,
+training samples, seconds. The parent process never touches the device, so the forked trainings can.
+
+Measured 2026-11-27 (README, "GPUs"): on one H100 (``benchmarks/gpu_scale.sh``, 2304 scenes, 5760 steps) batch 8 /
+32 / 64 scored 0.220 / 0.247 / 0.259 at the nominal and 0.280 / 0.301 / 0.315 at D 0.5 m, +0.012 to +0.014 per
+doubling of the draws; on the 2-core CPU (default data, ``--device cpu --variants b8e20w0,b32e80w0,b32e20w0``, then
+fine-tuned) 4x the draws in the same steps +0.023 at both points, the same draws in a quarter of the steps -0.013.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import signal
+import sys
+import time
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+
+VARIANT = re.compile(r"b(\d+)e(\d+)(?:s(\d+))?(?:w(\d+))?$")
+
+
+@dataclass
+class Variant:
+    name: str
+    batch_size: int
+    epochs: int
+    scenes: int | None
+    draw_workers: int
+
+
+def parse_variants(text: str) -> list[Variant]:
+    out = []
+    for name in text.split(","):
+        m = VARIANT.match(name.strip())
+        if not m:
+            sys.exit(f"pretrain_scale: variant {name!r} is not b<batch>e<epochs>[s<scenes>][w<draw workers>]")
+        b, e, s, w = m.groups()
+        out.append(Variant(name.strip(), int(b), int(e), int(s) if s else None, 2 if w is None else int(w)))
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("source")
+    ap.add_argument("--extra", action="append", default=[])
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--variants", required=True)
+    ap.add_argument("--params", default="params.yaml")
+    ap.add_argument("--device", default="cuda")
+    ap.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="processes building the fields")
+    ap.add_argument("--codec-step", type=float, default=1.0, help="draws through the codec at this step (0: none)")
+    args = ap.parse_args()
+    variants = parse_variants(args.variants)
+
+    from metraw.points import load_params, target_at
+    from metraw.segment.pretrain import fit_box, prepare_box, pretrain_settings
+    from metraw.segment.train import load_config, resolve_precision, save_replicates
+    from metraw.target import TargetSystem
+
+    params = load_params(args.params)
+    settings = pretrain_settings(params)
+    config = replace(load_config(args.params, None), replicates=1)
+    limits = [v.scenes for v in variants]
+    t0 = time.perf_counter()
+    draws = prepare_box(args.source, lambda o: TargetSystem.from_dict(target_at(params, o)), settings["box"], config,
+                        settings["points_per_scene"], args.extra, progress=False, workers=args.workers,
+                        batches=settings["batches"], max_scenes=None if None in limits else max(limits))
+    print(f"fields of {len(draws.fields)} scenes x {settings['points_per_scene']} box points in "
+          f"{time.perf_counter() - t0:.1f} s", flush=True)
+    codec_step = args.codec_step or None
+    children = {}
+    for v in variants:
+        pid = os.fork()
+        if pid == 0:  # the training: it alone initialises the device
+            code = 1
+            try:
+                cfg = replace(config, batch_size=v.batch_size, epochs=v.epochs,
+                              precision=resolve_precision(config.precision, args.device))
+                runs = fit_box(draws, cfg, args.device, False, codec_step, v.draw_workers, v.scenes)
+                runs[0][2]["scale_variant"] = asdict(v)
+                save_replicates(Path(args.out) / v.name, runs, draws.test_indices)
+                rec = runs[0][2]
+                n = v.scenes or len(draws.fields)
+                steps = v.epochs * -(-n * cfg.draws_per_epoch // v.batch_size)
+                print(f"RESULT variant {v.name}: {n} scenes, batch {v.batch_size}, {v.epochs} epochs, {steps} steps, "
+                      f"{steps * v.batch_size} samples, {rec['training_time_s']:.1f} s ({rec['device']}, "
+                      f"{cfg.precision})", flush=True)
+                code = 0
+            except BaseException as exc:  # noqa: BLE001 - a child reports and exits, never returns to the loop
+                print(f"variant {v.name} failed: {exc!r}", file=sys.stderr, flush=True)
+            finally:
+                os._exit(code)
+        children[pid] = v
+    def stop(signum, frame):  # a timeout ends the trainings too, not only this process
+        for pid in children:
+            os.kill(pid, signal.SIGKILL)
+        sys.exit(f"pretrain_scale: stopped by signal {signum}; unfinished: {', '.join(v.name for v in children.values())}")
+
+    signal.signal(signal.SIGTERM, stop)
+    failed = []
+    while children:
+        pid, status = os.wait()
+        v = children.pop(pid)
+        if os.waitstatus_to_exitcode(status) != 0:
+            failed.append(v.name)
+        print(f"[{time.perf_counter() - t0:.0f} s] {v.name} done" + (" (FAILED)" if v.name in failed else ""),
+              flush=True)
+    if failed:
+        sys.exit(f"pretrain_scale: variants failed: {', '.join(failed)}")
+
+
+if __name__ == "__main__":
+    main()
