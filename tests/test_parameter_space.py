@@ -34,6 +34,22 @@ def base_params() -> dict:
 
 
 # --------------------------------------------------------------------------- points
+@pytest.mark.parametrize("configfile", sorted((REPO / "workflow" / "config").glob("*.yaml")), ids=lambda p: p.name)
+def test_every_workflow_configfile_merged_over_params_is_valid(configfile):
+    from snakemake.utils import update_config
+
+    from metraw.points import validate_params
+    from metraw.segment.pretrain import pretrain_settings
+
+    params = yaml.safe_load((REPO / "params.yaml").read_text())
+    update_config(params, yaml.safe_load(configfile.read_text()))  # what --configfile does to the config
+    validate_params(params, configfile)
+    if configfile.name == "gpu.yaml":  # larger pretraining batches; the rest of the pretraining section stays
+        settings = pretrain_settings(params)
+        assert (settings["batch_size"], settings["epochs"], settings["extra_scenes"]) == (64, 160, 1920)
+        assert settings["box"] and settings["finetune_epochs"] == 4 and settings["enabled"]
+
+
 def test_points_cover_categorical_values_and_grids_without_repeats():
     params = base_params()
     validate_params(params)
