@@ -11,6 +11,8 @@ pretrain``'s output in DIR/NAME, to be scored with ``metraw evaluate STORE --mod
 ``b<batch>e<epochs>[s<scenes>][w<draw workers>]``: s = the first that many training scenes (source training split
 first, then the extra stores; default all), w = draw processes (default 2). Prints one line per variant: steps,
 training samples, seconds. The parent process never touches the device, so the forked trainings can.
+``python benchmarks/pretrain_scale.py --plot docs/figures/pretrain_scale.csv docs/figures/pretrain_scale.png`` draws
+the scored variants (the CSV: the runs below, scored by ``metraw evaluate``).
 
 Measured 2026-11-27 (README, "GPUs"): on one H100 (``benchmarks/gpu_scale.sh``, 2304 scenes, 5760 steps) batch 8 /
 32 / 64 scored 0.220 / 0.247 / 0.259 at the nominal and 0.280 / 0.301 / 0.315 at D 0.5 m, +0.012 to +0.014 per
@@ -52,17 +54,57 @@ def parse_variants(text: str) -> list[Variant]:
     return out
 
 
+def plot(csv_path: str, png_path: str) -> None:
+    """IoU against the draws a pretraining saw (log scale), per point, from a CSV of scored variants
+    (``docs/figures/pretrain_scale.csv``), with the H100 points' least-squares line in log2(draws) carried to
+    issue #15's targets."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+    import pandas as pd
+
+    df = pd.read_csv(csv_path)
+    targets = {"nominal": 0.30, "diameter_m-0.5": 0.35}
+    fig, axes = plt.subplots(1, len(targets), figsize=(10, 4), sharey=True)
+    for ax, (point, target) in zip(axes, targets.items()):
+        for (device, model), g in df[df.point == point].groupby(["device", "model"]):
+            g = g.sort_values("draws")
+            ax.errorbar(g.draws, g.iou, yerr=g.iou_se, marker="o" if device == "H100" else "s", capsize=3, ls="none",
+                        label=f"{device}, {model}")
+            for _, r in g.iterrows():
+                ax.annotate(f"b{r.batch_size}", (r.draws, r.iou), textcoords="offset points", xytext=(4, -10), fontsize=7)
+        gpu = df[(df.point == point) & (df.device == "H100")]
+        slope, icept = np.polyfit(np.log2(gpu.draws), gpu.iou, 1)
+        x = np.geomspace(gpu.draws.min(), 2 ** ((target - icept) / slope), 50)
+        ax.plot(x, icept + slope * np.log2(x), "k:", lw=1, label=f"H100 fit: {slope:+.3f} per doubling")
+        ax.axhline(target, color="r", lw=0.8, ls="--", label=f"issue #15 target {target}")
+        ax.set_xscale("log", base=2)
+        ax.set_xlabel("draws seen in pretraining")
+        ax.set_title(point)
+        ax.legend(fontsize=7, loc="upper left")
+    axes[0].set_ylabel("IoU (96 test scenes)")
+    fig.tight_layout()
+    fig.savefig(png_path, dpi=110)
+    print(f"wrote {png_path}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("source")
+    ap.add_argument("source", nargs="?")
     ap.add_argument("--extra", action="append", default=[])
-    ap.add_argument("--out", required=True)
-    ap.add_argument("--variants", required=True)
+    ap.add_argument("--out")
+    ap.add_argument("--variants")
+    ap.add_argument("--plot", nargs=2, metavar=("CSV", "PNG"), help="only draw the figure of a CSV of scored variants")
     ap.add_argument("--params", default="params.yaml")
     ap.add_argument("--device", default="cuda")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="processes building the fields")
     ap.add_argument("--codec-step", type=float, default=1.0, help="draws through the codec at this step (0: none)")
     args = ap.parse_args()
+    if args.plot:
+        return plot(*args.plot)
+    if not (args.source and args.out and args.variants):
+        ap.error("SOURCE, --out and --variants are needed (or --plot CSV PNG)")
     variants = parse_variants(args.variants)
 
     from metraw.points import load_params, target_at
