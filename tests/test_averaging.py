@@ -75,6 +75,28 @@ def test_eight_fold_average_turns_with_the_image(k):
     assert np.abs(one_k - dihedral(averaged_probability(net, z, "mono", transforms=1)[0], k)).max() > 1e-2
 
 
+@pytest.mark.parametrize("transforms", [2, 4])
+def test_axis_keeping_averages_turn_with_their_group_and_keep_the_smear_along_its_axis(transforms):
+    """2 and 4 transforms average over the half turn (and the flips): exactly equivariant under those, and none of
+    them lays a row (a smear along x) across the columns."""
+    from metraw.segment.data import TRANSFORM_SETS
+
+    ks = TRANSFORM_SETS[transforms]
+    assert len(ks) == transforms and set(ks) <= {0, 2, 4, 6}
+    row = np.zeros((9, 9), np.float32)
+    row[4, 2:7] = 1.0  # a smear along x
+    for k in ks:
+        assert np.array_equal(dihedral(row, k), row)  # turned by a half or flipped, it stays one row
+    net = random_conv(1)
+    z = np.random.default_rng(4).normal(size=(21, 26)).astype(np.float32)
+    avg = averaged_probability(net, z, "mono", transforms=transforms)[0]
+    for k in ks[1:]:
+        avg_k = averaged_probability(net, dihedral(z, k).copy(), "mono", transforms=transforms)[0]
+        np.testing.assert_allclose(avg_k, dihedral(avg, k), rtol=0, atol=1e-6)
+    avg_quarter = averaged_probability(net, dihedral(z, 1).copy(), "mono", transforms=transforms)[0]
+    assert np.abs(avg_quarter - dihedral(avg, 1)).max() > 1e-2  # not under a quarter turn
+
+
 def test_transform_count_is_checked():
     from metraw.segment.train import TrainConfig
 

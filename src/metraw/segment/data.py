@@ -132,9 +132,13 @@ def _canonical_offset(ci: np.ndarray, mono: bool) -> tuple[int, int]:
     raise MetrawError("internal error: no canonical CFA offset found")
 
 
-#: How many of the 8 dihedral transforms (the first n of ``dihedral``) a prediction may average
-#: (``metraw.segment.evaluate.averaged_probability``).
-TRANSFORM_COUNTS = (1, 2, 4, 8)
+#: The dihedral transforms (``dihedral``'s k) a prediction averages, by their count
+#: (``metraw.segment.evaluate.averaged_probability``). Each set is a group, so its average is exactly equivariant
+#: under it. 2 and 4 keep the image axes (the half turn; and the flips): motion smear stays along the track, as in
+#: every training draw (the draws turn the scene before the emulation, not the emulated image); 8 adds the quarter
+#: turns, which lay the smear across the track.
+TRANSFORM_SETS = {1: (0,), 2: (0, 2), 4: (0, 2, 4, 6), 8: tuple(range(8))}
+TRANSFORM_COUNTS = tuple(TRANSFORM_SETS)
 
 
 def check_transforms(transforms) -> None:

@@ -44,7 +44,7 @@ import numpy as np
 
 from metraw.cfa import pack_planes, unpack_planes
 from metraw.errors import MetrawError
-from metraw.segment.data import PreparedImage, canonical_pack, canonical_window, check_transforms, undo_dihedral
+from metraw.segment.data import PreparedImage, canonical_pack, canonical_window, check_transforms, TRANSFORM_SETS, undo_dihedral
 from metraw.segment.objects import (MIN_OBJECT_AREA_M2, drop_small_objects, object_boxes, object_counts,
                                     object_scores)
 
@@ -187,7 +187,8 @@ def predict_logits(model, planes: np.ndarray, device: str = "cpu", scale: float 
 def averaged_probability(model, z: np.ndarray, pattern: str, device: str = "cpu", scale: float = 1.0,
                          transforms: int = 1, condition: np.ndarray | None = None) -> np.ndarray:
     """Car probability (S, h, w) per site of the mosaic ``z`` packed canonically (``canonical_pack``, transform 0),
-    averaged over the first ``transforms`` (1, 2, 4 or 8) of the 8 dihedral transforms (``data.dihedral``).
+    averaged over ``transforms`` (1, 2, 4 or 8) dihedral transforms (``data.dihedral``; the sets of
+    ``data.TRANSFORM_SETS``: 2 and 4 keep the image axes, so the smear stays along the track).
 
     Each transform turns or flips the mosaic *before* packing, so every plane keeps its colour, exactly as in
     training; its probabilities are unpacked to the transformed mosaic, turned back, and averaged per mosaic
@@ -202,7 +203,7 @@ def averaged_probability(model, z: np.ndarray, pattern: str, device: str = "cpu"
         return car_probability(predict_logits(model, planes, device, scale, condition))
     total = np.zeros(z.shape, np.float64)
     count = np.zeros(z.shape, np.float64)
-    for k in range(transforms):
+    for k in TRANSFORM_SETS[transforms]:
         dy, dx, h, w = canonical_window(pattern, z.shape, k)
         packed = planes if k == 0 else canonical_pack(z, None, pattern, k)[0]
         p = car_probability(predict_logits(model, packed, device, scale, condition))
