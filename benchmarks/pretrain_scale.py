@@ -10,7 +10,7 @@ the device (several trainings share a GPU that one launch-bound training leaves 
 pretrain``'s output in DIR/NAME, to be scored with ``metraw evaluate STORE --model DIR/NAME``. A variant is
 ``b<batch>e<epochs>[s<scenes>][w<draw workers>]``: s = the first that many training scenes (source training split
 first, then the extra stores; default all), w = draw processes (default 2). Prints one line per variant: steps,
-training samples, seconds. The parent process never touches the device, so the forked trainings can.
+draws, seconds. The parent process never touches the device, so the forked trainings can.
 ``python benchmarks/pretrain_scale.py --plot docs/figures/pretrain_scale.csv docs/figures/pretrain_scale.png`` draws
 the scored variants (the CSV: the runs below, scored by ``metraw evaluate``).
 
@@ -109,7 +109,7 @@ def main() -> None:
 
     from metraw.points import load_params, target_at
     from metraw.segment.pretrain import fit_box, prepare_box, pretrain_settings
-    from metraw.segment.train import load_config, resolve_precision, save_replicates
+    from metraw.segment.train import load_config, save_replicates
     from metraw.target import TargetSystem
 
     params = load_params(args.params)
@@ -129,17 +129,14 @@ def main() -> None:
         if pid == 0:  # the training: it alone initialises the device
             code = 1
             try:
-                cfg = replace(config, batch_size=v.batch_size, epochs=v.epochs,
-                              precision=resolve_precision(config.precision, args.device))
-                runs = fit_box(draws, cfg, args.device, False, codec_step, v.draw_workers, v.scenes)
-                runs[0][2]["scale_variant"] = asdict(v)
+                runs = fit_box(draws, replace(config, batch_size=v.batch_size, epochs=v.epochs), args.device, False,
+                               codec_step, v.draw_workers, v.scenes)
+                _, cfg, rec = runs[0]  # the config as it ran (precision resolved for the device)
+                rec["scale_variant"] = asdict(v)
                 save_replicates(Path(args.out) / v.name, runs, draws.test_indices)
-                rec = runs[0][2]
-                n = v.scenes or len(draws.fields)
-                steps = v.epochs * -(-n * cfg.draws_per_epoch // v.batch_size)
-                print(f"RESULT variant {v.name}: {n} scenes, batch {v.batch_size}, {v.epochs} epochs, {steps} steps, "
-                      f"{steps * v.batch_size} samples, {rec['training_time_s']:.1f} s ({rec['device']}, "
-                      f"{cfg.precision})", flush=True)
+                print(f"RESULT variant {v.name}: {rec['n_train']} scenes, batch {cfg.batch_size}, {cfg.epochs} epochs, "
+                      f"{rec['steps']} steps, {rec['draws']} draws, "
+                      f"{rec['training_time_s']:.1f} s ({rec['device']}, {cfg.precision})", flush=True)
                 code = 0
             except BaseException as exc:  # noqa: BLE001 - a child reports and exits, never returns to the loop
                 print(f"variant {v.name} failed: {exc!r}", file=sys.stderr, flush=True)

@@ -44,7 +44,8 @@ import numpy as np
 
 from metraw.cfa import pack_planes, unpack_planes
 from metraw.errors import MetrawError
-from metraw.segment.data import PreparedImage, canonical_pack, canonical_window, check_transforms, TRANSFORM_SETS, undo_dihedral
+from metraw.segment.data import (TRANSFORM_SETS, PreparedImage, canonical_pack, canonical_window, check_transforms,
+                                 undo_dihedral)
 from metraw.segment.objects import (MIN_OBJECT_AREA_M2, drop_small_objects, object_boxes, object_counts,
                                     object_scores)
 
