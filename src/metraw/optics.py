@@ -40,7 +40,6 @@ from typing import Callable, Mapping, Sequence
 
 import numpy as np
 import scipy.fft as sfft
-from scipy.signal import fftconvolve
 from scipy.special import erf, j0, j1
 
 from metraw.accuracy import DEFAULT_ACCURACY, Accuracy
@@ -692,9 +691,9 @@ def compose(*kernels: np.ndarray, shape=None) -> np.ndarray:
         k = np.asarray(k, dtype=np.float64)
         if k.ndim != 2 or out.ndim != 2:
             raise MetrawError("compose takes 2-D kernels")
-        if min(k.size, out.size) < 64:
-            from scipy.signal import convolve2d
+        from scipy.signal import convolve2d, fftconvolve  # here: scipy.signal costs ~1 s to import
 
+        if min(k.size, out.size) < 64:
             out = convolve2d(out, k, mode="full")
         else:
             out = fftconvolve(out, k, mode="full")
