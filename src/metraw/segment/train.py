@@ -279,6 +279,21 @@ def flush_denormals():
         torch.set_flush_denormal(False)
 
 
+#: Device types whose AdamW runs fused (one kernel over all parameters instead of ~10 small operations per
+#: parameter tensor): the same update, rounded in another order; on a 2-core CPU 7.8 % less time per training step
+#: of the default network (batch 8, 34 x 34 packed pixels, bfloat16; median of 15 interleaved rounds).
+FUSED_ADAMW_DEVICES = ("cpu", "cuda")
+
+
+def make_optimizer(model, config: TrainConfig, device: str):
+    """AdamW at ``config.learning_rate`` and ``config.weight_decay``, fused on ``FUSED_ADAMW_DEVICES``."""
+    import torch
+
+    fused = True if torch.device(device).type in FUSED_ADAMW_DEVICES else None
+    return torch.optim.AdamW(model.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay,
+                             fused=fused)
+
+
 def train_loop(model, epoch_batches, steps_per_epoch: int, config: TrainConfig, device: str,
                progress: bool | None = None) -> list[float]:
     """AdamW + one-cycle schedule over ``config.epochs``; ``epoch_batches(epoch)`` yields (x, y) batches.
@@ -291,7 +306,7 @@ def train_loop(model, epoch_batches, steps_per_epoch: int, config: TrainConfig, 
 
     from metraw.progress import progress_bar
 
-    opt = torch.optim.AdamW(model.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)
+    opt = make_optimizer(model, config, device)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=config.learning_rate,
                                                 total_steps=steps_per_epoch * config.epochs, pct_start=0.15)
     losses = []
