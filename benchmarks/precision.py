@@ -2,8 +2,8 @@
 
     python benchmarks/precision.py [--rounds 21] [--threads 1] [--device cpu]
 
-One step = forward, loss, backward and optimiser step of a batch of 8 (the training loop's arithmetic,
-``metraw.segment.train.train_loop``), on random inputs of the shapes the profiles train on:
+One step = forward, loss, backward and optimiser step of a batch of 8 (the training loop's arithmetic and
+optimiser, ``metraw.segment.train.train_loop`` / ``make_optimizer``), on random inputs of the shapes the profiles train on:
 - ``default``: depth-2 U-Net, base 16, conditioned on 6 payload values, 34 px packed crops (a nominal satellite
   image) and 64 px (the crop side);
 - ``source``: depth-3 U-Net, base 16, 64 px crops (the drone reference).
@@ -24,12 +24,13 @@ def step_times(depth: int, side: int, n_condition: int, rounds: int, device: str
     import torch
 
     from metraw.segment.model import Segmenter
+    from metraw.segment.train import TrainConfig, make_optimizer
 
     nets, opts = {}, {}
     for precision in ("float32", "bfloat16"):
         torch.manual_seed(0)
         nets[precision] = Segmenter(4, 16, depth, n_condition=n_condition).to(device)
-        opts[precision] = torch.optim.AdamW(nets[precision].parameters(), lr=1e-3)
+        opts[precision] = make_optimizer(nets[precision], TrainConfig(learning_rate=1e-3), device)
     x = torch.randn(8, 4, side, side, device=device)
     y = (torch.rand(8, 4, side, side, device=device) > 0.9).float()
     c = torch.randn(8, n_condition, device=device) if n_condition else None

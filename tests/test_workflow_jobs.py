@@ -112,6 +112,13 @@ def snakemake_ran(root: Path, text: str) -> tuple[collections.Counter, ...]:
     return jobs, jobs - fetched, fetched, stored
 
 
+def snakemake_run(root: Path, *targets: str) -> tuple[collections.Counter, ...]:
+    """A real ``snakemake --cores 2`` run of ``targets`` (profiles/default applies); its jobs as ``snakemake_ran``
+    counts them."""
+    proc = _run(["snakemake", "--cores", "2", "--", *targets], root)
+    return snakemake_ran(root, proc.stdout + proc.stderr)
+
+
 def cache_entries(root: Path) -> dict[str, str]:
     """Files in the workspace's Snakemake output cache and a hash of their content."""
     return file_digests(root / ".snakemake-cache")
@@ -206,12 +213,11 @@ def test_changing_one_sweep_value_reruns_only_that_point(tmp_path):
     assert snakemake_dry(root, *targets, cache=cache)["aggregate"] == 1
     assert cache == {"results/spec.yaml": "written to"}, cache  # Snakemake names the job's first output only
     t0 = time.perf_counter()
-    first = _run(["snakemake", "--cores", "2", "--", *targets], root)
+    finished, executed, fetched, stored_jobs = snakemake_run(root, *targets)
     timings["snakemake_first_s"] = time.perf_counter() - t0
     expected = {"source_store": 1, "decode_store": 1, "pretrain_scenes": 1, "pretrain": 1, "aggregate": 1}
     for point in points:
         expected.update(point_jobs(point))
-    finished, executed, fetched, stored_jobs = snakemake_ran(root, first.stdout + first.stderr)
     assert finished == executed == expected and fetched == {} and stored_jobs == {"aggregate": 1}, (fetched, stored_jobs)
     stored = cache_entries(root)
     # spec, table and the two directories' files, under one provenance hash
@@ -254,9 +260,8 @@ def test_changing_one_sweep_value_reruns_only_that_point(tmp_path):
     assert snakemake_dry(root, *targets, cache=cache) == {"aggregate": 1}
     assert cache == {"results/spec.yaml": "obtained from"}, cache
     t0 = time.perf_counter()
-    revert = _run(["snakemake", "--cores", "2", "--", *targets], root)
+    finished, executed, fetched, stored_jobs = snakemake_run(root, *targets)
     timings["snakemake_revert_s"] = time.perf_counter() - t0
-    finished, executed, fetched, stored_jobs = snakemake_ran(root, revert.stdout + revert.stderr)
     assert finished == fetched == {"aggregate": 1} and executed == {} and stored_jobs == {}, (finished, fetched)
     table = root / "results/aggregate.json"
     assert table.is_symlink() and table.resolve().parent == (root / ".snakemake-cache").resolve()
@@ -296,9 +301,8 @@ def test_changing_one_sweep_value_reruns_only_that_point(tmp_path):
     changed = point_stages("cfa_pattern", "mono") | {f"{rule}_grid_0" for rule in PER_POINT_RULES} | {"aggregate"}
     assert set(dvc_changed(root, "aggregate", "--with-deps")) == changed
     t0 = time.perf_counter()
-    grown = _run(["snakemake", "--cores", "2", "--", *targets], root)
+    finished, executed, fetched, _ = snakemake_run(root, *targets)
     timings["snakemake_categorical_grid_s"] = time.perf_counter() - t0
-    finished, executed, fetched, _ = snakemake_ran(root, grown.stdout + grown.stderr)
     assert finished == executed == new and fetched == {}, (finished, fetched)
     _run(["dvc", "commit", "--force", "--with-deps", "aggregate"], root)
     assert dvc_changed(root, "aggregate", "--with-deps") == []

@@ -684,6 +684,8 @@ def compose(*kernels: np.ndarray, shape=None) -> np.ndarray:
     blurred by (k - 1) extra grid-pixel boxes (variance (k-1)/12 px^2 per axis); `system_kernel`
     composes optics, smear, jitter and the pixel box exactly.
     """
+    from scipy.signal import convolve2d, fftconvolve  # here, not at the top: scipy.signal costs ~1 s to import
+
     if not kernels:
         raise MetrawError("compose needs at least one kernel")
     out = np.asarray(kernels[0], dtype=np.float64)
@@ -691,8 +693,6 @@ def compose(*kernels: np.ndarray, shape=None) -> np.ndarray:
         k = np.asarray(k, dtype=np.float64)
         if k.ndim != 2 or out.ndim != 2:
             raise MetrawError("compose takes 2-D kernels")
-        from scipy.signal import convolve2d, fftconvolve  # here: scipy.signal costs ~1 s to import
-
         if min(k.size, out.size) < 64:
             out = convolve2d(out, k, mode="full")
         else:
