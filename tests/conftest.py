@@ -6,6 +6,27 @@ from pathlib import Path
 
 import pytest
 
+#: Slowest first under pytest-xdist (``-n``): the whole-workflow tests start at once, one worker each, while the
+#: other worker runs the short tests; scheduled last, they would run side by side on two busy cores at the end.
+SLOW_FIRST = ("test_changing_one_sweep_value_reruns_only_that_point", "test_killed_runs_resume_with_identical_results",
+              "test_real_path_runs_on_fake_photos")
+
+
+def pytest_collection_modifyitems(config, items):
+    """Under pytest-xdist, the workflow tests (``SLOW_FIRST`` in that order, then other ``workflow`` tests) first;
+    the order is the same in every worker, as xdist requires."""
+    if not getattr(config.option, "numprocesses", None):
+        return
+
+    def rank(item) -> int:
+        name = getattr(item, "originalname", item.name)
+        if name in SLOW_FIRST:
+            return SLOW_FIRST.index(name)
+        return len(SLOW_FIRST) + (0 if item.get_closest_marker("workflow") else 1)
+
+    items.sort(key=rank)  # stable: the collection order within each rank
+
+
 #: Real (read-only, third-party) data next to the repository; see each folder's SOURCE.txt.
 REAL_DATA_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
 
