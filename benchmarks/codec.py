@@ -88,6 +88,14 @@ spacenet_pan 7.3 -> 6.4 ms, each within its rounds' spread. Twice the independen
 the lane registers) buy no clear gain: past 4 lanes the loop's own work bounds it, so a faster decoder must do less
 per pixel.
 
+Tried 2026-11-28, not taken: lanes side by side in SIMD registers, compiled by numba (``benchmarks/codec_simd_lanes.py``:
+the decoder's own ``_pixel`` in a lane-major loop over per-lane state arrays, the shape a loop vectoriser needs). Each
+lane's pixel needs indexed loads (neighbours at its own offset, its context's coefficients, two rANS table entries, the
+next word), i.e. gathers. Numba's LLVM on this Emerald Rapids (AVX-512) emits no gather and no zmm instruction for it
+at 4, 8 or 16 lanes (39.6 / 42.2 / 44.2 ns a pixel: scalar code with the lane states in memory), nor for the plainest
+indexed loop c[j] = a[b[j]] * 3 + b[j]. SIMD lanes would need hand-written intrinsics (a C extension: a compiler at
+install time), outside this numba code base.
+
 A vectorised pass can only take taps whose coefficients do not depend on the activity context (which needs W).
 ``benchmarks/codec_predictors.py`` (2026-11-26; empirical H(r | context, phase) in float arithmetic, no side
 information, steps 1 / 2) measured such predictors against today's: one shared predictor canon_dng +1.5 / +2.0 %,
