@@ -91,10 +91,12 @@ per pixel.
 Tried 2026-11-28, not taken: lanes side by side in SIMD registers, compiled by numba (``benchmarks/codec_simd_lanes.py``:
 the decoder's own ``_pixel`` in a lane-major loop over per-lane state arrays, the shape a loop vectoriser needs). Each
 lane's pixel needs indexed loads (neighbours at its own offset, its context's coefficients, two rANS table entries, the
-next word), i.e. gathers. Numba's LLVM on this Emerald Rapids (AVX-512) emits no gather and no zmm instruction for it
-at 4, 8 or 16 lanes (39.6 / 42.2 / 44.2 ns a pixel: scalar code with the lane states in memory), nor for the plainest
-indexed loop c[j] = a[b[j]] * 3 + b[j]. SIMD lanes would need hand-written intrinsics (a C extension: a compiler at
-install time), outside this numba code base.
+next word), i.e. gathers, and stores (its value, its state). Numba's LLVM (22.1, this Emerald Rapids with AVX-512)
+emits no gather and no zmm instruction for it at 4, 8 or 16 lanes (39.6 / 42.2 / 44.2 ns a pixel: scalar code with
+the lane states in memory), nor for c[j] = a[b[j]] * 3 + b[j]; it does gather (256-bit) for s += a[b[j]], which
+stores nothing. Numba passes arrays without ``noalias``, so any store may alias an indexed load and the loop stays
+scalar. SIMD lanes would need hand-written intrinsics (a C
+extension: a compiler at install time), outside this numba code base.
 
 A vectorised pass can only take taps whose coefficients do not depend on the activity context (which needs W).
 ``benchmarks/codec_predictors.py`` (2026-11-26; empirical H(r | context, phase) in float arithmetic, no side

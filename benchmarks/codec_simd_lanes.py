@@ -8,7 +8,9 @@ context's coefficients, two rANS table entries, the next stream word), i.e. gath
 This script compiles the decoder's own per-pixel step (``decoder._pixel``, inlined) in a lane-major loop over
 ``--lanes`` independent lanes (state arrays indexed by lane: the shape a loop vectoriser needs), times it on
 synthetic tables and buffer (the arithmetic does not depend on the values), and counts the vector and gather
-instructions numba's LLVM emitted for it; then the same for the plainest indexed loop, c[j] = a[b[j]] * 3 + b[j].
+instructions numba's LLVM emitted for it; then the same for the plainest indexed loop that stores,
+c[j] = a[b[j]] * 3 + b[j], and for one that only reads, s += a[b[j]] (numba passes arrays without ``noalias``: a
+store may alias any indexed load, which rules out vectorising the loop; a pure reduction has no store).
 
 Run: python benchmarks/codec_simd_lanes.py [--lanes 4,8,16]
 """
@@ -47,6 +49,14 @@ def lane_major(steps, pf, ws, b, w_, ww, uv, thr, ctab, coef, lut, fcum, words, 
 def indexed(a, b, c):
     for j in range(c.size):
         c[j] = a[b[j]] * 3 + b[j]
+
+
+@nb.njit(nogil=True, boundscheck=False)
+def indexed_sum(a, b):
+    s = 0
+    for j in range(b.size):
+        s += a[b[j]]
+    return s
 
 
 def instructions(fn) -> dict[str, int]:
@@ -99,7 +109,9 @@ def main() -> None:
     b = np.random.default_rng(0).integers(0, 1 << 16, 1 << 20).astype(np.int64)
     c = np.zeros(b.size, np.int64)
     indexed(a, b, c)
+    indexed_sum(a, b)
     print(f"c[j] = a[b[j]] * 3 + b[j]: instructions {instructions(indexed)}")
+    print(f"s += a[b[j]]: instructions {instructions(indexed_sum)}")
     print(f"LLVM's host CPU: {nb.core.codegen.ll.get_host_cpu_name()}")
 
 
