@@ -94,9 +94,9 @@ lane's pixel needs indexed loads (neighbours at its own offset, its context's co
 next word), i.e. gathers, and stores (its value, its state). Numba's LLVM (22.1, this Emerald Rapids with AVX-512)
 emits no gather and no zmm instruction for it at 4, 8 or 16 lanes (39.6 / 42.2 / 44.2 ns a pixel: scalar code with
 the lane states in memory), nor for c[j] = a[b[j]] * 3 + b[j]; it does gather (256-bit) for s += a[b[j]], which
-stores nothing. Numba passes arrays without ``noalias``, so any store may alias an indexed load and the loop stays
-scalar. SIMD lanes would need hand-written intrinsics (a C
-extension: a compiler at install time), outside this numba code base.
+stores nothing. Numba passes arrays without ``noalias``: a store may alias any indexed load, the likely reason the
+loop stays scalar. SIMD lanes would need hand-written intrinsics (a C extension: a compiler at install time), outside
+this numba code base.
 
 A vectorised pass can only take taps whose coefficients do not depend on the activity context (which needs W).
 ``benchmarks/codec_predictors.py`` (2026-11-26; empirical H(r | context, phase) in float arithmetic, no side
