@@ -4,8 +4,8 @@ A temporary copy of the workflow (Snakefile, workflow/, a tiny params.yaml, dvc.
 workflow/scripts/dvc_yaml.py) runs the chain source -> emulate -> train -> evaluate -> compress ->
 aggregate for 4 points (nominal, one focal length, one diameter, one exposure). Then one sweep value changes
 (focal_length_m 1.2 -> 2.0) and back; finally a categorical sweep (cfa_pattern: mono) and a 2 x 2 focal length x
-diameter grid are added, and only their new points run (Snakemake runs them; DVC lists the same stages as changed,
-adopts the outputs, and then has nothing to do). Counted:
+diameter grid are added, and only their new points run (DVC lists their stages as changed and runs the grid point's,
+Snakemake runs the categorical point and the aggregate, DVC adopts the outputs and then has nothing to do). Counted:
 
 - Snakemake (plain ``snakemake``, so profiles/default applies: between-workflow output cache on,
   in the workspace's .snakemake-cache/): the real first run (jobs finished, from its log; the
@@ -286,8 +286,9 @@ def test_changing_one_sweep_value_reruns_only_that_point(tmp_path):
 
     # 6. a categorical sweep (cfa_pattern: mono) and a 2 x 2 focal length x diameter grid, whose only point off the
     #    lines is 1.2 x 0.35: just those two points' jobs and the aggregate, under both tools (dvc.yaml is
-    #    regenerated: its structure changed, and its aggregate stage says so until it is). Snakemake runs them (in
-    #    parallel; DVC's one-stage-at-a-time run is step 3's), DVC adopts them and then has nothing to do
+    #    regenerated: its structure changed, and its aggregate stage says so until it is). DVC runs the grid point's
+    #    stages (a grid stage's commands and outputs, executed), Snakemake then finds only the categorical point and
+    #    the aggregate to do and runs them, DVC adopts them and then has nothing to do
     params = yaml.safe_load((root / "params.yaml").read_text())
     params["target"]["sweeps"]["cfa_pattern"] = ["mono"]
     params["target"]["grids"] = [{"focal_length_m": [1.2, 1.644], "diameter_m": [0.2, 0.35]}]
@@ -298,11 +299,19 @@ def test_changing_one_sweep_value_reruns_only_that_point(tmp_path):
     stale = _run(["dvc", "repro", "aggregate"], root, check=False)
     assert stale.returncode != 0 and "regenerate it with" in stale.stdout + stale.stderr
     _run(["python", str(SCRIPT)], root)
-    changed = point_stages("cfa_pattern", "mono") | {f"{rule}_grid_0" for rule in PER_POINT_RULES} | {"aggregate"}
+    grid_stages = {f"{rule}_grid_0" for rule in PER_POINT_RULES}
+    changed = point_stages("cfa_pattern", "mono") | grid_stages | {"aggregate"}
     assert set(dvc_changed(root, "aggregate", "--with-deps")) == changed
     t0 = time.perf_counter()
+    rep = dvc_repro(root, "evaluate_grid_0", "compress_grid_0")
+    timings["dvc_grid_point_s"] = time.perf_counter() - t0
+    assert sorted(rep["ran"]) == sorted(grid_stages) and rep["restored"] == [], rep
+    assert rep["jobs"] == point_jobs(grid_point), rep["jobs"]
+    new = {**point_jobs("cfa_pattern-mono"), "aggregate": 1}
+    assert snakemake_dry(root, *targets) == new
+    t0 = time.perf_counter()
     finished, executed, fetched, _ = snakemake_run(root, *targets)
-    timings["snakemake_categorical_grid_s"] = time.perf_counter() - t0
+    timings["snakemake_categorical_s"] = time.perf_counter() - t0
     assert finished == executed == new and fetched == {}, (finished, fetched)
     _run(["dvc", "commit", "--force", "--with-deps", "aggregate"], root)
     assert dvc_changed(root, "aggregate", "--with-deps") == []
