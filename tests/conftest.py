@@ -18,8 +18,9 @@ SLOW_FIRST = ("test_changing_one_sweep_value_reruns_only_that_point", "test_kill
 def pytest_sessionstart(session):
     """In the controller of a pytest-xdist run, before its workers start: fill numba's caches once, one process per
     group of ``tests/numba_warmup.py`` side by side, so that the workers and the workflow jobs they start read the
-    compiled functions instead of each compiling them (on a fresh clone ~2 minutes of the suite's time on 2 cores).
-    A group that fails is reported and skipped over: the tests themselves then show what is wrong."""
+    compiled functions instead of each compiling them. On a fresh clone (2-core Intel VM, wall): 557 s without it,
+    523 s with it (55 s of it the warm-up); with warm caches it costs ~2.5 s. A group that fails is reported and
+    skipped over: the tests themselves then show what is wrong."""
     config = session.config
     if not getattr(config.option, "numprocesses", None) or hasattr(config, "workerinput"):
         return
