@@ -10,7 +10,7 @@ This script compiles the decoder's own per-pixel step (``decoder._pixel``, inlin
 synthetic tables and buffer (the arithmetic does not depend on the values), and counts the vector and gather
 instructions numba's LLVM emitted for it; then the same for the plainest indexed loop that stores,
 c[j] = a[b[j]] * 3 + b[j], and for one that only reads, s += a[b[j]] (numba passes arrays without ``noalias``: a
-store may alias any indexed load, which rules out vectorising the loop; a pure reduction has no store).
+store may alias any indexed load, the likely reason such loops stay scalar; a pure reduction has no store).
 
 Run: python benchmarks/codec_simd_lanes.py [--lanes 4,8,16]
 """

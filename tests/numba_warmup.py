@@ -2,10 +2,11 @@
 
 On a fresh clone nothing is compiled: every pytest-xdist worker, and every workflow job the workflow tests start,
 would compile the same functions at the same time (the codec's 45-55 s of compiling, the scene renderer's and the
-emulator's ~11 s, on the 2-core Intel VM), each in its own process. Compiled once here, in two processes side by side, they are read from the
-cache (``cache=True``; ``__pycache__`` next to the sources) by all the others. The inputs are tiny synthetic images
-of the kinds the tests use (Bayer and mono, faint and bright, steps 0.5 / 1 / 2, tiles with and without lanes), so
-that the functions compile for the argument types the tests pass. Nothing here asserts: the tests check the results.
+emulator's ~11 s, on the 2-core Intel VM), each in its own process. Compiled once here, in two processes side by
+side, they are read from the cache (``cache=True``; ``__pycache__`` next to the sources) by all the others. The
+inputs are tiny synthetic images of the kinds the tests use (Bayer and mono, faint and bright, steps 0.5 / 1 / 2,
+tiles with and without lanes), so that the functions compile for the argument types the tests pass. Nothing here
+asserts: the tests check the results.
 
 Run: python tests/numba_warmup.py codec|emulation
 """
