@@ -307,12 +307,12 @@ def test_changing_one_sweep_value_reruns_only_that_point(tmp_path):
     timings["dvc_grid_point_s"] = time.perf_counter() - t0
     assert sorted(rep["ran"]) == sorted(grid_stages) and rep["restored"] == [], rep
     assert rep["jobs"] == point_jobs(grid_point), rep["jobs"]
-    new = {**point_jobs("cfa_pattern-mono"), "aggregate": 1}
-    assert snakemake_dry(root, *targets) == new
+    left_for_snakemake = {**point_jobs("cfa_pattern-mono"), "aggregate": 1}
+    assert snakemake_dry(root, *targets) == left_for_snakemake
     t0 = time.perf_counter()
     finished, executed, fetched, _ = snakemake_run(root, *targets)
     timings["snakemake_categorical_s"] = time.perf_counter() - t0
-    assert finished == executed == new and fetched == {}, (finished, fetched)
+    assert finished == executed == left_for_snakemake and fetched == {}, (finished, fetched)
     _run(["dvc", "commit", "--force", "--with-deps", "aggregate"], root)
     assert dvc_changed(root, "aggregate", "--with-deps") == []
     table = json.loads((root / "results/aggregate.json").read_text())
