@@ -30,7 +30,7 @@ def codec() -> None:
         prof = CalibrationProfile(gain_dn_per_e=0.5, black_level_dn=100, read_noise_e=3, white_level_dn=16000,
                                   adc_bits=14, cfa_pattern=pattern)
         for electrons in (40.0, 20000.0):
-            for side in (64, 600):   # one shared model; 4-lane tiles (>= 2^16 pixels a plane)
+            for side in (64, 600):   # one shared model; 8-lane tiles (>= 2^16 pixels a plane)
                 yy, xx = np.mgrid[0:side, 0:side]
                 mean = electrons * (0.6 + 0.4 * np.sin(xx / 9.0) * np.cos(yy / 7.0))
                 img = RawImage(expose(mean, prof, rng_from_seed(side)), prof)

@@ -1,7 +1,8 @@
 """Stored .mraw files of format version 3 still decode, bit for bit.
 
 The blobs under tests/fixtures/codec were written by the version-3 encoder (metraw commit e5cee37,
-before the throughput work of issue #18) from the images ``fixture_images`` regenerates
+before the throughput work of issue #18; the ``_8lanes`` file by that of 2026-11-28, 8 rANS lanes) from the images
+``fixture_images`` regenerates
 deterministically; FIXTURES holds the SHA-256 of each blob and of its decoded pixels. An encoder
 change may change the bytes it writes (these tests do not encode), but every decoder must read
 these files to the same pixels. Files of a new format version get new names beside these; these
@@ -31,6 +32,8 @@ FIXTURES = {
                               "6624bfd6eeb2ce2dd687bb0523b5147edc45c4b8cf417142b1acfc493ae86433"),
     "v3_mono_300x440_q2.mraw": (2.0, "0b22940663ce97a9bc8e4a53d8141ad7c1d0fb161adc777df0990ce4f594fe7f",
                                 "5e0abf6dab865bfe8a408925dcd2c6d51cf991320cc1aee07995ada3b5486fa6"),
+    "v3_mono_300x440_q2_8lanes.mraw": (2.0, "638d98f12dfb027a2ea53007772b4c5b0fd1a35653a1682e889792bd02a385c0",
+                                       "5e0abf6dab865bfe8a408925dcd2c6d51cf991320cc1aee07995ada3b5486fa6"),
 }
 
 
@@ -46,15 +49,24 @@ def fixture_images() -> dict[str, RawImage]:
     data = expose(mean, mono, rng_from_seed(12))
     data[5, 7:40] = 16000            # saturated run: escapes
     data[290, 100:110] = 0           # below the transform's domain: escapes
-    return {"v3_rggb_64x48_q1.mraw": small, "v3_mono_300x440_q2.mraw": RawImage(data, mono)}
+    # the same mono image again from the encoder of 2026-11-28 (8 rANS lanes; format version 3 as before)
+    return {"v3_rggb_64x48_q1.mraw": small, "v3_mono_300x440_q2.mraw": RawImage(data, mono),
+            "v3_mono_300x440_q2_8lanes.mraw": RawImage(data, mono)}
 
 
 def _sha(b: bytes) -> str:
     return hashlib.sha256(b).hexdigest()
 
 
+@pytest.mark.parametrize("loop", ["compiled", "numba"])
 @pytest.mark.parametrize("name", sorted(FIXTURES))
-def test_stored_version3_blob_decodes_bit_exact(name):
+def test_stored_version3_blob_decodes_bit_exact(name, loop, monkeypatch):
+    from metraw.codec import native
+
+    if loop == "numba":
+        monkeypatch.setattr(native, "LIB", None)
+    elif native.LIB is None:
+        pytest.skip("compiled codec loop not built or no AVX-512 on this CPU")
     step, blob_sha, pix_sha = FIXTURES[name]
     blob = (HERE / name).read_bytes()
     assert _sha(blob) == blob_sha, "the stored fixture changed: fixtures are never rewritten"
@@ -68,13 +80,14 @@ def test_stored_version3_blob_decodes_bit_exact(name):
 
 
 def test_fixtures_cover_both_section_layouts():
-    """One fixture codes its tile with a shared model (small tiles), the other per-plane models in
-    4 rANS lanes on 2 row tiles, with escapes."""
+    """One fixture codes its tile with a shared model (small tiles), the others per-plane models in
+    4 (before 2026-11-28) and 8 rANS lanes on 2 row tiles, with escapes."""
     from metraw.codec import predictive
 
-    hdr, secs = container.unpack((HERE / "v3_mono_300x440_q2.mraw").read_bytes())
-    assert len(hdr.tiles) == 2 and len(secs[-1]) > 0
-    assert all(predictive._HEAD.unpack_from(s, 0)[3:5] == (0, 4) for s in secs[:-1])
+    for name, lanes in (("v3_mono_300x440_q2.mraw", 4), ("v3_mono_300x440_q2_8lanes.mraw", 8)):
+        hdr, secs = container.unpack((HERE / name).read_bytes())
+        assert len(hdr.tiles) == 2 and len(secs[-1]) > 0
+        assert all(predictive._HEAD.unpack_from(s, 0)[3:5] == (0, lanes) for s in secs[:-1])
     hdr, secs = container.unpack((HERE / "v3_rggb_64x48_q1.mraw").read_bytes())
     assert predictive._HEAD.unpack_from(secs[0], 0)[3:5] == (1, 1)
 

@@ -3,9 +3,11 @@
 ``decode_planes`` parses a section (plane header, predictors, frequency tables, lane words and
 escapes, all in compiled code where it loops) and runs the per-pixel loop (compiled, ``nogil``).
 
-Lane j of a section holds rows j, j + L, ... of a plane (L = 4 lanes for large tiles) and runs
-3 pixels behind lane j - 1, so its causal neighbours are ready and the L dependency chains
-overlap. The arithmetic is the encoder's (``predictive._residuals``) to the bit.
+Lane j of a section holds rows j, j + L, ... of a plane (L = 8 lanes for large tiles since 2026-11-28, 4 before;
+the header says which) and runs 3 pixels behind lane j - 1, so its causal neighbours are ready and the dependency
+chains overlap. The arithmetic is the encoder's (``predictive._residuals``) to the bit. Streams of 8 or 16 lanes
+decode in the compiled C loop where it is built and the CPU has AVX-512 (``metraw.codec.native``: the 8 lanes of a
+row group side by side in one vector register), else, and for other lane counts, in ``decode_plane`` here (numba).
 
 Speed: every array access uses an unsigned index (a cast of the signed one: free) so numba emits
 no negative-index wrap-around (a compare and a select per index, ~30 indexings per pixel); the
@@ -23,6 +25,7 @@ import numpy as np
 from numba.core import types
 from numba.extending import overload
 
+from metraw.codec import native
 from metraw.codec.container import get_varint
 from metraw.errors import MetrawError
 
@@ -173,8 +176,11 @@ def decode_plane(p, u, sym, thr, ctab, coef, tab0, pshift, lut, fcum, amax, word
     ``esc`` at least w + 1 pad values after the last lane's escapes (the steady part checks the
     limits once per group of rows).
 
-    Groups of 4 full rows run their steady part (every lane inside the row, no padding to write)
-    with the lane states in local variables; edges and other groups take the general path."""
+    Rows run in groups of 4 (of min(L, 4) where L = 1, 2, 3): with L = 8 or 16 lanes, a group of L rows is
+    decoded as L / 4 groups of 4, one below the other (the lanes are in different rows, so any order that decodes
+    every pixel after its causal neighbours gives the same values). Groups of 4 full rows run their steady part
+    (every lane inside the row, no padding to write) with the lane states in local variables; edges and other
+    groups take the general path."""
     h = p.shape[0] - 2
     w = p.shape[1] - 4
     ws = np.int64(w + 4)
@@ -183,15 +189,17 @@ def decode_plane(p, u, sym, thr, ctab, coef, tab0, pshift, lut, fcum, amax, word
     fcf = fcum.reshape(-1)
     alpha = np.int64(fcum.shape[1])
     nl = xs.size
-    for y0 in range(0, h, nl):
-        nr = min(nl, h - y0)
+    sub = 4 if nl % 4 == 0 else nl
+    for y0 in range(0, h, sub):
+        l0 = y0 % nl  # the lane of row y0
+        nr = min(sub, h - y0)
         fast = nr == 4 and w >= 12
         for xsw in range(w + 3 * (nr - 1)):
             if fast and xsw == 10:
                 # steady part: xsw = 10 .. w - 2, lanes at x = xsw, xsw - 3, xsw - 6, xsw - 9
-                a0, a1, a2, a3 = xs[0], xs[1], xs[2], xs[3]
-                q0, q1, q2, q3 = pos[0], pos[1], pos[2], pos[3]
-                e0, e1, e2, e3 = epos[0], epos[1], epos[2], epos[3]
+                a0, a1, a2, a3 = xs[l0], xs[l0 + 1], xs[l0 + 2], xs[l0 + 3]
+                q0, q1, q2, q3 = pos[l0], pos[l0 + 1], pos[l0 + 2], pos[l0 + 3]
+                e0, e1, e2, e3 = epos[l0], epos[l0 + 1], epos[l0 + 2], epos[l0 + 3]
                 b0 = (y0 + 2) * ws + 2
                 # each lane's two left neighbours, carried in registers along the row
                 b = b0 + 10
@@ -219,12 +227,12 @@ def decode_plane(p, u, sym, thr, ctab, coef, tab0, pshift, lut, fcum, amax, word
                     w3 = pv
                 # limits checked once per group: a lane uses at most one word and one escape per pixel, and
                 # the caller pads the words before each lane and the escapes after the last (``decode_plane``)
-                if not ((q0 >= pmin[0]) & (q1 >= pmin[1]) & (q2 >= pmin[2]) & (q3 >= pmin[3]) & (e0 <= eend[0])
-                        & (e1 <= eend[1]) & (e2 <= eend[2]) & (e3 <= eend[3])):
+                if not ((q0 >= pmin[l0]) & (q1 >= pmin[l0 + 1]) & (q2 >= pmin[l0 + 2]) & (q3 >= pmin[l0 + 3])
+                        & (e0 <= eend[l0]) & (e1 <= eend[l0 + 1]) & (e2 <= eend[l0 + 2]) & (e3 <= eend[l0 + 3])):
                     return False
-                xs[0], xs[1], xs[2], xs[3] = a0, a1, a2, a3
-                pos[0], pos[1], pos[2], pos[3] = q0, q1, q2, q3
-                epos[0], epos[1], epos[2], epos[3] = e0, e1, e2, e3
+                xs[l0], xs[l0 + 1], xs[l0 + 2], xs[l0 + 3] = a0, a1, a2, a3
+                pos[l0], pos[l0 + 1], pos[l0 + 2], pos[l0 + 3] = q0, q1, q2, q3
+                epos[l0], epos[l0 + 1], epos[l0 + 2], epos[l0 + 3] = e0, e1, e2, e3
             if fast and 10 <= xsw <= w - 2:
                 continue
             for j in range(nr):
@@ -236,14 +244,15 @@ def decode_plane(p, u, sym, thr, ctab, coef, tab0, pshift, lut, fcum, amax, word
                 if x0 == 0 and y > 0:
                     p[yy, 0] = p[yy - 1, 2]
                     p[yy, 1] = p[yy - 1, 2]
+                lj = l0 + j
                 x, ps, ep, ok = decode_pixel(pf, yy * ws + x0 + 2, ws, _u16(u, y, x0), thr, ctab, coef, tab0, pshift,
-                                                lutf, fcf, alpha, amax, words, xs[j], pos[j], pmin[j], esc, epos[j],
-                                                eend[j])
+                                                lutf, fcf, alpha, amax, words, xs[lj], pos[lj], pmin[lj], esc, epos[lj],
+                                                eend[lj])
                 if not ok:
                     return False
-                xs[j] = x
-                pos[j] = ps
-                epos[j] = ep
+                xs[lj] = x
+                pos[lj] = ps
+                epos[lj] = ep
                 if x0 == w - 1:
                     p[yy, w + 2] = p[yy, w + 1]
                     p[yy, w + 3] = p[yy, w + 1]
@@ -342,7 +351,8 @@ def _decoding_tables(freq, sym_type):
     """The decoder's lookup tables: symbol by slot (tables x 2^PROB_BITS, ``sym_type``) and
     freq << 16 | cumulative frequency (tables x alphabet)."""
     ntab, alpha = freq.shape
-    lut = np.zeros((ntab, PROB_SCALE), sym_type)
+    # one row more than the tables: the compiled decoder's 32-bit gathers may read a few bytes past the last entry
+    lut = np.zeros((ntab + 1, PROB_SCALE), sym_type)
     fcum = np.empty((ntab, alpha), np.uint32)  # f <= 2^12, cum < 2^12: 32 bits (half the cache of int64)
     for t in range(ntab):
         c = 0
@@ -352,7 +362,7 @@ def _decoding_tables(freq, sym_type):
             for k in range(c, min(c + f, PROB_SCALE)):
                 lut[t, k] = j
             c += f
-    return lut, fcum
+    return lut[:ntab], fcum
 
 
 @nb.njit(cache=True, nogil=True)
@@ -416,7 +426,8 @@ def _decode(mv: memoryview, dithers: list[np.ndarray], outs) -> list[np.ndarray]
     # checks a lane's limits once per group of rows and reads at most a row's width past them.
     pad = max([u.shape[1] for u in dithers] + [0]) + 16
     pmin = (np.cumsum(np.array(nwords, np.int64) + pad) - np.array(nwords, np.int64) - 1).astype(np.int64)
-    words = np.zeros(int(sum(nwords)) + nl * pad, np.uint16)
+    # + 2 words: the compiled decoder's 32-bit gathers read one word past the last
+    words = np.zeros(int(sum(nwords)) + nl * pad + 2, np.uint16)
     for j, n in enumerate(nwords):
         words[pmin[j] + 1:pmin[j] + 1 + n] = np.frombuffer(mv, "<u2", n, off)
         off += 2 * n
@@ -431,6 +442,7 @@ def _decode(mv: memoryview, dithers: list[np.ndarray], outs) -> list[np.ndarray]
         outs = [np.empty(u.shape, np.int32) for u in dithers]
     # one padded buffer for the planes in turn (``_init_front`` sets what the decoder reads before writing)
     buf = np.empty(max((u.shape[0] + 2) * (u.shape[1] + 4) for u in dithers), np.int64)
+    compiled = native.LIB is not None and nl in native.LANE_COUNTS
     for k, u in enumerate(dithers):
         g = 0 if shared else k
         thr, coef, bias = heads[g]
@@ -440,8 +452,17 @@ def _decode(mv: memoryview, dithers: list[np.ndarray], outs) -> list[np.ndarray]
         h, w = u.shape
         p = buf[:(h + 2) * (w + 4)].reshape(h + 2, w + 4)
         _init_front(p, np.int64(c0s[k]) << 16)
-        if not decode_plane(p, fixed_dither(np.ascontiguousarray(u, np.float64)), outs[k], thr7, context_table(thr), coef13, g * nact * nph, pshift, lut, fcum,
-                             amax, words, xs, pos, pmin, esc, epos, eend):
+        u16 = fixed_dither(np.ascontiguousarray(u, np.float64))
+        if compiled:
+            sym = outs[k] if outs[k].flags.c_contiguous and outs[k].dtype == np.int32 else np.empty(u.shape, np.int32)
+            ok = native.decode_plane(p, u16, sym, thr7, coef13, g * nact * nph, pshift, lut, fcum, amax, words, xs,
+                                     pos, pmin, esc, epos, eend)
+            if sym is not outs[k]:
+                outs[k][...] = sym
+        else:
+            ok = decode_plane(p, u16, outs[k], thr7, context_table(thr), coef13, g * nact * nph, pshift, lut, fcum,
+                              amax, words, xs, pos, pmin, esc, epos, eend)
+        if not ok:
             raise ValueError("coded data ran out")
     if np.any(pos != pmin) or np.any(xs != RANS_L) or np.any(epos != eend):
         raise ValueError("rANS did not end in its initial state")

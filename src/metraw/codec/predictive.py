@@ -24,15 +24,17 @@ activity context has its own least-squares predictor x ~ W + sum_i c_i (n_i - W)
 causal neighbours (fitted by the encoder, stored) and each (activity, phase) context its own
 static rANS table. The number of activity contexts shrinks with the plane size so that side
 information stays a small fraction of the rate (small images: one context, tables shared by
-the planes). Large tiles code their rows in 4 interleaved rANS lanes (row classes, each with
-its own state; the decoder runs lane j three pixels behind lane j - 1, so the four dependency
-chains overlap). Decoding is a sequential compiled loop (numba, ``nogil``), so tiles decode in
-parallel threads.
+the planes). Large tiles code their rows in 8 interleaved rANS lanes (row classes, each with
+its own state; the decoder runs lane j three pixels behind lane j - 1, so the dependency chains
+overlap, and the compiled C decoder runs the 8 lanes side by side in one AVX-512 register: 4 lanes
+before 2026-11-28, +0.01-0.05 % bits for 8). Decoding is a sequential compiled loop (C or numba,
+without the GIL), so tiles decode in parallel threads.
 
 Speed without changing the stream: the encoder computes activities, contexts and predictions row
 by row in passes without a sequential dependence; the least squares accumulate X^T X from
 per-context sample buffers in vectorised blocks (encoder only: the coefficients are stored);
-the decoder runs the steady part of each 4-row group with the lane states in registers and
+the residual pass runs in C (AVX-512, 8 pixels at a time) where ``metraw.codec.native`` is built,
+else in numba, to the same bytes; the decoder runs the steady part of each 4-row group with the lane states in registers and
 evaluates sum_i k_i (n_i - W) as sum_i k_i n_i - W sum_i k_i (exact integers, the same value).
 The encoder's work is a few compiled calls per section (``_model_plane``, ``_residuals``,
 ``_code_section``), each releasing the GIL, so that row tiles in parallel threads rarely wait on
@@ -49,6 +51,7 @@ import struct
 import numba as nb
 import numpy as np
 
+from metraw.codec import native
 from metraw.codec.container import put_varint
 from metraw.codec.decoder import (  # noqa: F401  (the format's constants; decode_planes re-exported)
     _HEAD, COEF_BITS, FRAC, MAX_NACT, MAX_RESID, NPH, NTAP, PROB_BITS, PROB_SCALE, RANS_L, _normalise, decode_planes,
@@ -56,7 +59,7 @@ from metraw.codec.decoder import (  # noqa: F401  (the format's constants; decod
 
 MIN_FIT = 64                   # fewer samples in a context: use the default predictor
 SHARED_BELOW = 1 << 16         # tiles with fewer pixels share one model across their planes
-LANES = 4                      # interleaved rANS lanes (row classes) for tiles of >= SHARED_BELOW pixels
+LANES = 8                      # interleaved rANS lanes (row classes) for tiles of >= SHARED_BELOW pixels (4 before 2026-11-28)
 
 
 def n_activity_contexts(pixels_per_group: int) -> int:
@@ -399,7 +402,7 @@ def _rans_encode(idx, tab, freq, cum, rcp, rs, rl, lr, ls, out):
     shortest = longest
     for j in range(nl):
         shortest = min(shortest, ls[j + 1] - ls[j])
-    lo = shortest if nl == 4 else 0
+    lo = shortest if nl % 4 == 0 else 0
     for k in range(longest - 1, lo - 1, -1):
         for j in range(nl):
             if k >= ls[j + 1] - ls[j]:
@@ -409,14 +412,14 @@ def _rans_encode(idx, tab, freq, cum, rcp, rs, rl, lr, ls, out):
             xs[j] = x
             nws[j] = nw
             ci[j], ce[j], cq[j] = _enc_cursor(i, ce[j], cq[j], rs, rl, k > 0)
-    if lo > 0:
-        # every lane active: lane states in registers
-        x0, x1, x2, x3 = xs[0], xs[1], xs[2], xs[3]
-        n0, n1, n2, n3 = nws[0], nws[1], nws[2], nws[3]
-        i0, i1, i2, i3 = ci[0], ci[1], ci[2], ci[3]
-        e0, e1, e2, e3 = ce[0], ce[1], ce[2], ce[3]
-        q0, q1, q2, q3 = cq[0], cq[1], cq[2], cq[3]
-        o0, o1, o2, o3 = ls[0], ls[1], ls[2], ls[3]
+    for g in range(0, nl if lo > 0 else 0, 4):
+        # every lane active: 4 lanes at a time (the lanes' streams are independent), their states in registers
+        x0, x1, x2, x3 = xs[g], xs[g + 1], xs[g + 2], xs[g + 3]
+        n0, n1, n2, n3 = nws[g], nws[g + 1], nws[g + 2], nws[g + 3]
+        i0, i1, i2, i3 = ci[g], ci[g + 1], ci[g + 2], ci[g + 3]
+        e0, e1, e2, e3 = ce[g], ce[g + 1], ce[g + 2], ce[g + 3]
+        q0, q1, q2, q3 = cq[g], cq[g + 1], cq[g + 2], cq[g + 3]
+        o0, o1, o2, o3 = ls[g], ls[g + 1], ls[g + 2], ls[g + 3]
         for k in range(lo - 1, -1, -1):
             more = k > 0
             x0, n0 = _enc_symbol(idx, tab, alpha, freqf, cumf, rcpf, out, o0, n0, x0, i0)
@@ -427,8 +430,8 @@ def _rans_encode(idx, tab, freq, cum, rcp, rs, rl, lr, ls, out):
             i1, e1, q1 = _enc_cursor(i1, e1, q1, rs, rl, more)
             i2, e2, q2 = _enc_cursor(i2, e2, q2, rs, rl, more)
             i3, e3, q3 = _enc_cursor(i3, e3, q3, rs, rl, more)
-        xs[0], xs[1], xs[2], xs[3] = x0, x1, x2, x3
-        nws[0], nws[1], nws[2], nws[3] = n0, n1, n2, n3
+        xs[g], xs[g + 1], xs[g + 2], xs[g + 3] = x0, x1, x2, x3
+        nws[g], nws[g + 1], nws[g + 2], nws[g + 3] = n0, n1, n2, n3
     return xs, nws
 
 
@@ -584,7 +587,7 @@ def encode_planes(planes: list[tuple[np.ndarray, np.ndarray]], account: list | N
     """Code planes given as (symbols int32, dither float in [-1/2, 1/2)) pairs into one section.
 
     Tiles of >= ``SHARED_BELOW`` pixels: per-plane models, ``n_activity_contexts`` contexts x
-    ``NPH`` phase bins, 12-bit tables, 4 rANS lanes. Smaller tiles: one model for all planes,
+    ``NPH`` phase bins, 12-bit tables, ``LANES`` rANS lanes. Smaller tiles: one model for all planes,
     8-bit tables, and the smallest of (1, 1), (1, NPH), (2, NPH) (activity contexts, phase bins).
 
     ``account``: if a list, it receives each plane's share of the section [bits], summing to
@@ -660,7 +663,10 @@ def _encode_planes(planes, shared: bool, nact: int, pshift: int, account: list |
             models.append((front, thr, coef, bias, k * nact * nph))
     off = 0
     for (s, _), (front, thr, coef, bias, tab0) in zip(planes, models):
-        rmax = max(rmax, int(_residuals(s, front, thr, coef, bias, tab0, pshift, r_all, t_all, off)))
+        if native.LIB is not None:
+            rmax = max(rmax, native.residuals(front, thr, coef, bias, tab0, pshift, r_all, t_all, off))
+        else:
+            rmax = max(rmax, int(_residuals(s, front, thr, coef, bias, tab0, pshift, r_all, t_all, off)))
         off += s.size
     for _, thr, coef, bias, _ in models[:1] if shared else models:
         group_heads.append((thr >> 8).astype("<u4").tobytes() + coef.astype("<i2").tobytes()

@@ -1,0 +1,402 @@
+/* metraw.codec._simd: the decoder's per-pixel loop (metraw.codec.decoder.decode_plane) in C, with the steady
+ * part of 8- and 16-lane row groups in AVX-512 (lane j of a group in element j of a 512-bit register).
+ *
+ * Called through ctypes (metraw.codec.native): no Python API, so no Python headers are needed. The arithmetic is
+ * the encoder's and numba decoder's to the bit (int64 two's complement; built with -fwrapv), and the tests compare
+ * the two decoders on every frame they code.
+ *
+ * Why lanes in registers: each lane is one dependency chain (neighbours -> activity context -> prediction ->
+ * rANS table -> value -> next pixel), so a scalar decoder is bound by that chain's latency. Within one column step
+ * the lanes of a group are independent (lane j runs 3 pixels behind lane j - 1), so one vector instruction
+ * advances 8 chains. A lane's causal neighbours are the last 8 values of itself and of the two lanes above it: they
+ * are kept as histories in registers (H[k]: the value k steps back) and shifted across lanes (valignq), so the
+ * steady loop reads no pixel it or its neighbours wrote; the rows above lane 0 (the previous group's last two rows)
+ * enter as two more histories (G). Per step: 5 gathers (dither, symbol table, frequency table, rANS word, escape)
+ * and one scatter of the 8 values. The edges of each group (the first 3 (L - 1) + 1 and the last column steps)
+ * take the scalar path. */
+#include <stdint.h>
+
+typedef int64_t i64;
+typedef uint64_t u64;
+
+#define PROB_BITS 12          /* metraw.codec.decoder.PROB_BITS */
+#define RANS_L (1 << 16)      /* metraw.codec.decoder.RANS_L */
+
+#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+#define METRAW_X86 1
+#include <immintrin.h>
+#define SIMD_FN __attribute__((target("avx512f,avx512dq")))
+#else
+#define METRAW_X86 0
+#endif
+
+#define INLINE __attribute__((always_inline)) static inline
+
+INLINE i64 iabs64(i64 a) { return a < 0 ? -a : a; }
+
+typedef struct {
+    const i64 *thr;     /* 7 activity thresholds (padded with INT64_MAX) */
+    const i64 *coef;    /* 8 contexts x 13: 11 coefficients, their sum, the bias (unused contexts zero) */
+    i64 tab0, pshift, alpha, amax;
+    const void *lut; int lut16;   /* symbol by slot: uint8 (lut16 0) or int16 (1), tables x 2^PROB_BITS */
+    const uint32_t *fcum;         /* freq << 16 | cumulative frequency, tables x alpha */
+    const uint16_t *words;
+    const int32_t *esc;
+} model_t;
+
+/* one pixel of one lane (the general path: edges, short rows); lut16 a compile-time constant where inlined */
+INLINE void pixel(i64 *restrict pf, i64 b, i64 ws, i64 uv, const i64 *restrict t7,
+    const i64 *restrict coef, i64 tab0, i64 pshift, const void *restrict lut, const int lut16,
+    const uint32_t *restrict fcum, i64 alpha, i64 amax, const uint16_t *restrict words, const int32_t *restrict esc,
+    u64 *restrict xp, i64 *restrict posp, i64 *restrict eposp)
+{
+    const i64 half = 1 << 15;
+    i64 w_ = pf[b - 1], ww = pf[b - 2];
+    i64 n_ = pf[b - ws], nw = pf[b - ws - 1], ne = pf[b - ws + 1], nn = pf[b - 2 * ws];
+    i64 act = iabs64(w_ - nw) + iabs64(n_ - nw) + iabs64(n_ - ne) + iabs64(w_ - ww) + iabs64(n_ - nn);
+    i64 c = (act > t7[0]) + (act > t7[1]) + (act > t7[2]) + (act > t7[3]) + (act > t7[4]) + (act > t7[5]) + (act > t7[6]);
+    const i64 *k = coef + c * 13;
+    i64 acc = k[0] * n_ + k[1] * nw + k[2] * ne + k[3] * ww + k[4] * nn + k[5] * pf[b - ws - 2] + k[6] * pf[b - 2 * ws - 1]
+            + k[7] * pf[b - 2 * ws + 1] + k[8] * pf[b - ws + 2] + k[9] * pf[b - 2 * ws - 2] + k[10] * pf[b - 2 * ws + 2]
+            - k[11] * w_;
+    i64 mh = w_ + (acc >> 12) + k[12] + uv + half;
+    i64 sh = mh >> 16, fr = mh & 0xFFFF, f = 1 - (fr >> 15);
+    i64 t = tab0 + c * (4 >> pshift) + ((((fr ^ (-f & 0xFFFF)) >> 13) & 3) >> pshift);
+    u64 x = *xp;
+    i64 slot = (i64)(x & ((1u << PROB_BITS) - 1));
+    i64 li = (t << PROB_BITS) + slot;
+    i64 s = lut16 ? (i64)((const int16_t *)lut)[li] : (i64)((const uint8_t *)lut)[li];
+    i64 fc = (i64)fcum[t * alpha + s];
+    x = (u64)(fc >> 16) * (x >> PROB_BITS) + (u64)(slot - (fc & 0xFFFF));
+    u64 need = x < RANS_L;
+    x = (x << (need << 4)) | ((u64)words[*posp] * need);
+    *posp -= (i64)need;
+    int is_esc = s == 2 * amax + 1;
+    i64 ev = esc[*eposp];
+    i64 r = is_esc ? ev : s - amax;
+    *eposp += is_esc;
+    i64 v = sh + ((r ^ -f) + f);
+    pf[b] = (v << 16) - uv;
+    *xp = x;
+}
+
+#if METRAW_X86
+typedef struct {
+    __m512i T[7], CT[13], tab0, escsym, amaxv, alpha, pmask, one, m16, halfv, three;
+    i64 cshift, pshift;
+    const void *lut; int lut16;
+    const uint32_t *fcum; const uint16_t *words; const int32_t *esc;
+} vmodel_t;
+
+/* one step of 8 lanes: neighbours given; updates X, POS, EPOS; returns the buffer values */
+INLINE SIMD_FN __m512i vstep(const vmodel_t *m, __m512i W, __m512i WW, __m512i N, __m512i NW, __m512i NE, __m512i NE2, __m512i NW2,
+                 __m512i NN, __m512i NNW, __m512i NNE, __m512i NNW2, __m512i NNE2, __m512i UV,
+                 __m512i *Xp, __m512i *POSp, __m512i *EPOSp)
+{
+    const __m512i one = m->one, m16 = m->m16;
+    __m512i act = _mm512_add_epi64(
+        _mm512_add_epi64(_mm512_abs_epi64(_mm512_sub_epi64(W, NW)), _mm512_abs_epi64(_mm512_sub_epi64(N, NW))),
+        _mm512_add_epi64(_mm512_add_epi64(_mm512_abs_epi64(_mm512_sub_epi64(N, NE)), _mm512_abs_epi64(_mm512_sub_epi64(W, WW))),
+                         _mm512_abs_epi64(_mm512_sub_epi64(N, NN))));
+    /* context: count of thresholds below act (masks as 0 / -1 vectors, summed in a tree) */
+    __m512i c01 = _mm512_add_epi64(_mm512_movm_epi64(_mm512_cmpgt_epi64_mask(act, m->T[0])),
+                                   _mm512_movm_epi64(_mm512_cmpgt_epi64_mask(act, m->T[1])));
+    __m512i c23 = _mm512_add_epi64(_mm512_movm_epi64(_mm512_cmpgt_epi64_mask(act, m->T[2])),
+                                   _mm512_movm_epi64(_mm512_cmpgt_epi64_mask(act, m->T[3])));
+    __m512i c45 = _mm512_add_epi64(_mm512_movm_epi64(_mm512_cmpgt_epi64_mask(act, m->T[4])),
+                                   _mm512_movm_epi64(_mm512_cmpgt_epi64_mask(act, m->T[5])));
+    __m512i c6 = _mm512_movm_epi64(_mm512_cmpgt_epi64_mask(act, m->T[6]));
+    __m512i C = _mm512_sub_epi64(_mm512_setzero_si512(), _mm512_add_epi64(_mm512_add_epi64(c01, c23), _mm512_add_epi64(c45, c6)));
+#define K(k) _mm512_permutexvar_epi64(C, m->CT[k])
+#define MUL(a, b) _mm512_mullo_epi64(a, b)
+    __m512i acc = _mm512_add_epi64(
+        _mm512_add_epi64(_mm512_add_epi64(MUL(K(0), N), MUL(K(1), NW)), _mm512_add_epi64(MUL(K(2), NE), MUL(K(3), WW))),
+        _mm512_add_epi64(_mm512_add_epi64(MUL(K(4), NN), MUL(K(5), NW2)), _mm512_add_epi64(MUL(K(6), NNW), MUL(K(7), NNE))));
+    acc = _mm512_add_epi64(acc, _mm512_add_epi64(_mm512_add_epi64(MUL(K(8), NE2), MUL(K(9), NNW2)),
+                                                 _mm512_sub_epi64(MUL(K(10), NNE2), MUL(K(11), W))));
+    __m512i mh = _mm512_add_epi64(_mm512_add_epi64(W, _mm512_srai_epi64(acc, 12)),
+                                  _mm512_add_epi64(_mm512_add_epi64(K(12), UV), m->halfv));
+#undef K
+#undef MUL
+    __m512i sh = _mm512_srai_epi64(mh, 16);
+    __m512i fr = _mm512_and_si512(mh, m16);
+    __m512i f = _mm512_sub_epi64(one, _mm512_srli_epi64(fr, 15));
+    __m512i nf = _mm512_sub_epi64(_mm512_setzero_si512(), f);
+    __m512i ph = _mm512_srl_epi64(_mm512_and_si512(_mm512_srli_epi64(_mm512_xor_si512(fr, _mm512_and_si512(nf, m16)), 13), m->three),
+                                  _mm_cvtsi64_si128(m->pshift));
+    __m512i t = _mm512_add_epi64(_mm512_add_epi64(m->tab0, _mm512_sll_epi64(C, _mm_cvtsi64_si128(m->cshift))), ph);
+    __m512i X = *Xp;
+    __m512i slot = _mm512_and_si512(X, m->pmask);
+    __m512i li = _mm512_add_epi64(_mm512_slli_epi64(t, PROB_BITS), slot);
+    __m512i s;
+    if (m->lut16)
+        s = _mm512_srai_epi64(_mm512_slli_epi64(_mm512_cvtepu32_epi64(_mm512_i64gather_epi32(li, m->lut, 2)), 48), 48);
+    else
+        s = _mm512_and_si512(_mm512_cvtepu32_epi64(_mm512_i64gather_epi32(li, m->lut, 1)), _mm512_set1_epi64(0xFF));
+    __m512i fi = _mm512_add_epi64(_mm512_mul_epu32(t, m->alpha), s);
+    __m512i fc = _mm512_cvtepu32_epi64(_mm512_i64gather_epi32(fi, m->fcum, 4));
+    X = _mm512_add_epi64(_mm512_mul_epu32(_mm512_srli_epi64(fc, 16), _mm512_srli_epi64(X, PROB_BITS)),
+                         _mm512_sub_epi64(slot, _mm512_and_si512(fc, m16)));
+    __mmask8 need = _mm512_cmplt_epu64_mask(X, _mm512_set1_epi64(RANS_L));
+    __m512i wd = _mm512_and_si512(_mm512_cvtepu32_epi64(_mm512_i64gather_epi32(*POSp, m->words, 2)), m16);
+    *Xp = _mm512_mask_mov_epi64(X, need, _mm512_or_si512(_mm512_slli_epi64(X, 16), wd));
+    *POSp = _mm512_mask_sub_epi64(*POSp, need, *POSp, one);
+    __mmask8 isesc = _mm512_cmpeq_epi64_mask(s, m->escsym);
+    __m512i ev = _mm512_cvtepi32_epi64(_mm512_i64gather_epi32(*EPOSp, m->esc, 4));
+    __m512i r = _mm512_mask_mov_epi64(_mm512_sub_epi64(s, m->amaxv), isesc, ev);
+    *EPOSp = _mm512_mask_add_epi64(*EPOSp, isesc, *EPOSp, one);
+    __m512i v = _mm512_add_epi64(sh, _mm512_add_epi64(_mm512_xor_si512(r, nf), f));
+    return _mm512_sub_epi64(_mm512_slli_epi64(v, 16), UV);
+}
+
+SIMD_FN static void vmodel_init(vmodel_t *vm, const model_t *m)
+{
+    for (int k = 0; k < 7; k++) vm->T[k] = _mm512_set1_epi64(m->thr[k]);
+    for (int k = 0; k < 13; k++) {
+        i64 tmp[8] = {0};
+        for (int c = 0; c < 8; c++) tmp[c] = m->coef[c * 13 + k];   /* caller pads coef to 8 contexts */
+        vm->CT[k] = _mm512_loadu_si512(tmp);
+    }
+    vm->tab0 = _mm512_set1_epi64(m->tab0);
+    vm->escsym = _mm512_set1_epi64(2 * m->amax + 1);
+    vm->amaxv = _mm512_set1_epi64(m->amax);
+    vm->alpha = _mm512_set1_epi64(m->alpha);
+    vm->pmask = _mm512_set1_epi64((1 << PROB_BITS) - 1);
+    vm->one = _mm512_set1_epi64(1);
+    vm->m16 = _mm512_set1_epi64(0xFFFF);
+    vm->halfv = _mm512_set1_epi64(1 << 15);
+    vm->three = _mm512_set1_epi64(3);
+    vm->pshift = m->pshift;
+    vm->cshift = 2 - m->pshift;   /* c * (4 >> pshift), pshift 0 or 2 */
+    vm->lut = m->lut; vm->lut16 = m->lut16; vm->fcum = m->fcum; vm->words = m->words; vm->esc = m->esc;
+}
+
+/* steady part of a group of NV x 8 rows: xs_ = 3 (8 NV - 1) + 1 .. w - 2, lane j at x = xs_ - 3 j of row y0 + j */
+INLINE SIMD_FN int steady(const int NV, i64 *pf, i64 y0, i64 w, const int32_t *u, const model_t *m, u64 *xs, i64 *pos,
+              const i64 *pmin, i64 *epos, const i64 *eend)
+{
+    const i64 ws = w + 4;
+    const i64 b0 = (y0 + 2) * ws + 2;
+    const i64 xs0 = 3 * (8 * NV - 1) + 1;
+    const __m512i lane = _mm512_set_epi64(7, 6, 5, 4, 3, 2, 1, 0);
+    const __m512i vidx = _mm512_mullo_epi64(lane, _mm512_set1_epi64(ws - 3));   /* buffer offset of lane j */
+    const __m512i uidx = _mm512_mullo_epi64(lane, _mm512_set1_epi64(w - 3));    /* dither offset of lane j */
+    vmodel_t vm;
+    vmodel_init(&vm, m);
+    __m512i X[2], POS[2], EPOS[2], H[2][9], G[9];
+    for (int v = 0; v < NV; v++) {
+        X[v] = _mm512_loadu_si512(xs + 8 * v);
+        POS[v] = _mm512_loadu_si512(pos + 8 * v);
+        EPOS[v] = _mm512_loadu_si512(epos + 8 * v);
+        const i64 *base = pf + b0 + 8 * v * (ws - 3) + xs0;
+        for (int k = 1; k <= 8; k++) H[v][k] = _mm512_i64gather_epi64(vidx, base - k, 8);
+    }
+    const i64 *R0 = pf + y0 * ws + 2;         /* two rows above lane 0 (image row y0 - 2) */
+    const i64 *R1 = pf + (y0 + 1) * ws + 2;   /* row above lane 0 (image row y0 - 1) */
+    /* G[k]: lane 6 = R0[x + 6 - k], lane 7 = R1[x + 3 - k] (the rows above lane 0 as two more lanes' histories) */
+#define GV(x) _mm512_mask_mov_epi64(_mm512_set1_epi64(R0[(x) + 6]), 0x80, _mm512_set1_epi64(R1[(x) + 3]))
+    for (int k = 1; k <= 8; k++) G[k] = GV(xs0 - k);
+    for (i64 x0 = xs0; x0 <= w - 2; x0++) {
+        __m512i pv[2];
+        for (int v = 0; v < NV; v++) {
+            const __m512i *A = v ? H[v - 1] : G;    /* the history of the lanes above this vector's lane 0 */
+            const __m512i *B = H[v];
+            __m512i N = _mm512_alignr_epi64(B[3], A[3], 7);
+            __m512i NW = _mm512_alignr_epi64(B[4], A[4], 7);
+            __m512i NE = _mm512_alignr_epi64(B[2], A[2], 7);
+            __m512i NE2 = _mm512_alignr_epi64(B[1], A[1], 7);
+            __m512i NW2 = _mm512_alignr_epi64(B[5], A[5], 7);
+            __m512i NN = _mm512_alignr_epi64(B[6], A[6], 6);
+            __m512i NNW = _mm512_alignr_epi64(B[7], A[7], 6);
+            __m512i NNE = _mm512_alignr_epi64(B[5], A[5], 6);
+            __m512i NNW2 = _mm512_alignr_epi64(B[8], A[8], 6);
+            __m512i NNE2 = _mm512_alignr_epi64(B[4], A[4], 6);
+            __m512i UV = _mm512_cvtepi32_epi64(_mm512_i64gather_epi32(uidx, u + (y0 + 8 * v) * w + x0 - 24 * v, 4));
+            pv[v] = vstep(&vm, B[1], B[2], N, NW, NE, NE2, NW2, NN, NNW, NNE, NNW2, NNE2, UV, &X[v], &POS[v], &EPOS[v]);
+        }
+        for (int v = 0; v < NV; v++) {
+            _mm512_i64scatter_epi64(pf + b0 + 8 * v * (ws - 3) + x0, vidx, pv[v], 8);
+            for (int k = 8; k > 1; k--) H[v][k] = H[v][k - 1];
+            H[v][1] = pv[v];
+        }
+        for (int k = 8; k > 1; k--) G[k] = G[k - 1];
+        G[1] = GV(x0 + 1 - 1);
+    }
+#undef GV
+    for (int v = 0; v < NV; v++) {
+        i64 q[8], e[8];
+        _mm512_storeu_si512(q, POS[v]);
+        _mm512_storeu_si512(e, EPOS[v]);
+        for (int j = 0; j < 8; j++)
+            if (q[j] < pmin[8 * v + j] || e[j] > eend[8 * v + j]) return 0;
+    }
+    for (int v = 0; v < NV; v++) {
+        _mm512_storeu_si512(xs + 8 * v, X[v]);
+        _mm512_storeu_si512(pos + 8 * v, POS[v]);
+        _mm512_storeu_si512(epos + 8 * v, EPOS[v]);
+    }
+    return 1;
+}
+
+SIMD_FN static int steady8(i64 *pf, i64 y0, i64 w, const int32_t *u, const model_t *m, u64 *xs, i64 *pos, const i64 *pmin,
+                   i64 *epos, const i64 *eend)
+{ return steady(1, pf, y0, w, u, m, xs, pos, pmin, epos, eend); }
+SIMD_FN static int steady16(i64 *pf, i64 y0, i64 w, const int32_t *u, const model_t *m, u64 *xs, i64 *pos, const i64 *pmin,
+                    i64 *epos, const i64 *eend)
+{ return steady(2, pf, y0, w, u, m, xs, pos, pmin, epos, eend); }
+
+#endif
+
+/* the general path of a row group's column step xsw (lanes outside the steady part) */
+INLINE int general_step(const int lut16, i64 *restrict pf, i64 xsw, i64 y0, i64 nr,
+    i64 w, const int32_t *restrict u, const model_t *m, u64 *restrict xs, i64 *restrict pos, const i64 *restrict pmin,
+    i64 *restrict epos, const i64 *restrict eend)
+{
+    const i64 ws = w + 4;
+    for (i64 j = 0; j < nr; j++) {
+        i64 x0 = xsw - 3 * j;
+        if (x0 < 0 || x0 >= w) continue;
+        i64 y = y0 + j, yy = y + 2;
+        if (x0 == 0 && y > 0) {
+            pf[yy * ws] = pf[(yy - 1) * ws + 2];
+            pf[yy * ws + 1] = pf[(yy - 1) * ws + 2];
+        }
+        u64 x = xs[j]; i64 ps = pos[j], ep = epos[j];
+        pixel(pf, yy * ws + x0 + 2, ws, (i64)u[y * w + x0], m->thr, m->coef, m->tab0, m->pshift, m->lut, lut16,
+              m->fcum, m->alpha, m->amax, m->words, m->esc, &x, &ps, &ep);
+        if (!(ps >= pmin[j] && ep <= eend[j])) return 0;
+        xs[j] = x; pos[j] = ps; epos[j] = ep;
+        if (x0 == w - 1) {
+            pf[yy * ws + w + 2] = pf[yy * ws + w + 1];
+            pf[yy * ws + w + 3] = pf[yy * ws + w + 1];
+        }
+    }
+    return 1;
+}
+
+/* The encoder's residual pass (metraw.codec.predictive._residuals) for one plane, 8 pixels of a row per vector: every
+ * neighbour is known to the encoder, so rows run without a sequential dependence. pf: the padded buffer (h + 2) x
+ * (w + 4); thr: nthr activity thresholds (nthr <= 7); coef13: per context the 11 coefficients, their sum, the bias
+ * (8 contexts, unused ones zero); residuals and table indices (int32) to r_out / t_out at [off, off + h w).
+ * Returns max |r|. */
+#if METRAW_X86
+SIMD_FN static i64 residuals_avx512(const i64 *pf, i64 h, i64 w, const i64 *thr, i64 nthr, const i64 *coef13, i64 tab0,
+                                    i64 pshift, int32_t *r_out, int32_t *t_out)
+{
+    const i64 ws = w + 4;
+    __m512i T[7], CT[13];
+    for (int k = 0; k < 7; k++) T[k] = _mm512_set1_epi64(k < nthr ? thr[k] : INT64_MAX);
+    for (int k = 0; k < 13; k++) {
+        i64 tmp[8];
+        for (int c = 0; c < 8; c++) tmp[c] = coef13[c * 13 + k];
+        CT[k] = _mm512_loadu_si512(tmp);
+    }
+    const __m512i one = _mm512_set1_epi64(1), m16 = _mm512_set1_epi64(0xFFFF), half = _mm512_set1_epi64(1 << 15);
+    const __m512i tab0v = _mm512_set1_epi64(tab0), three = _mm512_set1_epi64(3), r32767 = _mm512_set1_epi64(32767);
+    const __m128i psh = _mm_cvtsi64_si128(pshift), csh = _mm_cvtsi64_si128(2 - pshift);
+    __m512i rmax = _mm512_setzero_si512();
+    for (i64 y = 0; y < h; y++) {
+        const i64 *row = pf + (y + 2) * ws + 2;
+        for (i64 x = 0; x < w; x += 8) {
+            const __mmask8 mk = w - x >= 8 ? 0xFF : (__mmask8)((1u << (w - x)) - 1);
+            const i64 *b = row + x;
+#define LD(o) _mm512_maskz_loadu_epi64(mk, b + (o))
+            __m512i W = LD(-1), WW = LD(-2), P = LD(0);
+            __m512i N = LD(-ws), NW = LD(-ws - 1), NE = LD(-ws + 1), NW2 = LD(-ws - 2), NE2 = LD(-ws + 2);
+            __m512i NN = LD(-2 * ws), NNW = LD(-2 * ws - 1), NNE = LD(-2 * ws + 1), NNW2 = LD(-2 * ws - 2), NNE2 = LD(-2 * ws + 2);
+#undef LD
+            __m512i act = _mm512_add_epi64(
+                _mm512_add_epi64(_mm512_abs_epi64(_mm512_sub_epi64(W, NW)), _mm512_abs_epi64(_mm512_sub_epi64(N, NW))),
+                _mm512_add_epi64(_mm512_add_epi64(_mm512_abs_epi64(_mm512_sub_epi64(N, NE)), _mm512_abs_epi64(_mm512_sub_epi64(W, WW))),
+                                 _mm512_abs_epi64(_mm512_sub_epi64(N, NN))));
+            __m512i C = _mm512_setzero_si512();
+            for (int k = 0; k < 7; k++) C = _mm512_sub_epi64(C, _mm512_movm_epi64(_mm512_cmpgt_epi64_mask(act, T[k])));
+#define K(k) _mm512_permutexvar_epi64(C, CT[k])
+#define MUL(a, b) _mm512_mullo_epi64(a, b)
+            __m512i a = _mm512_add_epi64(
+                _mm512_add_epi64(_mm512_add_epi64(MUL(K(0), N), MUL(K(1), NW)), _mm512_add_epi64(MUL(K(2), NE), MUL(K(3), WW))),
+                _mm512_add_epi64(_mm512_add_epi64(MUL(K(4), NN), MUL(K(5), NW2)), _mm512_add_epi64(MUL(K(6), NNW), MUL(K(7), NNE))));
+            a = _mm512_add_epi64(a, _mm512_add_epi64(_mm512_add_epi64(MUL(K(8), NE2), MUL(K(9), NNW2)),
+                                                     _mm512_sub_epi64(MUL(K(10), NNE2), MUL(K(11), W))));
+            __m512i acc = _mm512_add_epi64(_mm512_add_epi64(W, _mm512_srai_epi64(a, 12)), K(12));
+#undef K
+#undef MUL
+            __m512i sv = _mm512_srai_epi64(_mm512_add_epi64(P, r32767), 16);
+            __m512i mh = _mm512_add_epi64(_mm512_add_epi64(acc, _mm512_sub_epi64(_mm512_slli_epi64(sv, 16), P)), half);
+            __m512i r = _mm512_sub_epi64(sv, _mm512_srai_epi64(mh, 16));
+            __m512i fr = _mm512_and_si512(mh, m16);
+            __m512i f = _mm512_sub_epi64(one, _mm512_srli_epi64(fr, 15));
+            __m512i nf = _mm512_sub_epi64(_mm512_setzero_si512(), f);
+            fr = _mm512_xor_si512(fr, _mm512_and_si512(nf, m16));
+            r = _mm512_add_epi64(_mm512_xor_si512(r, nf), f);
+            __m512i t = _mm512_add_epi64(_mm512_add_epi64(tab0v, _mm512_sll_epi64(C, csh)),
+                                         _mm512_srl_epi64(_mm512_and_si512(_mm512_srli_epi64(fr, 13), three), psh));
+            _mm512_mask_cvtepi64_storeu_epi32(r_out + y * w + x, mk, r);
+            _mm512_mask_cvtepi64_storeu_epi32(t_out + y * w + x, mk, t);
+            rmax = _mm512_mask_max_epi64(rmax, mk, rmax, _mm512_abs_epi64(r));
+        }
+    }
+    return _mm512_reduce_max_epi64(rmax);
+}
+#endif
+
+/* metraw.codec.predictive._residuals in AVX-512 (only where metraw_simd_available()); see residuals_avx512 */
+i64 metraw_residuals(const i64 *pf, i64 h, i64 w, const i64 *thr, i64 nthr, const i64 *coef13, i64 tab0, i64 pshift,
+                     int32_t *r_out, int32_t *t_out)
+{
+#if METRAW_X86
+    return residuals_avx512(pf, h, w, thr, nthr, coef13, tab0, pshift, r_out, t_out);
+#else
+    (void)pf; (void)h; (void)w; (void)thr; (void)nthr; (void)coef13; (void)tab0; (void)pshift; (void)r_out; (void)t_out;
+    return -1;
+#endif
+}
+
+/* 1 when this CPU runs the AVX-512 steady part (AVX-512 F and DQ), else 0 */
+int metraw_simd_available(void)
+{
+#if METRAW_X86
+    __builtin_cpu_init();
+    return __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512dq");
+#else
+    return 0;
+#endif
+}
+
+/* metraw.codec.decoder.decode_plane: p the (h + 2) x (w + 4) padded buffer, u the fixed-point dither (h x w),
+ * sym the symbols out (h x w); lut and words readable 4 bytes past their ends (gathers read 32 bits); simd 1: the
+ * AVX-512 steady part for groups of 8 or 16 lanes (only where metraw_simd_available()). Returns 1, or 0 when a lane
+ * ran past its words or escapes (corrupt stream). */
+int metraw_decode_plane(i64 *p, i64 h, i64 w, const int32_t *u, int32_t *sym, const i64 *thr7, const i64 *coef8x13,
+                   i64 tab0, i64 pshift, const void *lut, int lut16, const uint32_t *fcum, i64 alpha, i64 amax,
+                   const uint16_t *words, u64 *xs, i64 *pos, const i64 *pmin, const int32_t *esc, i64 *epos,
+                   const i64 *eend, i64 nl, int simd)
+{
+    model_t m = {thr7, coef8x13, tab0, pshift, alpha, amax, lut, lut16, fcum, words, esc};
+    const i64 ws = w + 4;
+    i64 *pf = p;
+    for (i64 y0 = 0; y0 < h; y0 += nl) {
+        i64 nr = nl < h - y0 ? nl : h - y0;
+        const i64 XS0 = 3 * (nl - 1) + 1;
+        int fast = simd && nr == nl && (nl == 8 || nl == 16) && w >= XS0 + 2;
+        for (i64 xsw = 0; xsw < w + 3 * (nr - 1); xsw++) {
+#if METRAW_X86
+            if (fast && xsw == XS0) {
+                if (!(nl == 8 ? steady8 : steady16)(pf, y0, w, u, &m, xs, pos, pmin, epos, eend)) return 0;
+            }
+#else
+            fast = 0;
+#endif
+            if (fast && xsw >= XS0 && xsw <= w - 2) continue;
+            if (!(lut16 ? general_step(1, pf, xsw, y0, nr, w, u, &m, xs, pos, pmin, epos, eend)
+                        : general_step(0, pf, xsw, y0, nr, w, u, &m, xs, pos, pmin, epos, eend))) return 0;
+        }
+    }
+    for (i64 y = 0; y < h; y++) {
+        const i64 *row = pf + (y + 2) * ws + 2;
+        const int32_t *uy = u + y * w;
+        int32_t *sy = sym + y * w;
+        for (i64 x = 0; x < w; x++) sy[x] = (int32_t)((row[x] + uy[x]) >> 16);
+    }
+    return 1;
+}

@@ -1,0 +1,92 @@
+"""The codec's per-pixel loops compiled from C (``_simd.c``, AVX-512), where they are built and run: the decoder's
+sequential loop (lanes in registers) and the encoder's residual pass (8 pixels of a row at a time).
+
+``pip install`` builds the extension ``metraw.codec._simd`` when a C compiler is present; the build is optional: without
+a compiler, on a CPU without AVX-512 (F and DQ), or with ``METRAW_NATIVE=0`` in the environment, ``LIB`` is None and
+the codec runs its numba loops (``decoder.decode_plane``, ``predictive._residuals``). Both run the same integer
+arithmetic, so the streams and decoded values are the same (tests compare them); only the speed differs. The extension
+takes streams of ``LANE_COUNTS`` lanes (today's encoder writes 8); others take the numba loop.
+
+The C functions are called through ctypes (which releases the GIL, so tiles decode in parallel threads); they use no
+Python API. Arrays are passed by address: the caller keeps them alive, C-contiguous and of the documented dtypes.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import importlib.util
+import os
+
+import numpy as np
+
+#: Lane counts the compiled steady loop runs (8 lanes = one 512-bit register of int64, 16 = two).
+LANE_COUNTS = (8, 16)
+#: Bytes the compiled loop may read past the end of the symbol table and of the word array (32-bit gathers).
+READ_PAST_END_BYTES = 4
+
+
+def _load() -> ctypes.CDLL | None:
+    """The extension's library, or None (not built, not loadable, CPU without AVX-512, or METRAW_NATIVE=0)."""
+    if os.environ.get("METRAW_NATIVE", "1").strip() == "0":
+        return None
+    spec = importlib.util.find_spec("metraw.codec._simd")
+    if spec is None or not spec.origin or not os.path.isfile(spec.origin):
+        return None
+    try:
+        lib = ctypes.CDLL(spec.origin)
+    except OSError:
+        return None
+    p, i64, c_int = ctypes.c_void_p, ctypes.c_int64, ctypes.c_int
+    lib.metraw_simd_available.argtypes = []
+    lib.metraw_simd_available.restype = c_int
+    lib.metraw_decode_plane.argtypes = [p, i64, i64, p, p, p, p, i64, i64, p, c_int, p, i64, i64, p, p, p, p, p, p, p,
+                                        i64, c_int]
+    lib.metraw_decode_plane.restype = c_int
+    lib.metraw_residuals.argtypes = [p, i64, i64, p, i64, p, i64, i64, p, p]
+    lib.metraw_residuals.restype = i64
+    return lib if lib.metraw_simd_available() else None
+
+
+LIB = _load()
+
+
+def _addr(a: np.ndarray, dtype) -> int:
+    if a.dtype != dtype or not a.flags.c_contiguous:
+        raise TypeError(f"native decoder: expected a C-contiguous {np.dtype(dtype)} array, got {a.dtype}")
+    return a.ctypes.data
+
+
+def decode_plane(p, u, sym, thr7, coef13, tab0, pshift, lut, fcum, amax, words, xs, pos, pmin, esc, epos, eend) -> bool:
+    """``decoder.decode_plane`` (same arguments but ``ctab``, same results) in the compiled loop; ``LIB`` must be
+    loaded and ``xs.size`` in ``LANE_COUNTS``. ``lut`` and ``words`` must be readable ``READ_PAST_END_BYTES`` past
+    their ends (``decoder`` allocates them so); ``coef13`` holds 13 values per context (padded here to 8 contexts)."""
+    h, w = p.shape[0] - 2, p.shape[1] - 4
+    coef = np.zeros(8 * 13, np.int64)
+    coef[:coef13.size] = coef13
+    lut16 = lut.dtype == np.int16
+    ok = LIB.metraw_decode_plane(
+        _addr(p, np.int64), h, w, _addr(u, np.int32), _addr(sym, np.int32), _addr(thr7, np.int64), _addr(coef, np.int64),
+        int(tab0), int(pshift), _addr(lut, np.int16 if lut16 else np.uint8), int(lut16), _addr(fcum, np.uint32),
+        fcum.shape[1], int(amax), _addr(words, np.uint16), _addr(xs, np.uint64), _addr(pos, np.int64),
+        _addr(pmin, np.int64), _addr(esc, np.int32), _addr(epos, np.int64), _addr(eend, np.int64), xs.size, 1)
+    return bool(ok)
+
+
+def residuals(p, thr, coef, bias, tab0, pshift, r_out, t_out, off) -> int:
+    """``predictive._residuals`` (the encoder's residual pass over one plane, same results) in AVX-512, 8 pixels of a
+    row at a time: ``p`` the plane's padded buffer, ``thr`` its nact - 1 thresholds, ``coef`` (nact, 11) and ``bias``
+    (nact) its predictors; residuals and table indices go to ``r_out`` / ``t_out`` (int32) at ``off``. Returns
+    max |r|."""
+    h, w = p.shape[0] - 2, p.shape[1] - 4
+    nact = bias.size
+    coef13 = np.zeros((8, 13), np.int64)
+    c11 = np.asarray(coef, np.int64).reshape(nact, 11)
+    coef13[:nact, :11] = c11
+    coef13[:nact, 11] = c11.sum(1)
+    coef13[:nact, 12] = bias
+    if not (off >= 0 and off + h * w <= min(r_out.size, t_out.size) and thr.size == nact - 1 <= 7):
+        raise ValueError("native residuals: outputs too small or thresholds do not match the predictors")
+    thr = np.ascontiguousarray(thr, np.int64)
+    return int(LIB.metraw_residuals(_addr(p, np.int64), h, w, _addr(thr, np.int64), thr.size, _addr(coef13, np.int64),
+                                    int(tab0), int(pshift), _addr(r_out, np.int32) + 4 * off,
+                                    _addr(t_out, np.int32) + 4 * off))

@@ -1,0 +1,199 @@
+"""The compiled decoder loop (metraw.codec.native, C with AVX-512 lanes) against the numba loop: same values.
+
+Both loops decode the same streams; the compiled one takes streams of 8 or 16 lanes. The cases cover the steady
+part's edges (plane widths around the first steady column 3 (L - 1) + 1, heights that leave a short last group),
+Bayer and mono, steps 0.5 / 1 / 2, 8-bit and 16-bit symbol tables, escapes, and corrupt streams. Skipped where the
+extension is not built or the CPU has no AVX-512.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from metraw import codec
+from metraw.codec import native, predictive
+from metraw.errors import MetrawError
+from metraw.image import RawImage
+from metraw.profile import CalibrationProfile
+from metraw.sensor import expose, rng_from_seed
+
+needs_native = pytest.mark.skipif(native.LIB is None, reason="compiled codec loop not built or no AVX-512 on this CPU")
+
+PROF = CalibrationProfile(gain_dn_per_e=0.5, black_level_dn=100, read_noise_e=3, white_level_dn=16000, adc_bits=14)
+
+
+def _decode_both(blob, monkeypatch):
+    """(compiled, numba) decodes of ``blob``, and the symbol-table dtypes the compiled loop was given."""
+    seen = []
+    compiled_plane = native.decode_plane
+
+    def spy(*args):
+        seen.append(args[7].dtype)   # lut
+        return compiled_plane(*args)
+
+    with monkeypatch.context() as m:
+        m.setattr(native, "decode_plane", spy)
+        got = codec.decode(blob).data
+    with monkeypatch.context() as m:
+        m.setattr(native, "LIB", None)
+        ref = codec.decode(blob).data
+    return got, ref, seen
+
+
+def _image(h, w, pattern, electrons, seed):
+    prof = PROF.replace(cfa_pattern=pattern)
+    yy, xx = np.mgrid[0:h, 0:w]
+    mean = electrons * (0.6 + 0.4 * np.sin(xx / 9.0) * np.cos(yy / 7.0))
+    return RawImage(expose(mean, prof, rng_from_seed(seed)), prof)
+
+
+@needs_native
+@pytest.mark.parametrize("lanes", [8, 16])
+@pytest.mark.parametrize("pattern", ["RGGB", "mono"])
+def test_compiled_loop_decodes_what_the_numba_loop_decodes(lanes, pattern, monkeypatch):
+    monkeypatch.setattr(predictive, "LANES", lanes)
+    cell = 2 if pattern == "RGGB" else 1
+    first_steady = 3 * (lanes - 1) + 1
+    # plane widths: below, at and just past the steady part's first column; heights: full groups and a short one
+    widths = [first_steady, first_steady + 1, first_steady + 2, first_steady + 3, 301]
+    dtypes = []
+    for k, wp in enumerate(widths):
+        hp = max(-(-(1 << 16) // wp), 8 * lanes) + 3    # >= 2^16 pixels a plane: lanes, not a shared model
+        img = _image(hp * cell, wp * cell, pattern, (40.0, 20000.0)[k % 2], seed=k)
+        for step in (0.5, 1.0, 2.0):
+            blob = codec.encode(img, step=step, check_profile=False)
+            got, ref, seen = _decode_both(blob, monkeypatch)
+            np.testing.assert_array_equal(got, ref)
+            dtypes += seen
+    assert np.dtype(np.uint8) in dtypes   # the compiled loop ran (not the numba one twice), 8-bit tables
+
+
+def _lane_escapes(blob: bytes) -> int:
+    """Escapes a section's lanes hold (header: per lane u32 state, varint words, varint escapes)."""
+    from metraw.codec.container import get_varint
+
+    mv = memoryview(blob)
+    off, total = predictive._HEAD.size, 0
+    for _ in range(blob[4]):
+        _, off = get_varint(mv, off + 4)
+        n, off = get_varint(mv, off)
+        total += n
+    return total
+
+
+def _decode_planes_both(blob, us, monkeypatch):
+    """(compiled, numba) ``predictive.decode_planes`` of ``blob``."""
+    out = [predictive.decode_planes(blob, us)]
+    with monkeypatch.context() as m:
+        m.setattr(native, "LIB", None)
+        out.append(predictive.decode_planes(blob, us))
+    return out
+
+
+@needs_native
+@pytest.mark.parametrize("pattern", ["RGGB", "mono"])
+def test_compiled_residual_pass_writes_the_numba_encoders_bytes(pattern, monkeypatch):
+    """The encoder with the compiled residual pass and with numba's: the same stream, byte for byte (plane widths
+    that leave a partial last vector of 8, faint and bright, with escapes and 16-bit tables)."""
+    rng = np.random.default_rng(2)
+    cases = [_image(130, 2 * 77 + 2, pattern, 40.0, seed=1), _image(520, 526, pattern, 20000.0, seed=2)]
+    spiky = expose(np.full((520, 520), 2000.0), PROF, rng_from_seed(1))
+    spiky[rng.random(spiky.shape) < 0.01] = 15000
+    cases.append(RawImage(spiky, PROF.replace(cfa_pattern=pattern)))
+    for img, step in zip(cases, (1.0, 2.0, 0.5)):
+        compiled = codec.encode(img, step=step, check_profile=False)
+        with monkeypatch.context() as m:
+            m.setattr(native, "LIB", None)
+            assert codec.encode(img, step=step, check_profile=False) == compiled
+
+
+@needs_native
+def test_compiled_loop_handles_escapes_and_16_bit_tables(monkeypatch):
+    """Residuals beyond the alphabet (escapes, spread over the rows, so most fall in the steady part), rare large
+    residuals (16-bit symbol tables) and random high contrast, as in real frames."""
+    from metraw.codec import prepare
+
+    rng = np.random.default_rng(0)
+    shape = (300, 400)
+    u = prepare.dither(3, 0, shape[0] * shape[1]).reshape(shape)
+    s = np.rint(800 + rng.normal(0, 3, shape) + u).astype(np.int32)
+    s[rng.integers(0, shape[0], 200), rng.integers(0, shape[1], 200)] += 5000
+    blob = predictive.encode_planes([(s, u)])
+    assert _lane_escapes(blob) >= 150
+    got, ref = _decode_planes_both(blob, [u], monkeypatch)
+    np.testing.assert_array_equal(got[0], s)
+    np.testing.assert_array_equal(ref[0], s)
+
+    spiky = expose(np.full((600, 600), 2000.0), PROF, rng_from_seed(1))
+    spiky[rng.random(spiky.shape) < 0.01] = 15000
+    contrast = rng.integers(100, 16000, (600, 600)).astype(np.uint16)
+    dtypes = set()
+    for data in (spiky, contrast):
+        for step in (0.5, 2.0):
+            blob = codec.encode(RawImage(data, PROF), step=step, check_profile=False)
+            got, ref, seen = _decode_both(blob, monkeypatch)
+            np.testing.assert_array_equal(got, ref)
+            dtypes.update(seen)
+    assert np.dtype(np.int16) in dtypes   # alphabets past 256 symbols: the 16-bit gather
+
+
+@needs_native
+def test_compiled_loop_rejects_corrupt_streams_like_the_numba_loop(monkeypatch):
+    """Damaged coded words (a wrong stream with a right CRC, as from a buggy writer): both loops raise the same
+    clear error, or decode the same values where the damage goes unseen."""
+    from metraw.codec import prepare
+
+    rng = np.random.default_rng(7)
+    shape = (259, 257)
+    u = prepare.dither(3, 0, shape[0] * shape[1]).reshape(shape)
+    s = np.rint(200 + rng.normal(0, 2, shape) + u).astype(np.int32)
+    s[rng.integers(0, shape[0], 6), rng.integers(0, shape[1], 6)] += 5000  # escaped residuals
+    blob = predictive.encode_planes([(s, u)])
+    assert blob[4] == predictive.LANES == 8   # header: nplanes, nact, phase shift, shared, lanes, ...
+    errors = 0
+    for trial in range(12):
+        damaged = bytearray(blob)
+        for i in rng.integers(len(blob) // 3, len(blob), 1 + trial % 4):
+            damaged[i] ^= int(rng.integers(1, 256))
+        outcomes = []
+        for lib in (native.LIB, None):
+            with monkeypatch.context() as m:
+                m.setattr(native, "LIB", lib)
+                try:
+                    outcomes.append(predictive.decode_planes(bytes(damaged), [u])[0])
+                except MetrawError as exc:
+                    outcomes.append(str(exc))
+        if isinstance(outcomes[0], str):
+            assert outcomes[0] == outcomes[1]
+            errors += 1
+        else:
+            assert not isinstance(outcomes[1], str)
+            np.testing.assert_array_equal(outcomes[0], outcomes[1])
+    assert errors >= 6   # most damage is caught
+
+
+def test_environment_switches_the_compiled_loop_off():
+    """METRAW_NATIVE=0: the codec decodes with its numba loop (for comparisons and for a suspected fault)."""
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ, METRAW_NATIVE="0")
+    out = subprocess.run([sys.executable, "-c", "from metraw.codec import native; print(native.LIB)"], env=env,
+                         capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "None"
+
+
+def test_the_compiled_loops_are_built_where_a_compiler_and_avx512_are():
+    """An install on a machine with a C compiler and an AVX-512 CPU (as CI's) builds and loads the extension: a
+    broken build configuration would otherwise only show as a slower codec."""
+    import platform
+    import shutil
+    from pathlib import Path
+
+    cpuinfo = Path("/proc/cpuinfo")
+    flags = cpuinfo.read_text().split() if cpuinfo.exists() else []
+    if not (shutil.which("cc") and platform.machine() == "x86_64" and "avx512f" in flags and "avx512dq" in flags):
+        pytest.skip("no C compiler or no AVX-512 here: the numba loops are expected")
+    assert native.LIB is not None, "metraw.codec._simd was not built or not loaded (pip install -e . builds it)"
