@@ -352,6 +352,117 @@ i64 metraw_residuals(const i64 *pf, i64 h, i64 w, const i64 *thr, i64 nthr, cons
 #endif
 }
 
+/* The encoder's rANS pass (metraw.codec.predictive._rans_encode): lane j codes the symbols of rows lr[j] ..
+ * lr[j + 1] - 1 (row starts rs, lengths rl) backwards into its own stream, words to out[ls[j]:]. Symbol i pushes
+ * table entry j = tab[i] alpha + idx[i] (freq, cum, rcp = 1 / freq flat); x / f by the float64 reciprocal, exact for
+ * x < 2^32 (see the numba function; no fused multiply-add: built with -ffp-contract=off and explicit rounding). The
+ * lanes' streams are independent, so their order does not change the bytes: the symbols past the shortest lane's
+ * length go one lane at a time (scalar), the rest 8 lanes at a time in AVX-512. States to xs_out, word counts to
+ * nws_out (nl each). */
+INLINE void enc_symbol(const int32_t *idx, const int32_t *tab, i64 alpha, const i64 *freq, const i64 *cum,
+                       const double *rcp, uint16_t *out, i64 o, i64 *nw, u64 *xp, i64 i)
+{
+    u64 x = *xp;
+    i64 j = (i64)tab[i] * alpha + idx[i];
+    u64 f = (u64)freq[j];
+    u64 emit = x >= (f << (32 - PROB_BITS));
+    out[o + *nw] = (uint16_t)(x & 0xFFFF);
+    *nw += (i64)emit;
+    x >>= emit << 4;
+    double prod = (double)x * rcp[j];   /* -ffp-contract=off: no fused multiply-add */
+    u64 q = (u64)(prod + 1.52587890625e-05);
+    *xp = (q << PROB_BITS) + (x - q * f) + (u64)cum[j];
+}
+
+INLINE void enc_cursor(i64 *i, i64 *e, i64 *q, const i64 *rs, const i64 *rl, int more)
+{
+    if (*i > *e) { *i -= 1; return; }
+    if (more) { i64 r = *q - 1; *i = rs[r] + rl[r] - 1; *e = rs[r]; *q = r; }
+}
+
+#if METRAW_X86
+/* symbols k = lo - 1 .. 0 of lanes g .. g + 7 (every lane has them), the lanes side by side */
+SIMD_FN static void rans_lanes8(const int32_t *idx, const int32_t *tab, i64 alpha, const i64 *freq, const i64 *cum,
+                                const double *rcp, const i64 *rs, const i64 *rl, uint16_t *out, i64 lo, u64 *xs,
+                                i64 *nws, i64 *ci, i64 *ce, i64 *cq, const i64 *o)
+{
+    __m512i X = _mm512_loadu_si512(xs), NW = _mm512_loadu_si512(nws), I = _mm512_loadu_si512(ci);
+    __m512i E = _mm512_loadu_si512(ce), Q = _mm512_loadu_si512(cq), O = _mm512_loadu_si512(o);
+    const __m512i alphav = _mm512_set1_epi64(alpha), one = _mm512_set1_epi64(1), m16 = _mm512_set1_epi64(0xFFFF);
+    const __m512d eps = _mm512_set1_pd(1.52587890625e-05);
+    for (i64 k = lo - 1; k >= 0; k--) {
+        __m512i sym = _mm512_cvtepi32_epi64(_mm512_i64gather_epi32(I, idx, 4));
+        __m512i tb = _mm512_cvtepi32_epi64(_mm512_i64gather_epi32(I, tab, 4));
+        __m512i J = _mm512_add_epi64(_mm512_mul_epu32(tb, alphav), sym);
+        __m512i F = _mm512_i64gather_epi64(J, freq, 8);
+        __m512i C = _mm512_i64gather_epi64(J, cum, 8);
+        __m512d R = _mm512_i64gather_pd(J, rcp, 8);
+        __mmask8 emit = _mm512_cmpge_epu64_mask(X, _mm512_slli_epi64(F, 32 - PROB_BITS));
+        /* as the scalar coder, every lane writes its low word at its next slot whether it emits or not (no branch);
+         * a 32-bit scatter also writes the slot after it, which the lane has not reached: after k of its n symbols a
+         * lane holds <= 12 k / 16 + 2 words (<= 12 bits a symbol, 16 a word), so the slot after next is inside its own
+         * region for n >= 16, and the caller's array has one word past the last lane's */
+        _mm512_i64scatter_epi32(out, _mm512_add_epi64(O, NW), _mm512_cvtepi64_epi32(_mm512_and_si512(X, m16)), 2);
+        NW = _mm512_mask_add_epi64(NW, emit, NW, one);
+        X = _mm512_mask_srli_epi64(X, emit, X, 16);
+        __m512d prod = _mm512_mul_round_pd(_mm512_cvtepu64_pd(X), R, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
+        __m512i q = _mm512_cvttpd_epu64(_mm512_add_round_pd(prod, eps, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC));
+        X = _mm512_add_epi64(_mm512_add_epi64(_mm512_slli_epi64(q, PROB_BITS), _mm512_sub_epi64(X, _mm512_mul_epu32(q, F))), C);
+        if (k > 0) {
+            __mmask8 inrow = _mm512_cmpgt_epi64_mask(I, E);
+            __mmask8 next = (__mmask8)~inrow;
+            I = _mm512_mask_sub_epi64(I, inrow, I, one);
+            if (next) {
+                __m512i r = _mm512_sub_epi64(Q, one);
+                __m512i st = _mm512_mask_i64gather_epi64(E, next, r, rs, 8);
+                __m512i ln = _mm512_mask_i64gather_epi64(one, next, r, rl, 8);
+                I = _mm512_mask_mov_epi64(I, next, _mm512_sub_epi64(_mm512_add_epi64(st, ln), one));
+                E = _mm512_mask_mov_epi64(E, next, st);
+                Q = _mm512_mask_mov_epi64(Q, next, r);
+            }
+        }
+    }
+    _mm512_storeu_si512(xs, X);
+    _mm512_storeu_si512(nws, NW);
+}
+#endif
+
+void metraw_rans_encode(const int32_t *idx, const int32_t *tab, i64 alpha, const i64 *freq, const i64 *cum,
+                        const double *rcp, const i64 *rs, const i64 *rl, const i64 *lr, const i64 *ls, i64 nl,
+                        uint16_t *out, u64 *xs, i64 *nws, int simd)
+{
+    i64 ci[16], ce[16], cq[16];
+    i64 longest = 0, shortest = -1;
+    for (i64 j = 0; j < nl; j++) {
+        xs[j] = RANS_L;
+        nws[j] = 0;
+        i64 n = ls[j + 1] - ls[j];
+        longest = n > longest ? n : longest;
+        shortest = shortest < 0 || n < shortest ? n : shortest;
+        i64 q = lr[j + 1] - 1;
+        cq[j] = q;
+        ci[j] = ce[j] = 0;
+        if (q >= lr[j]) { ci[j] = rs[q] + rl[q] - 1; ce[j] = rs[q]; }
+    }
+    i64 lo = 0;
+#if METRAW_X86
+    if (simd && nl % 8 == 0 && shortest >= 16) lo = shortest;   /* >= 16 symbols: the scatter stays in the lane */
+#else
+    (void)simd;
+#endif
+    for (i64 k = longest - 1; k >= lo; k--) {
+        for (i64 j = 0; j < nl; j++) {
+            if (k >= ls[j + 1] - ls[j]) continue;
+            enc_symbol(idx, tab, alpha, freq, cum, rcp, out, ls[j], &nws[j], &xs[j], ci[j]);
+            enc_cursor(&ci[j], &ce[j], &cq[j], rs, rl, k > 0);
+        }
+    }
+#if METRAW_X86
+    for (i64 g = 0; g < nl && lo > 0; g += 8)
+        rans_lanes8(idx, tab, alpha, freq, cum, rcp, rs, rl, out, lo, xs + g, nws + g, ci + g, ce + g, cq + g, ls + g);
+#endif
+}
+
 /* 1 when this CPU runs the AVX-512 steady part (AVX-512 F and DQ), else 0 */
 int metraw_simd_available(void)
 {

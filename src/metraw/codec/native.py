@@ -1,9 +1,10 @@
 """The codec's per-pixel loops compiled from C (``_simd.c``, AVX-512), where they are built and run: the decoder's
-sequential loop (lanes in registers) and the encoder's residual pass (8 pixels of a row at a time).
+sequential loop (lanes in registers), the encoder's residual pass (8 pixels of a row at a time) and its rANS pass
+(8 lanes at a time).
 
 ``pip install`` builds the extension ``metraw.codec._simd`` when a C compiler is present; the build is optional: without
 a compiler, on a CPU without AVX-512 (F and DQ), or with ``METRAW_NATIVE=0`` in the environment, ``LIB`` is None and
-the codec runs its numba loops (``decoder.decode_plane``, ``predictive._residuals``). Both run the same integer
+the codec runs its numba loops (``decoder.decode_plane``, ``predictive._residuals``, ``predictive._rans_encode``). Both run the same integer
 arithmetic, so the streams and decoded values are the same (tests compare them); only the speed differs. The extension
 takes streams of ``LANE_COUNTS`` lanes (today's encoder writes 8); others take the numba loop.
 
@@ -44,6 +45,8 @@ def _load() -> ctypes.CDLL | None:
     lib.metraw_decode_plane.restype = c_int
     lib.metraw_residuals.argtypes = [p, i64, i64, p, i64, p, i64, i64, p, p]
     lib.metraw_residuals.restype = i64
+    lib.metraw_rans_encode.argtypes = [p, p, i64, p, p, p, p, p, p, p, i64, p, p, p, c_int]
+    lib.metraw_rans_encode.restype = None
     return lib if lib.metraw_simd_available() else None
 
 
@@ -90,3 +93,21 @@ def residuals(p, thr, coef, bias, tab0, pshift, r_out, t_out, off) -> int:
     return int(LIB.metraw_residuals(_addr(p, np.int64), h, w, _addr(thr, np.int64), thr.size, _addr(coef13, np.int64),
                                     int(tab0), int(pshift), _addr(r_out, np.int32) + 4 * off,
                                     _addr(t_out, np.int32) + 4 * off))
+
+
+def rans_encode(idx, tab, freq, cum, rcp, rs, rl, lr, ls, out):
+    """``predictive._rans_encode`` (the same states, word counts and words in ``out``) with 8 lanes at a time in
+    AVX-512: ``idx``, ``tab`` int32 per symbol; ``freq``, ``cum`` int64 and ``rcp`` float64, tables x alphabet;
+    ``rs``, ``rl``, ``lr``, ``ls`` the lanes' rows (``predictive._lane_rows``, int64); ``out`` uint16, one word per
+    symbol and one more (the 32-bit scatter writes a word past a lane's next). Returns (states uint64, word counts
+    int64), one per lane."""
+    nl = lr.size - 1
+    if not (1 <= nl <= 16 and out.size >= idx.size + 1 and tab.size == idx.size):
+        raise ValueError("native rANS: 1-16 lanes and one output word per symbol, plus one, are needed")
+    xs = np.empty(nl, np.uint64)
+    nws = np.empty(nl, np.int64)
+    LIB.metraw_rans_encode(_addr(idx, np.int32), _addr(tab, np.int32), freq.shape[1], _addr(freq, np.int64),
+                           _addr(cum, np.int64), _addr(rcp, np.float64), _addr(rs, np.int64), _addr(rl, np.int64),
+                           _addr(lr, np.int64), _addr(ls, np.int64), nl, _addr(out, np.uint16), _addr(xs, np.uint64),
+                           _addr(nws, np.int64), 1)
+    return xs, nws

@@ -521,14 +521,29 @@ def _model_plane(s, u, nact, stride):
     return front, c0, thr, coef, bias
 
 
-@nb.njit(cache=True, nogil=True)
 def _code_section(r, t, amax, ntab, shared, hs, ws, nl):
     """Entropy-code the residuals ``r`` with table indices ``t`` (planes concatenated row-major,
-    shapes ``hs`` x ``ws``) in ``nl`` rANS lanes, in one compiled call. Shared sections code with
-    8-bit tables (frequencies / 16, ``_normalise``d again; both sides use the same integers).
+    shapes ``hs`` x ``ws``) in ``nl`` rANS lanes, in three compiled calls (each without the GIL): the
+    tables, the rANS pass (C where ``metraw.codec.native`` is built and nl is a multiple of 8, else
+    numba; the same words), the escapes and stored tables. Shared sections code with 8-bit tables
+    (frequencies / 16, ``_normalise``d again; both sides use the same integers).
 
     Returns (idx, coding freq, table bytes, bytes per table, lane states, lane word counts, words,
     word starts per lane, escape values, escapes per lane)."""
+    idx, freq, stored, cum, rcp, rs, rl, lr, starts = _section_tables(r, t, amax, ntab, shared, hs, ws, nl)
+    out = np.empty(r.size + 1, np.uint16)   # one word per symbol, and one the compiled pass may write past the last
+    if native.LIB is not None and nl % 8 == 0:
+        states, nws = native.rans_encode(idx, t, freq, cum, rcp, rs, rl, lr, starts, out)
+    else:
+        states, nws = _rans_encode(idx, t, freq, cum, rcp, rs, rl, lr, starts, out)
+    esc_vals, esc_cnt, tab_bytes, tab_len = _section_escapes_and_tables(r, idx, stored, rs, rl, lr, amax, shared)
+    return idx, freq, tab_bytes, tab_len, states, nws, out, starts, esc_vals, esc_cnt
+
+
+@nb.njit(cache=True, nogil=True)
+def _section_tables(r, t, amax, ntab, shared, hs, ws, nl):
+    """``_code_section``'s first part: alphabet indices, coding and stored frequencies, cumulative
+    frequencies and reciprocals (the rANS tables), and the lanes' rows (``_lane_rows``)."""
     idx, counts = _index(r, t, amax, ntab)
     freq = _normalise(counts)
     stored = freq
@@ -549,9 +564,15 @@ def _code_section(r, t, amax, ntab, shared, hs, ws, nl):
             acc += freq[i, j]
             rcp[i, j] = 1.0 / max(freq[i, j], 1)
     rs, rl, lr, starts = _lane_rows(hs, ws, nl)
-    out = np.empty(max(r.size, 1), np.uint16)
-    states, nws = _rans_encode(idx, t, freq, cum, rcp, rs, rl, lr, starts, out)
+    return idx, freq, stored, cum, rcp, rs, rl, lr, starts
+
+
+@nb.njit(cache=True, nogil=True)
+def _section_escapes_and_tables(r, idx, stored, rs, rl, lr, amax, shared):
+    """``_code_section``'s last part: the escaped residuals lane by lane, and the stored tables' bytes
+    (8-bit entries where the section shares one model)."""
     esc_vals, esc_cnt = _lane_escapes(r, idx, rs, rl, lr, 2 * amax + 1)
+    ntab_, alpha = stored.shape
     # tables: u16 first, u16 span, then the used range (u8 or u16 little endian); unused: span 0
     width = 1 if shared else 2
     tab_bytes = np.zeros(ntab_ * (4 + width * alpha), np.uint8)
@@ -580,7 +601,7 @@ def _code_section(r, t, amax, ntab, shared, hs, ws, nl):
                 tab_bytes[n + 1] = v >> 8
             n += width
         tab_len[i] = n - start
-    return idx, freq, tab_bytes[:n], tab_len, states, nws, out, starts, esc_vals, esc_cnt
+    return esc_vals, esc_cnt, tab_bytes[:n], tab_len
 
 
 def encode_planes(planes: list[tuple[np.ndarray, np.ndarray]], account: list | None = None) -> bytes:
