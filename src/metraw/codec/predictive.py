@@ -187,24 +187,24 @@ def _normal_equations(p, thr, stride, ata, atb):
             xx = x0 + 2
             c = _ctx_of(_activity(p, yy, xx), thr)
             k = fill[c]
-            b = buf[c]
+            # buf[c, i, k], not a view buf[c] per sample: a view in the loop costs reference counting
             ref = r0[xx - 1]
-            b[0, k] = (r1[xx] - ref) * sc
-            b[1, k] = (r1[xx - 1] - ref) * sc
-            b[2, k] = (r1[xx + 1] - ref) * sc
-            b[3, k] = (r0[xx - 2] - ref) * sc
-            b[4, k] = (r2[xx] - ref) * sc
-            b[5, k] = (r1[xx - 2] - ref) * sc
-            b[6, k] = (r2[xx - 1] - ref) * sc
-            b[7, k] = (r2[xx + 1] - ref) * sc
-            b[8, k] = (r1[xx + 2] - ref) * sc
-            b[9, k] = (r2[xx - 2] - ref) * sc
-            b[10, k] = (r2[xx + 2] - ref) * sc
-            b[11, k] = 1.0
-            b[12, k] = (r0[xx] - ref) * sc
+            buf[c, 0, k] = (r1[xx] - ref) * sc
+            buf[c, 1, k] = (r1[xx - 1] - ref) * sc
+            buf[c, 2, k] = (r1[xx + 1] - ref) * sc
+            buf[c, 3, k] = (r0[xx - 2] - ref) * sc
+            buf[c, 4, k] = (r2[xx] - ref) * sc
+            buf[c, 5, k] = (r1[xx - 2] - ref) * sc
+            buf[c, 6, k] = (r2[xx - 1] - ref) * sc
+            buf[c, 7, k] = (r2[xx + 1] - ref) * sc
+            buf[c, 8, k] = (r1[xx + 2] - ref) * sc
+            buf[c, 9, k] = (r2[xx - 2] - ref) * sc
+            buf[c, 10, k] = (r2[xx + 2] - ref) * sc
+            buf[c, 11, k] = 1.0
+            buf[c, 12, k] = (r0[xx] - ref) * sc
             k += 1
             if k == LS_BLOCK:
-                _gram_add(b, k, ata[c], atb[c])
+                _gram_add(buf[c], k, ata[c], atb[c])
                 k = 0
             fill[c] = k
     for c in range(nact):
