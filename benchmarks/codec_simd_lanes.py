@@ -1,6 +1,7 @@
 """Issue #18: can the decoder's lanes run side by side in SIMD registers, compiled by numba?
 
-The decoder's steady loop (``metraw.codec.decoder.decode_plane``) runs 4 lanes (rows 3 pixels apart) as scalar code;
+The numba decoder's steady loop (``metraw.codec.decoder.decode_plane``) runs 4 lanes (rows 3 pixels apart) as scalar
+code;
 the record in ``benchmarks/codec.py`` leaves "lanes that SIMD can run side by side" as the route to a decoder that
 does less per pixel. Every lane's pixel needs indexed loads (its neighbours at a lane's own buffer offset, the
 context's coefficients, two rANS table entries, the next stream word), i.e. gather instructions once vectorised.
@@ -11,6 +12,11 @@ synthetic tables and buffer (the arithmetic does not depend on the values), and 
 instructions numba's LLVM emitted for it; then the same for the plainest indexed loop that stores,
 c[j] = a[b[j]] * 3 + b[j], and for one that only reads, s += a[b[j]] (numba passes arrays without ``noalias``: a
 store may alias any indexed load, the likely reason such loops stay scalar; a pure reduction has no store).
+
+Outcome (2026-11-28): numba did not; hand-written AVX-512 in C does. ``metraw.codec._simd`` (``src/metraw/codec/
+_simd.c``, an optional extension, loaded by ``metraw.codec.native``) runs the 8 lanes of a row group in one register,
+the neighbours as register histories shifted across lanes instead of gathers from the buffer; the decoder became
+~1.5x faster on one thread at the same values (``benchmarks/codec.py``'s record).
 
 Run: python benchmarks/codec_simd_lanes.py [--lanes 4,8,16]
 """

@@ -54,10 +54,12 @@ INLINE void pixel(i64 *restrict pf, i64 b, i64 ws, i64 uv, const i64 *restrict t
     i64 w_ = pf[b - 1], ww = pf[b - 2];
     i64 n_ = pf[b - ws], nw = pf[b - ws - 1], ne = pf[b - ws + 1], nn = pf[b - 2 * ws];
     i64 act = iabs64(w_ - nw) + iabs64(n_ - nw) + iabs64(n_ - ne) + iabs64(w_ - ww) + iabs64(n_ - nn);
-    i64 c = (act > t7[0]) + (act > t7[1]) + (act > t7[2]) + (act > t7[3]) + (act > t7[4]) + (act > t7[5]) + (act > t7[6]);
+    i64 c = (act > t7[0]) + (act > t7[1]) + (act > t7[2]) + (act > t7[3]) + (act > t7[4]) + (act > t7[5])
+          + (act > t7[6]);
     const i64 *k = coef + c * 13;
-    i64 acc = k[0] * n_ + k[1] * nw + k[2] * ne + k[3] * ww + k[4] * nn + k[5] * pf[b - ws - 2] + k[6] * pf[b - 2 * ws - 1]
-            + k[7] * pf[b - 2 * ws + 1] + k[8] * pf[b - ws + 2] + k[9] * pf[b - 2 * ws - 2] + k[10] * pf[b - 2 * ws + 2]
+    i64 acc = k[0] * n_ + k[1] * nw + k[2] * ne + k[3] * ww + k[4] * nn + k[5] * pf[b - ws - 2]
+            + k[6] * pf[b - 2 * ws - 1] + k[7] * pf[b - 2 * ws + 1] + k[8] * pf[b - ws + 2]
+            + k[9] * pf[b - 2 * ws - 2] + k[10] * pf[b - 2 * ws + 2]
             - k[11] * w_;
     i64 mh = w_ + (acc >> 12) + k[12] + uv + half;
     i64 sh = mh >> 16, fr = mh & 0xFFFF, f = 1 - (fr >> 15);
@@ -81,6 +83,36 @@ INLINE void pixel(i64 *restrict pf, i64 b, i64 ws, i64 uv, const i64 *restrict t
 }
 
 #if METRAW_X86
+/* the causal neighbours of 8 pixels (names as in decoder._pixel: N = the row above, NN two above, ...) */
+typedef struct { __m512i W, WW, N, NW, NE, NE2, NW2, NN, NNW, NNE, NNW2, NNE2; } vnbr_t;
+
+/* activity context (to *Cp) and prediction W + ((sum_i k_i n_i - W sum_i k_i) >> 12) + bias of 8 pixels; T: the 7
+ * thresholds, CT[k]: tap k's coefficient of each of the 8 contexts (vpermq picks a pixel's) */
+INLINE SIMD_FN __m512i vpredict(const __m512i *T, const __m512i *CT, const vnbr_t *n, __m512i *Cp)
+{
+#define ABSDIF(a, b) _mm512_abs_epi64(_mm512_sub_epi64(a, b))
+    __m512i act = _mm512_add_epi64(_mm512_add_epi64(ABSDIF(n->W, n->NW), ABSDIF(n->N, n->NW)),
+                                   _mm512_add_epi64(_mm512_add_epi64(ABSDIF(n->N, n->NE), ABSDIF(n->W, n->WW)),
+                                                    ABSDIF(n->N, n->NN)));
+#undef ABSDIF
+    /* context: count of thresholds below act (masks as 0 / -1 vectors, summed in a tree) */
+#define GT(k) _mm512_movm_epi64(_mm512_cmpgt_epi64_mask(act, T[k]))
+    __m512i c0123 = _mm512_add_epi64(_mm512_add_epi64(GT(0), GT(1)), _mm512_add_epi64(GT(2), GT(3)));
+    __m512i c456 = _mm512_add_epi64(_mm512_add_epi64(GT(4), GT(5)), GT(6));
+#undef GT
+    __m512i C = _mm512_sub_epi64(_mm512_setzero_si512(), _mm512_add_epi64(c0123, c456));
+    *Cp = C;
+#define KN(k, v) _mm512_mullo_epi64(_mm512_permutexvar_epi64(C, CT[k]), v)
+    __m512i a = _mm512_add_epi64(_mm512_add_epi64(_mm512_add_epi64(KN(0, n->N), KN(1, n->NW)),
+                                                  _mm512_add_epi64(KN(2, n->NE), KN(3, n->WW))),
+                                 _mm512_add_epi64(_mm512_add_epi64(KN(4, n->NN), KN(5, n->NW2)),
+                                                  _mm512_add_epi64(KN(6, n->NNW), KN(7, n->NNE))));
+    a = _mm512_add_epi64(a, _mm512_add_epi64(_mm512_add_epi64(KN(8, n->NE2), KN(9, n->NNW2)),
+                                             _mm512_sub_epi64(KN(10, n->NNE2), KN(11, n->W))));
+#undef KN
+    return _mm512_add_epi64(_mm512_add_epi64(n->W, _mm512_srai_epi64(a, 12)), _mm512_permutexvar_epi64(C, CT[12]));
+}
+
 typedef struct {
     __m512i T[7], CT[13], tab0, escsym, amaxv, alpha, pmask, one, m16, halfv, three;
     i64 cshift, pshift;
@@ -88,41 +120,19 @@ typedef struct {
     const uint32_t *fcum; const uint16_t *words; const int32_t *esc;
 } vmodel_t;
 
-/* one step of 8 lanes: neighbours given; updates X, POS, EPOS; returns the buffer values */
-INLINE SIMD_FN __m512i vstep(const vmodel_t *m, __m512i W, __m512i WW, __m512i N, __m512i NW, __m512i NE, __m512i NE2, __m512i NW2,
-                 __m512i NN, __m512i NNW, __m512i NNE, __m512i NNW2, __m512i NNE2, __m512i UV,
-                 __m512i *Xp, __m512i *POSp, __m512i *EPOSp)
+/* one step of 8 lanes: neighbours and dither given; updates X, POS, EPOS; returns the buffer values */
+INLINE SIMD_FN __m512i vstep(const vmodel_t *m, const vnbr_t *n, __m512i UV, __m512i *Xp, __m512i *POSp,
+                             __m512i *EPOSp)
 {
     const __m512i one = m->one, m16 = m->m16;
-    __m512i act = _mm512_add_epi64(
-        _mm512_add_epi64(_mm512_abs_epi64(_mm512_sub_epi64(W, NW)), _mm512_abs_epi64(_mm512_sub_epi64(N, NW))),
-        _mm512_add_epi64(_mm512_add_epi64(_mm512_abs_epi64(_mm512_sub_epi64(N, NE)), _mm512_abs_epi64(_mm512_sub_epi64(W, WW))),
-                         _mm512_abs_epi64(_mm512_sub_epi64(N, NN))));
-    /* context: count of thresholds below act (masks as 0 / -1 vectors, summed in a tree) */
-    __m512i c01 = _mm512_add_epi64(_mm512_movm_epi64(_mm512_cmpgt_epi64_mask(act, m->T[0])),
-                                   _mm512_movm_epi64(_mm512_cmpgt_epi64_mask(act, m->T[1])));
-    __m512i c23 = _mm512_add_epi64(_mm512_movm_epi64(_mm512_cmpgt_epi64_mask(act, m->T[2])),
-                                   _mm512_movm_epi64(_mm512_cmpgt_epi64_mask(act, m->T[3])));
-    __m512i c45 = _mm512_add_epi64(_mm512_movm_epi64(_mm512_cmpgt_epi64_mask(act, m->T[4])),
-                                   _mm512_movm_epi64(_mm512_cmpgt_epi64_mask(act, m->T[5])));
-    __m512i c6 = _mm512_movm_epi64(_mm512_cmpgt_epi64_mask(act, m->T[6]));
-    __m512i C = _mm512_sub_epi64(_mm512_setzero_si512(), _mm512_add_epi64(_mm512_add_epi64(c01, c23), _mm512_add_epi64(c45, c6)));
-#define K(k) _mm512_permutexvar_epi64(C, m->CT[k])
-#define MUL(a, b) _mm512_mullo_epi64(a, b)
-    __m512i acc = _mm512_add_epi64(
-        _mm512_add_epi64(_mm512_add_epi64(MUL(K(0), N), MUL(K(1), NW)), _mm512_add_epi64(MUL(K(2), NE), MUL(K(3), WW))),
-        _mm512_add_epi64(_mm512_add_epi64(MUL(K(4), NN), MUL(K(5), NW2)), _mm512_add_epi64(MUL(K(6), NNW), MUL(K(7), NNE))));
-    acc = _mm512_add_epi64(acc, _mm512_add_epi64(_mm512_add_epi64(MUL(K(8), NE2), MUL(K(9), NNW2)),
-                                                 _mm512_sub_epi64(MUL(K(10), NNE2), MUL(K(11), W))));
-    __m512i mh = _mm512_add_epi64(_mm512_add_epi64(W, _mm512_srai_epi64(acc, 12)),
-                                  _mm512_add_epi64(_mm512_add_epi64(K(12), UV), m->halfv));
-#undef K
-#undef MUL
+    __m512i C;
+    __m512i mh = _mm512_add_epi64(vpredict(m->T, m->CT, n, &C), _mm512_add_epi64(UV, m->halfv));
     __m512i sh = _mm512_srai_epi64(mh, 16);
     __m512i fr = _mm512_and_si512(mh, m16);
     __m512i f = _mm512_sub_epi64(one, _mm512_srli_epi64(fr, 15));
     __m512i nf = _mm512_sub_epi64(_mm512_setzero_si512(), f);
-    __m512i ph = _mm512_srl_epi64(_mm512_and_si512(_mm512_srli_epi64(_mm512_xor_si512(fr, _mm512_and_si512(nf, m16)), 13), m->three),
+    __m512i fold = _mm512_xor_si512(fr, _mm512_and_si512(nf, m16));
+    __m512i ph = _mm512_srl_epi64(_mm512_and_si512(_mm512_srli_epi64(fold, 13), m->three),
                                   _mm_cvtsi64_si128(m->pshift));
     __m512i t = _mm512_add_epi64(_mm512_add_epi64(m->tab0, _mm512_sll_epi64(C, _mm_cvtsi64_si128(m->cshift))), ph);
     __m512i X = *Xp;
@@ -201,18 +211,16 @@ INLINE SIMD_FN int steady(const int NV, i64 *pf, i64 y0, i64 w, const int32_t *u
         for (int v = 0; v < NV; v++) {
             const __m512i *A = v ? H[v - 1] : G;    /* the history of the lanes above this vector's lane 0 */
             const __m512i *B = H[v];
-            __m512i N = _mm512_alignr_epi64(B[3], A[3], 7);
-            __m512i NW = _mm512_alignr_epi64(B[4], A[4], 7);
-            __m512i NE = _mm512_alignr_epi64(B[2], A[2], 7);
-            __m512i NE2 = _mm512_alignr_epi64(B[1], A[1], 7);
-            __m512i NW2 = _mm512_alignr_epi64(B[5], A[5], 7);
-            __m512i NN = _mm512_alignr_epi64(B[6], A[6], 6);
-            __m512i NNW = _mm512_alignr_epi64(B[7], A[7], 6);
-            __m512i NNE = _mm512_alignr_epi64(B[5], A[5], 6);
-            __m512i NNW2 = _mm512_alignr_epi64(B[8], A[8], 6);
-            __m512i NNE2 = _mm512_alignr_epi64(B[4], A[4], 6);
+            vnbr_t n = {
+                .W = B[1], .WW = B[2],
+                .N = _mm512_alignr_epi64(B[3], A[3], 7), .NW = _mm512_alignr_epi64(B[4], A[4], 7),
+                .NE = _mm512_alignr_epi64(B[2], A[2], 7), .NE2 = _mm512_alignr_epi64(B[1], A[1], 7),
+                .NW2 = _mm512_alignr_epi64(B[5], A[5], 7),
+                .NN = _mm512_alignr_epi64(B[6], A[6], 6), .NNW = _mm512_alignr_epi64(B[7], A[7], 6),
+                .NNE = _mm512_alignr_epi64(B[5], A[5], 6), .NNW2 = _mm512_alignr_epi64(B[8], A[8], 6),
+                .NNE2 = _mm512_alignr_epi64(B[4], A[4], 6)};
             __m512i UV = _mm512_cvtepi32_epi64(_mm512_i64gather_epi32(uidx, u + (y0 + 8 * v) * w + x0 - 24 * v, 4));
-            pv[v] = vstep(&vm, B[1], B[2], N, NW, NE, NE2, NW2, NN, NNW, NNE, NNW2, NNE2, UV, &X[v], &POS[v], &EPOS[v]);
+            pv[v] = vstep(&vm, &n, UV, &X[v], &POS[v], &EPOS[v]);
         }
         for (int v = 0; v < NV; v++) {
             _mm512_i64scatter_epi64(pf + b0 + 8 * v * (ws - 3) + x0, vidx, pv[v], 8);
@@ -238,11 +246,11 @@ INLINE SIMD_FN int steady(const int NV, i64 *pf, i64 y0, i64 w, const int32_t *u
     return 1;
 }
 
-SIMD_FN static int steady8(i64 *pf, i64 y0, i64 w, const int32_t *u, const model_t *m, u64 *xs, i64 *pos, const i64 *pmin,
-                   i64 *epos, const i64 *eend)
+SIMD_FN static int steady8(i64 *pf, i64 y0, i64 w, const int32_t *u, const model_t *m, u64 *xs, i64 *pos,
+                           const i64 *pmin, i64 *epos, const i64 *eend)
 { return steady(1, pf, y0, w, u, m, xs, pos, pmin, epos, eend); }
-SIMD_FN static int steady16(i64 *pf, i64 y0, i64 w, const int32_t *u, const model_t *m, u64 *xs, i64 *pos, const i64 *pmin,
-                    i64 *epos, const i64 *eend)
+SIMD_FN static int steady16(i64 *pf, i64 y0, i64 w, const int32_t *u, const model_t *m, u64 *xs, i64 *pos,
+                            const i64 *pmin, i64 *epos, const i64 *eend)
 { return steady(2, pf, y0, w, u, m, xs, pos, pmin, epos, eend); }
 
 #endif
@@ -301,26 +309,13 @@ SIMD_FN static i64 residuals_avx512(const i64 *pf, i64 h, i64 w, const i64 *thr,
             const __mmask8 mk = w - x >= 8 ? 0xFF : (__mmask8)((1u << (w - x)) - 1);
             const i64 *b = row + x;
 #define LD(o) _mm512_maskz_loadu_epi64(mk, b + (o))
-            __m512i W = LD(-1), WW = LD(-2), P = LD(0);
-            __m512i N = LD(-ws), NW = LD(-ws - 1), NE = LD(-ws + 1), NW2 = LD(-ws - 2), NE2 = LD(-ws + 2);
-            __m512i NN = LD(-2 * ws), NNW = LD(-2 * ws - 1), NNE = LD(-2 * ws + 1), NNW2 = LD(-2 * ws - 2), NNE2 = LD(-2 * ws + 2);
+            vnbr_t n = {.W = LD(-1), .WW = LD(-2), .N = LD(-ws), .NW = LD(-ws - 1), .NE = LD(-ws + 1),
+                        .NE2 = LD(-ws + 2), .NW2 = LD(-ws - 2), .NN = LD(-2 * ws), .NNW = LD(-2 * ws - 1),
+                        .NNE = LD(-2 * ws + 1), .NNW2 = LD(-2 * ws - 2), .NNE2 = LD(-2 * ws + 2)};
+            __m512i P = LD(0);
 #undef LD
-            __m512i act = _mm512_add_epi64(
-                _mm512_add_epi64(_mm512_abs_epi64(_mm512_sub_epi64(W, NW)), _mm512_abs_epi64(_mm512_sub_epi64(N, NW))),
-                _mm512_add_epi64(_mm512_add_epi64(_mm512_abs_epi64(_mm512_sub_epi64(N, NE)), _mm512_abs_epi64(_mm512_sub_epi64(W, WW))),
-                                 _mm512_abs_epi64(_mm512_sub_epi64(N, NN))));
-            __m512i C = _mm512_setzero_si512();
-            for (int k = 0; k < 7; k++) C = _mm512_sub_epi64(C, _mm512_movm_epi64(_mm512_cmpgt_epi64_mask(act, T[k])));
-#define K(k) _mm512_permutexvar_epi64(C, CT[k])
-#define MUL(a, b) _mm512_mullo_epi64(a, b)
-            __m512i a = _mm512_add_epi64(
-                _mm512_add_epi64(_mm512_add_epi64(MUL(K(0), N), MUL(K(1), NW)), _mm512_add_epi64(MUL(K(2), NE), MUL(K(3), WW))),
-                _mm512_add_epi64(_mm512_add_epi64(MUL(K(4), NN), MUL(K(5), NW2)), _mm512_add_epi64(MUL(K(6), NNW), MUL(K(7), NNE))));
-            a = _mm512_add_epi64(a, _mm512_add_epi64(_mm512_add_epi64(MUL(K(8), NE2), MUL(K(9), NNW2)),
-                                                     _mm512_sub_epi64(MUL(K(10), NNE2), MUL(K(11), W))));
-            __m512i acc = _mm512_add_epi64(_mm512_add_epi64(W, _mm512_srai_epi64(a, 12)), K(12));
-#undef K
-#undef MUL
+            __m512i C;
+            __m512i acc = vpredict(T, CT, &n, &C);
             __m512i sv = _mm512_srai_epi64(_mm512_add_epi64(P, r32767), 16);
             __m512i mh = _mm512_add_epi64(_mm512_add_epi64(acc, _mm512_sub_epi64(_mm512_slli_epi64(sv, 16), P)), half);
             __m512i r = _mm512_sub_epi64(sv, _mm512_srai_epi64(mh, 16));
@@ -407,7 +402,8 @@ SIMD_FN static void rans_lanes8(const int32_t *idx, const int32_t *tab, i64 alph
         X = _mm512_mask_srli_epi64(X, emit, X, 16);
         __m512d prod = _mm512_mul_round_pd(_mm512_cvtepu64_pd(X), R, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
         __m512i q = _mm512_cvttpd_epu64(_mm512_add_round_pd(prod, eps, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC));
-        X = _mm512_add_epi64(_mm512_add_epi64(_mm512_slli_epi64(q, PROB_BITS), _mm512_sub_epi64(X, _mm512_mul_epu32(q, F))), C);
+        __m512i rem = _mm512_sub_epi64(X, _mm512_mul_epu32(q, F));
+        X = _mm512_add_epi64(_mm512_add_epi64(_mm512_slli_epi64(q, PROB_BITS), rem), C);
         if (k > 0) {
             __mmask8 inrow = _mm512_cmpgt_epi64_mask(I, E);
             __mmask8 next = (__mmask8)~inrow;

@@ -4,8 +4,8 @@ sequential loop (lanes in registers), the encoder's residual pass (8 pixels of a
 
 ``pip install`` builds the extension ``metraw.codec._simd`` when a C compiler is present; the build is optional: without
 a compiler, on a CPU without AVX-512 (F and DQ), or with ``METRAW_NATIVE=0`` in the environment, ``LIB`` is None and
-the codec runs its numba loops (``decoder.decode_plane``, ``predictive._residuals``, ``predictive._rans_encode``). Both run the same integer
-arithmetic, so the streams and decoded values are the same (tests compare them); only the speed differs. The extension
+the codec runs its numba loops (``decoder.decode_plane``, ``predictive._residuals``, ``predictive._rans_encode``).
+Both run the same integer arithmetic, so the streams and decoded values are the same (tests compare them); only the speed differs. The extension
 takes streams of ``LANE_COUNTS`` lanes (today's encoder writes 8); others take the numba loop.
 
 The C functions are called through ctypes (which releases the GIL, so tiles decode in parallel threads); they use no
@@ -68,7 +68,8 @@ def decode_plane(p, u, sym, thr7, coef13, tab0, pshift, lut, fcum, amax, words, 
     coef[:coef13.size] = coef13
     lut16 = lut.dtype == np.int16
     ok = LIB.metraw_decode_plane(
-        _addr(p, np.int64), h, w, _addr(u, np.int32), _addr(sym, np.int32), _addr(thr7, np.int64), _addr(coef, np.int64),
+        _addr(p, np.int64), h, w, _addr(u, np.int32), _addr(sym, np.int32), _addr(thr7, np.int64),
+        _addr(coef, np.int64),
         int(tab0), int(pshift), _addr(lut, np.int16 if lut16 else np.uint8), int(lut16), _addr(fcum, np.uint32),
         fcum.shape[1], int(amax), _addr(words, np.uint16), _addr(xs, np.uint64), _addr(pos, np.int64),
         _addr(pmin, np.int64), _addr(esc, np.int32), _addr(epos, np.int64), _addr(eend, np.int64), xs.size, 1)

@@ -34,7 +34,8 @@ Speed without changing the stream: the encoder computes activities, contexts and
 by row in passes without a sequential dependence; the least squares accumulate X^T X from
 per-context sample buffers in vectorised blocks (encoder only: the coefficients are stored);
 the residual pass runs in C (AVX-512, 8 pixels at a time) where ``metraw.codec.native`` is built,
-else in numba, to the same bytes; the decoder runs the steady part of each 4-row group with the lane states in registers and
+else in numba, to the same bytes; the decoder runs the steady part of each 4-row group with the
+lane states in registers and
 evaluates sum_i k_i (n_i - W) as sum_i k_i n_i - W sum_i k_i (exact integers, the same value).
 The encoder's work is a few compiled calls per section (``_model_plane``, ``_residuals``,
 ``_code_section``), each releasing the GIL, so that row tiles in parallel threads rarely wait on
@@ -59,7 +60,7 @@ from metraw.codec.decoder import (  # noqa: F401  (the format's constants; decod
 
 MIN_FIT = 64                   # fewer samples in a context: use the default predictor
 SHARED_BELOW = 1 << 16         # tiles with fewer pixels share one model across their planes
-LANES = 8                      # interleaved rANS lanes (row classes) for tiles of >= SHARED_BELOW pixels (4 before 2026-11-28)
+LANES = 8                      # rANS lanes (row classes) for tiles of >= SHARED_BELOW pixels (4 before 2026-11-28)
 
 
 def n_activity_contexts(pixels_per_group: int) -> int:
