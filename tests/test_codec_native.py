@@ -110,6 +110,31 @@ def test_compiled_encoder_passes_write_the_numba_encoders_bytes(pattern, monkeyp
 
 
 @needs_native
+def test_compiled_dither_and_transform_give_numbas_values():
+    """The dither (16 pixels a vector, 32-bit lanes = numba's index arithmetic mod 2^32, starts past 2^32 too) and
+    the forward transform (contiguous rows and CFA-plane strides, row tails, the last row read element by element,
+    values clamped below black and at white) against the numba kernels, exactly."""
+    from metraw.codec import prepare
+
+    for start, rows, cols, row_step, col_step in [(0, 3, 1, 1, 1), (7, 5, 17, 40, 2), (2**32 - 5, 4, 33, 70, 1),
+                                                  (123456789, 9, 64, 128, 2)]:
+        args = (0x12345678, 0x9ABCDEF0, start, rows, cols, row_step, col_step)
+        np.testing.assert_array_equal(native.dither_grid(*args), prepare._dither_grid_kernel(*args))
+    rng = np.random.default_rng(4)
+    prof = PROF
+    for shape in [(6, 37), (5, 64), (1, 3)]:
+        tile = rng.integers(0, 16384, (2 * shape[0], 2 * shape[1])).astype(np.uint16)
+        tile[0, :6] = [0, 1, 16000, 16383, 100, 99]   # below black, at and past white
+        for plane in (tile, tile[::2, ::2], tile[1::2, 1::2], tile[1::2, ::2]):
+            u = rng.uniform(-0.5, 0.5, plane.shape)
+            for step in (0.5, 1.0, 2.0):
+                k = prof.gain_dn_per_e
+                args = (float(prof.black_level_dn), 1.0 / k, prepare.offset_e(prof),
+                        (prof.white_level_dn - prof.black_level_dn) / k + prepare.offset_e(prof), 1.0 / step)
+                np.testing.assert_array_equal(native.forward(plane, *args, u), prepare._forward_kernel(plane, *args, u))
+
+
+@needs_native
 def test_compiled_loop_handles_escapes_and_16_bit_tables(monkeypatch):
     """Residuals beyond the alphabet (escapes, spread over the rows, so most fall in the steady part), rare large
     residuals (16-bit symbol tables) and random high contrast, as in real frames."""

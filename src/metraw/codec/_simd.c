@@ -459,6 +459,101 @@ void metraw_rans_encode(const int32_t *idx, const int32_t *tab, i64 alpha, const
 #endif
 }
 
+/* The dither and the forward transform (metraw.codec.prepare: _dither_grid_kernel, _forward_kernel), same values.
+ * Dither of pixel index i: lowbias32 (mod 2^32, so 32-bit lanes give numba's uint64-masked values) keyed by k1, k2,
+ * 24 bits -> [-1/2, 1/2). Forward: k = rint(2 sqrt(min(max((y - black) / K + c, 0), xmax)) / q + u), one IEEE
+ * operation at a time as numba does (no fused multiply-add: -ffp-contract=off and separate intrinsics). */
+#if METRAW_X86
+SIMD_FN static void dither_grid_avx512(u64 k1, u64 k2, i64 start, i64 rows, i64 cols, i64 row_step, i64 col_step,
+                                       double *out)
+{
+    const __m512i K1 = _mm512_set1_epi32((int)(uint32_t)k1), K2 = _mm512_set1_epi32((int)(uint32_t)k2);
+    const __m512i M1 = _mm512_set1_epi32((int)0x9E3779B9u), M2 = _mm512_set1_epi32(0x7FEB352D);
+    const __m512i M3 = _mm512_set1_epi32((int)0x846CA68Bu);
+    const __m512i lane = _mm512_mullo_epi32(_mm512_set_epi32(15, 14, 13, 12, 11, 10, 9, 8, 7, 6, 5, 4, 3, 2, 1, 0),
+                                            _mm512_set1_epi32((int)col_step));
+    const __m512d scale = _mm512_set1_pd(1.0 / 16777216.0), half = _mm512_set1_pd(0.5);
+    for (i64 i = 0; i < rows; i++) {
+        const i64 base = start + i * row_step;
+        double *o = out + i * cols;
+        for (i64 j = 0; j < cols; j += 16) {
+            const __mmask16 mk = cols - j >= 16 ? 0xFFFF : (__mmask16)((1u << (cols - j)) - 1);
+            __m512i x = _mm512_add_epi32(_mm512_set1_epi32((int)(uint32_t)(base + j * col_step)), lane);
+            x = _mm512_add_epi32(_mm512_mullo_epi32(x, M1), K1);
+            x = _mm512_xor_si512(x, _mm512_srli_epi32(x, 16));
+            x = _mm512_mullo_epi32(x, M2);
+            x = _mm512_xor_si512(x, _mm512_srli_epi32(x, 15));
+            x = _mm512_mullo_epi32(x, M3);
+            x = _mm512_xor_si512(x, K2);
+            x = _mm512_xor_si512(x, _mm512_srli_epi32(x, 16));
+            x = _mm512_srli_epi32(x, 8);   /* 24 bits: exact as int32 and as double */
+            __m512d lo = _mm512_sub_pd(_mm512_mul_pd(_mm512_cvtepi32_pd(_mm512_castsi512_si256(x)), scale), half);
+            __m512d hi = _mm512_sub_pd(_mm512_mul_pd(_mm512_cvtepi32_pd(_mm512_extracti64x4_epi64(x, 1)), scale), half);
+            _mm512_mask_storeu_pd(o + j, (__mmask8)(mk & 0xFF), lo);
+            _mm512_mask_storeu_pd(o + j + 8, (__mmask8)(mk >> 8), hi);
+        }
+    }
+}
+
+SIMD_FN static void forward_avx512(const uint16_t *data, i64 rows, i64 cols, i64 row_stride, i64 col_stride,
+                                   double black, double inv_k, double c, double xmax, double inv_step,
+                                   const double *u, int32_t *out)
+{
+    const __m512d B = _mm512_set1_pd(black), IK = _mm512_set1_pd(inv_k), Cv = _mm512_set1_pd(c);
+    const __m512d XM = _mm512_set1_pd(xmax), IS = _mm512_set1_pd(inv_step), two = _mm512_set1_pd(2.0);
+    const __m512d zero = _mm512_setzero_pd();
+    const __m512i lane = _mm512_mullo_epi64(_mm512_set_epi64(7, 6, 5, 4, 3, 2, 1, 0), _mm512_set1_epi64(col_stride));
+    for (i64 i = 0; i < rows; i++) {
+        const uint16_t *d = data + i * row_stride;
+        for (i64 j = 0; j < cols; j += 8) {
+            const __mmask8 mk = cols - j >= 8 ? 0xFF : (__mmask8)((1u << (cols - j)) - 1);
+            __m512i v;
+            if (col_stride == 1 && mk == 0xFF) {
+                v = _mm512_cvtepu16_epi64(_mm_loadu_si128((const __m128i *)(d + j)));
+            } else if (i + 1 < rows) {
+                /* a CFA plane of the tile: every col_stride-th value by 32-bit gathers (low 16 bits kept); the
+                 * 2 bytes read past an element are in the rows below it, inside the array */
+                v = _mm512_and_si512(_mm512_cvtepu32_epi64(_mm512_mask_i64gather_epi32(
+                        _mm256_setzero_si256(), mk, lane, d + j * col_stride, 2)), _mm512_set1_epi64(0xFFFF));
+            } else {   /* the last row: element by element, nothing read past the array */
+                i64 tmp[8] = {0};
+                for (i64 k = 0; k < 8 && j + k < cols; k++) tmp[k] = d[(j + k) * col_stride];
+                v = _mm512_loadu_si512(tmp);
+            }
+            __m512d x = _mm512_add_pd(_mm512_mul_pd(_mm512_sub_pd(_mm512_cvtepi64_pd(v), B), IK), Cv);
+            x = _mm512_min_pd(_mm512_max_pd(x, zero), XM);
+            __m512d z = _mm512_mul_pd(two, _mm512_sqrt_pd(x));
+            z = _mm512_mul_pd(z, IS);
+            z = _mm512_add_pd(z, _mm512_maskz_loadu_pd(mk, u + i * cols + j));
+            z = _mm512_roundscale_pd(z, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
+            _mm512_mask_cvtepi64_storeu_epi32(out + i * cols + j, mk, _mm512_cvtpd_epi64(z));
+        }
+    }
+}
+#endif
+
+/* prepare._dither_grid_kernel (only where metraw_simd_available()) */
+void metraw_dither_grid(u64 k1, u64 k2, i64 start, i64 rows, i64 cols, i64 row_step, i64 col_step, double *out)
+{
+#if METRAW_X86
+    dither_grid_avx512(k1, k2, start, rows, cols, row_step, col_step, out);
+#else
+    (void)k1; (void)k2; (void)start; (void)rows; (void)cols; (void)row_step; (void)col_step; (void)out;
+#endif
+}
+
+/* prepare._forward_kernel (only where metraw_simd_available()); data: uint16 with strides in elements */
+void metraw_forward(const uint16_t *data, i64 rows, i64 cols, i64 row_stride, i64 col_stride, double black,
+                    double inv_k, double c, double xmax, double inv_step, const double *u, int32_t *out)
+{
+#if METRAW_X86
+    forward_avx512(data, rows, cols, row_stride, col_stride, black, inv_k, c, xmax, inv_step, u, out);
+#else
+    (void)data; (void)rows; (void)cols; (void)row_stride; (void)col_stride; (void)black; (void)inv_k; (void)c;
+    (void)xmax; (void)inv_step; (void)u; (void)out;
+#endif
+}
+
 /* 1 when this CPU runs the AVX-512 steady part (AVX-512 F and DQ), else 0 */
 int metraw_simd_available(void)
 {

@@ -1,10 +1,11 @@
 """The codec's per-pixel loops compiled from C (``_simd.c``, AVX-512), where they are built and run: the decoder's
 sequential loop (lanes in registers), the encoder's residual pass (8 pixels of a row at a time) and its rANS pass
-(8 lanes at a time).
+(8 lanes at a time), the dither and the forward transform.
 
 ``pip install`` builds the extension ``metraw.codec._simd`` when a C compiler is present; the build is optional: without
 a compiler, on a CPU without AVX-512 (F and DQ), or with ``METRAW_NATIVE=0`` in the environment, ``LIB`` is None and
-the codec runs its numba loops (``decoder.decode_plane``, ``predictive._residuals``, ``predictive._rans_encode``).
+the codec runs its numba loops (``decoder.decode_plane``, ``predictive._residuals``, ``predictive._rans_encode``,
+``prepare._dither_grid_kernel``, ``prepare._forward_kernel``).
 Both run the same integer arithmetic, so the streams and decoded values are the same (tests compare them); only the speed differs. The extension
 takes streams of ``LANE_COUNTS`` lanes (today's encoder writes 8); others take the numba loop.
 
@@ -47,6 +48,11 @@ def _load() -> ctypes.CDLL | None:
     lib.metraw_residuals.restype = i64
     lib.metraw_rans_encode.argtypes = [p, p, i64, p, p, p, p, p, p, p, i64, p, p, p, c_int]
     lib.metraw_rans_encode.restype = None
+    u64, f64 = ctypes.c_uint64, ctypes.c_double
+    lib.metraw_dither_grid.argtypes = [u64, u64, i64, i64, i64, i64, i64, p]
+    lib.metraw_dither_grid.restype = None
+    lib.metraw_forward.argtypes = [p, i64, i64, i64, i64, f64, f64, f64, f64, f64, p, p]
+    lib.metraw_forward.restype = None
     return lib if lib.metraw_simd_available() else None
 
 
@@ -112,3 +118,26 @@ def rans_encode(idx, tab, freq, cum, rcp, rs, rl, lr, ls, out):
                            _addr(lr, np.int64), _addr(ls, np.int64), nl, _addr(out, np.uint16), _addr(xs, np.uint64),
                            _addr(nws, np.int64), 1)
     return xs, nws
+
+
+def dither_grid(k1: int, k2: int, start: int, rows: int, cols: int, row_step: int, col_step: int) -> np.ndarray:
+    """``prepare._dither_grid_kernel`` (the same float64 values) in AVX-512, 16 pixels at a time."""
+    out = np.empty((rows, cols), np.float64)
+    if out.size:
+        LIB.metraw_dither_grid(k1, k2, start, rows, cols, row_step, col_step, out.ctypes.data)
+    return out
+
+
+def forward(data: np.ndarray, black: float, inv_k: float, c: float, xmax: float, inv_step: float,
+            u: np.ndarray) -> np.ndarray:
+    """``prepare._forward_kernel`` (the same int32 symbols) in AVX-512: ``data`` uint16 (h, w), rows and columns at
+    any positive stride (a CFA plane of a tile), ``u`` the float64 dither (h, w), C-contiguous."""
+    h, w = data.shape
+    rs, cs = (st // data.itemsize for st in data.strides)
+    if data.dtype != np.uint16 or rs <= 0 or cs <= 0 or u.shape != data.shape:
+        raise TypeError("native forward: uint16 data with positive strides and a dither of its shape are needed")
+    out = np.empty((h, w), np.int32)
+    if out.size:
+        LIB.metraw_forward(data.ctypes.data, h, w, rs, cs, black, inv_k, c, xmax, inv_step, _addr(u, np.float64),
+                           out.ctypes.data)
+    return out

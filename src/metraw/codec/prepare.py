@@ -27,6 +27,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from metraw.codec import native
 from metraw.profile import CalibrationProfile
 from metraw.vst import effective_read_variance_e2
 
@@ -87,8 +88,10 @@ def dither_grid(seed: int, start: int, rows: int, cols: int, row_step: int, col_
     """``dither`` of the pixels start + i row_step + j col_step (i < rows, j < cols) as a contiguous
     (rows, cols) array: a CFA plane's dither without the rest of the frame's."""
     key = _splitmix64(int(seed))
-    return _dither_grid_kernel(key & 0xFFFFFFFF, (key >> 32) & 0xFFFFFFFF, int(start), int(rows), int(cols),
-                               int(row_step), int(col_step))
+    args = (key & 0xFFFFFFFF, (key >> 32) & 0xFFFFFFFF, int(start), int(rows), int(cols), int(row_step), int(col_step))
+    if native.LIB is not None:
+        return native.dither_grid(*args)
+    return _dither_grid_kernel(*args)
 
 
 def offset_e(profile: CalibrationProfile) -> float:
@@ -147,8 +150,10 @@ def forward(data: np.ndarray, profile: CalibrationProfile, step: float, u: np.nd
     data = np.asarray(data)
     if data.ndim != 2:
         return forward(data.reshape(1, -1), profile, step, np.asarray(u).reshape(1, -1)).reshape(data.shape)
-    return _forward_kernel(data, float(profile.black_level_dn), 1.0 / k, c, xmax, 1.0 / step,
-                           np.asarray(u, dtype=np.float64))
+    args = (float(profile.black_level_dn), 1.0 / k, c, xmax, 1.0 / step)
+    if native.LIB is not None and data.dtype == np.uint16 and all(st > 0 for st in data.strides):
+        return native.forward(data, *args, np.ascontiguousarray(u, dtype=np.float64))
+    return _forward_kernel(data, *args, np.asarray(u, dtype=np.float64))
 
 
 def inverse(symbols: np.ndarray, profile: CalibrationProfile, step: float, u: np.ndarray) -> np.ndarray:
