@@ -106,21 +106,23 @@ one 512-bit register; a lane's neighbours are register histories of itself and t
 lanes (valignq), so the steady loop reads no pixel it wrote; 5 gathers (dither, symbol table, frequency table, word,
 escape) and 1 scatter a step of 8 pixels; ~25 instructions a pixel against numba's ~164. (2) The encoder's residual
 pass 8 pixels of a row at a time (coefficients by vpermq from 8-context registers). (3) The encoder's rANS pass 8
-lanes at a time (reciprocal division with explicit rounding, -ffp-contract=off: numba's words). Plus, in numba, the
-least-squares sampling loop without a view per sample (1.35x on that loop, same bytes). 16 lanes (two registers) were
-not faster than 8 on canon_dng (per-plane decode 1.58-1.78x numba against 1.98-2.10x for 8, runs back to back on a
-noisy host): the edges of each row group
-(3 (L - 1) columns on the scalar path) grow with L. 1-thread, same process, alternating, canon_dng step 1: decode
+lanes at a time (reciprocal division with explicit rounding, -ffp-contract=off: numba's words). 16 lanes (two
+registers) were not faster than 8 on canon_dng (per-plane decode 1.58-1.78x numba against 1.98-2.10x for 8, runs
+back to back on a noisy host): the edges of each row group (3 (L - 1) columns on the scalar path) grow with L. 1-thread, same process, alternating, canon_dng step 1: decode
 55.8 -> 36.8 ms, micasense 32.3 -> 21.6, spacenet_pan 9.8 -> 6.7 (numba 8-lane decode = numba 4-lane decode: the
 numba loop runs 8-lane groups as two 4-row groups); encode 60.5 -> 50.9, 26.4 -> 22.7, 9.5 -> 8.8 (load ~1.7).
-``--speed`` at ec80929 (21 rounds, load 0.9-1.2; bpp as in issue #18's table), JPEG-LS / metraw 2-thread wall,
-encode / decode, steps 1 and 2: canon_dng 2.47 / 3.25 and 2.40 / 3.18; micasense 3.26 / 3.35 and 3.48 / 3.43;
-spacenet_pan 2.35 / 2.64 and 2.25 / 2.87; 1-thread CPU / JPEG-LS: 0.72 / 0.54, 0.66 / 0.57; 0.52 / 0.53, 0.55 / 0.53;
-0.71 / 0.57, 0.68 / 0.56; par (CPU / wall on 2 threads) 1.70-1.86. 20 MP frame, step 1: 2-thread 306 / 201 ms,
-65 / 99 Mpix/s, x JPEG-LS 2.55 / 3.51 (an earlier run at f55b73a, load ~1.1-1.6: step 2 290 / 175 ms, 2.80 / 4.24).
-Left: canon_dng's encode at 2.40-2.47x (3x needs ~1.22x less CPU); its 1-thread encode is ~51 ms: least squares
-~11-14 (normal equations on 28 k samples a plane: stride 3), residual pass (C) ~9-11, rANS (C, gather-bound) ~5.6,
-transform 4, alphabet indices and histograms 3.9, dither 3.1.
+(4) The dither and the forward transform (d5fcb01). Plus, in numba, the least-squares sampling loop without a view
+per sample (1.35x on that loop, same bytes).
+``--speed`` at d5fcb01 (21 rounds, load 0.8-1.0; bpp as in issue #18's table), JPEG-LS / metraw 2-thread wall,
+encode / decode, steps 1 and 2: canon_dng 2.69 / 3.17 and 2.56 / 3.43; micasense 3.36 / 3.56 and 3.65 / 3.79;
+spacenet_pan 2.45 / 3.02 and 2.46 / 3.15; 1-thread CPU / JPEG-LS: 0.63 / 0.47, 0.65 / 0.51; 0.49 / 0.44, 0.47 / 0.45;
+0.67 / 0.51, 0.66 / 0.48; par (CPU / wall on 2 threads) 1.70-1.86. 20 MP frame: 2-thread 340 / 216 ms (step 1) and
+344 / 203 ms (step 2), 58-59 / 93-98 Mpix/s, x JPEG-LS 2.49 / 3.32 and 2.49 / 3.83. (At ec80929, before (4): canon_dng
+2.47 / 3.25 and 2.40 / 3.18, micasense 3.26 / 3.35 and 3.48 / 3.43.)
+Left: canon_dng's encode at 2.56-2.69x (3x needs ~12-17 % less CPU). Its 1-thread encode, ~45 ms: least squares
+~10 (front 3.7, normal equations on 28 k samples a plane at stride 3 ~6), residual pass (C, bound by the two 512-bit
+ports: 12 vpmullq a vector) ~8, rANS (C, gather-bound) ~5.6, alphabet indices and histograms ~4 (4 sub-histograms:
+no faster), the rest (escape mask, noise check, container) ~5.
 
 A vectorised pass can only take taps whose coefficients do not depend on the activity context (which needs W).
 ``benchmarks/codec_predictors.py`` (2026-11-26; empirical H(r | context, phase) in float arithmetic, no side
