@@ -108,7 +108,8 @@ escape) and 1 scatter a step of 8 pixels; ~25 instructions a pixel against numba
 pass 8 pixels of a row at a time (coefficients by vpermq from 8-context registers). (3) The encoder's rANS pass 8
 lanes at a time (reciprocal division with explicit rounding, -ffp-contract=off: numba's words). 16 lanes (two
 registers) were not faster than 8 on canon_dng (per-plane decode 1.58-1.78x numba against 1.98-2.10x for 8, runs
-back to back on a noisy host): the edges of each row group (3 (L - 1) columns on the scalar path) grow with L. 1-thread, same process, alternating, canon_dng step 1: decode
+back to back on a noisy host): the edges of each row group (3 (L - 1) columns on the scalar path) grow with L.
+1-thread, same process, alternating, canon_dng step 1: decode
 55.8 -> 36.8 ms, micasense 32.3 -> 21.6, spacenet_pan 9.8 -> 6.7 (numba 8-lane decode = numba 4-lane decode: the
 numba loop runs 8-lane groups as two 4-row groups); encode 60.5 -> 50.9, 26.4 -> 22.7, 9.5 -> 8.8 (load ~1.7).
 (4) The dither and the forward transform (d5fcb01). Plus, in numba, the least-squares sampling loop without a view

@@ -135,6 +135,21 @@ def test_compiled_dither_and_transform_give_numbas_values():
 
 
 @needs_native
+def test_compiled_causal_buffer_is_numbas():
+    """The encoder's padded causal buffer (rows above, left and right padding, s 2^16 - floor(u 2^16)) against
+    numba's ``_front``, exactly: widths with a partial last vector, negative symbols, dither at -1/2 and just
+    below 1/2."""
+    rng = np.random.default_rng(6)
+    for h, w in [(1, 1), (3, 9), (17, 64), (40, 77)]:
+        s = rng.integers(-300, 70000, (h, w)).astype(np.int32)
+        u = rng.uniform(-0.5, 0.5, (h, w))
+        u.flat[0] = -0.5
+        u.flat[-1] = np.nextafter(0.5, 0.0)
+        c0 = int(predictive._mean_symbol(s))
+        np.testing.assert_array_equal(native.front(s, u, c0), predictive._front(s, u, np.int64(c0) << 16))
+
+
+@needs_native
 def test_compiled_loop_handles_escapes_and_16_bit_tables(monkeypatch):
     """Residuals beyond the alphabet (escapes, spread over the rows, so most fall in the steady part), rare large
     residuals (16-bit symbol tables) and random high contrast, as in real frames."""

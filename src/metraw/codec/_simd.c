@@ -554,6 +554,43 @@ void metraw_forward(const uint16_t *data, i64 rows, i64 cols, i64 row_stride, i6
 #endif
 }
 
+/* The encoder's causal buffer (metraw.codec.predictive._front): p (h + 2) x (w + 4) of s 2^16 - floor(u 2^16), the
+ * two rows above at c0s (= c0 2^16), the two columns left of row y at row y - 1's first value (c0s for row 0), the
+ * two right at row y's last. s int32 and u float64 (h x w) C-contiguous; u 2^16 and its floor are exact. */
+#if METRAW_X86
+SIMD_FN static void front_avx512(const int32_t *s, const double *u, i64 h, i64 w, i64 c0s, i64 *p)
+{
+    const i64 ws = w + 4;
+    const __m512d scale = _mm512_set1_pd(65536.0);
+    for (i64 k = 0; k < 2 * ws; k++) p[k] = c0s;
+    for (i64 y = 0; y < h; y++) {
+        i64 *row = p + (y + 2) * ws;
+        const int32_t *sy = s + y * w;
+        const double *uy = u + y * w;
+        for (i64 x = 0; x < w; x += 8) {
+            const __mmask8 mk = w - x >= 8 ? 0xFF : (__mmask8)((1u << (w - x)) - 1);
+            __m512i sv = _mm512_cvtepi32_epi64(_mm512_castsi512_si256(_mm512_maskz_loadu_epi32((__mmask16)mk, sy + x)));
+            __m512d fu = _mm512_roundscale_pd(_mm512_mul_pd(_mm512_maskz_loadu_pd(mk, uy + x), scale),
+                                              _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC);
+            __m512i v = _mm512_sub_epi64(_mm512_slli_epi64(sv, 16), _mm512_cvtpd_epi64(fu));
+            _mm512_mask_storeu_epi64(row + 2 + x, mk, v);
+        }
+        row[0] = row[1] = y > 0 ? p[(y + 1) * ws + 2] : c0s;
+        row[w + 2] = row[w + 3] = row[w + 1];
+    }
+}
+#endif
+
+/* predictive._front (only where metraw_simd_available()) */
+void metraw_front(const int32_t *s, const double *u, i64 h, i64 w, i64 c0s, i64 *p)
+{
+#if METRAW_X86
+    front_avx512(s, u, h, w, c0s, p);
+#else
+    (void)s; (void)u; (void)h; (void)w; (void)c0s; (void)p;
+#endif
+}
+
 /* 1 when this CPU runs the AVX-512 steady part (AVX-512 F and DQ), else 0 */
 int metraw_simd_available(void)
 {

@@ -1,11 +1,11 @@
 """The codec's per-pixel loops compiled from C (``_simd.c``, AVX-512), where they are built and run: the decoder's
 sequential loop (lanes in registers), the encoder's residual pass (8 pixels of a row at a time) and its rANS pass
-(8 lanes at a time), the dither and the forward transform.
+(8 lanes at a time), its causal buffer, the dither and the forward transform.
 
 ``pip install`` builds the extension ``metraw.codec._simd`` when a C compiler is present; the build is optional: without
 a compiler, on a CPU without AVX-512 (F and DQ), or with ``METRAW_NATIVE=0`` in the environment, ``LIB`` is None and
 the codec runs its numba loops (``decoder.decode_plane``, ``predictive._residuals``, ``predictive._rans_encode``,
-``prepare._dither_grid_kernel``, ``prepare._forward_kernel``).
+``predictive._front``, ``prepare._dither_grid_kernel``, ``prepare._forward_kernel``).
 Both run the same integer arithmetic, so the streams and decoded values are the same (tests compare them); only the speed differs. The extension
 takes streams of ``LANE_COUNTS`` lanes (today's encoder writes 8); others take the numba loop.
 
@@ -53,6 +53,8 @@ def _load() -> ctypes.CDLL | None:
     lib.metraw_dither_grid.restype = None
     lib.metraw_forward.argtypes = [p, i64, i64, i64, i64, f64, f64, f64, f64, f64, p, p]
     lib.metraw_forward.restype = None
+    lib.metraw_front.argtypes = [p, p, i64, i64, i64, p]
+    lib.metraw_front.restype = None
     return lib if lib.metraw_simd_available() else None
 
 
@@ -141,3 +143,14 @@ def forward(data: np.ndarray, black: float, inv_k: float, c: float, xmax: float,
         LIB.metraw_forward(data.ctypes.data, h, w, rs, cs, black, inv_k, c, xmax, inv_step, _addr(u, np.float64),
                            out.ctypes.data)
     return out
+
+
+def front(s: np.ndarray, u: np.ndarray, c0: int) -> np.ndarray:
+    """``predictive._front`` (the same int64 buffer, (h + 2) x (w + 4)) of symbols ``s`` (int32) and dither ``u``
+    (float64), both C-contiguous (h, w), with the rows above at ``c0`` 2^16."""
+    h, w = s.shape
+    if u.shape != s.shape:
+        raise ValueError("native front: the dither must have the symbols' shape")
+    p = np.empty((h + 2, w + 4), np.int64)
+    LIB.metraw_front(_addr(s, np.int32), _addr(u, np.float64), h, w, int(c0) << 16, p.ctypes.data)
+    return p

@@ -121,10 +121,16 @@ def _front(s, u, c0):
 
 
 @nb.njit(cache=True, nogil=True)
+def _mean_symbol(s):
+    """c0 = round(mean symbol) of a plane (0 for an empty one): the value of the rows above it."""
+    return np.int64(np.rint(_sum(s) / s.size)) if s.size else np.int64(0)
+
+
+@nb.njit(cache=True, nogil=True)
 def _front_c0(s, u):
     """The plane's padded buffer (``_front``) with rows above it at c0 = round(mean symbol); returns
     (front, c0). c0 is stored in the stream: the decoder pads with the same value."""
-    c0 = np.int64(np.rint(_sum(s) / s.size)) if s.size else np.int64(0)
+    c0 = _mean_symbol(s)
     return _front(s, u, c0 << 16), c0
 
 
@@ -509,17 +515,29 @@ def _fit(ata, atb):
     return coef, bias
 
 
-@nb.njit(cache=True, nogil=True)
 def _model_plane(s, u, nact, stride):
-    """One plane's causal buffer and model in one compiled call (no GIL): returns (front, c0, thr,
-    coef, bias). ``stride``: the least-squares sampling lattice (activities on twice that)."""
-    front, c0 = _front_c0(s, u)
+    """One plane's causal buffer and model, in compiled calls without the GIL (the buffer in C where
+    ``metraw.codec.native`` is built): returns (front, c0, thr, coef, bias). ``stride``: the least-squares
+    sampling lattice (activities on twice that)."""
+    if native.LIB is not None and s.dtype == np.int32 and s.flags.c_contiguous and u.dtype == np.float64 \
+            and u.flags.c_contiguous:
+        c0 = _mean_symbol(s)
+        front = native.front(s, u, c0)
+    else:
+        front, c0 = _front_c0(s, u)
+    thr, coef, bias = _model_of_front(front, nact, stride)
+    return front, c0, thr, coef, bias
+
+
+@nb.njit(cache=True, nogil=True)
+def _model_of_front(front, nact, stride):
+    """The model of a plane's causal buffer: (thr, coef, bias) (see ``_model_plane``)."""
     thr = _thresholds(_activity_samples(front, 2 * stride), nact)
     ata = np.zeros((nact, NTAP, NTAP))
     atb = np.zeros((nact, NTAP))
     _normal_equations(front, thr, stride, ata, atb)
     coef, bias = _fit(ata, atb)
-    return front, c0, thr, coef, bias
+    return thr, coef, bias
 
 
 def _code_section(r, t, amax, ntab, shared, hs, ws, nl):
