@@ -150,6 +150,21 @@ def test_compiled_causal_buffer_is_numbas():
 
 
 @needs_native
+def test_compiled_alphabet_indices_and_counts_are_numbas():
+    """Alphabet indices (escape past +-amax) and per-table counts against numba's ``_index``: lengths with a partial
+    last vector and odd lengths (the two sub-histograms), long runs of one bin, residuals at +-amax and beyond."""
+    rng = np.random.default_rng(8)
+    for n, amax, ntab in [(1, 1, 1), (17, 3, 2), (1001, 40, 32), (4096, 1023, 8)]:
+        r = np.clip(rng.laplace(0, amax / 3, n), -2 * amax - 5, 2 * amax + 5).astype(np.int32)
+        r[: n // 4] = amax if n > 8 else r[: n // 4]   # a run of one bin, at the alphabet's edge
+        t = rng.integers(0, ntab, n).astype(np.int32)
+        idx, counts = native.index(r, t, amax, ntab)
+        ref_idx, ref_counts = predictive._index(r, t, amax, ntab)
+        np.testing.assert_array_equal(idx, ref_idx)
+        np.testing.assert_array_equal(counts, ref_counts)
+
+
+@needs_native
 def test_compiled_loop_handles_escapes_and_16_bit_tables(monkeypatch):
     """Residuals beyond the alphabet (escapes, spread over the rows, so most fall in the steady part), rare large
     residuals (16-bit symbol tables) and random high contrast, as in real frames."""

@@ -15,6 +15,7 @@
  * and one scatter of the 8 values. The edges of each group (the first 3 (L - 1) + 1 and the last column steps)
  * take the scalar path. */
 #include <stdint.h>
+#include <stdlib.h>
 
 typedef int64_t i64;
 typedef uint64_t u64;
@@ -588,6 +589,49 @@ void metraw_front(const int32_t *s, const double *u, i64 h, i64 w, i64 c0s, i64 
     front_avx512(s, u, h, w, c0s, p);
 #else
     (void)s; (void)u; (void)h; (void)w; (void)c0s; (void)p;
+#endif
+}
+
+/* The encoder's alphabet indices (metraw.codec.predictive._index): idx = r + amax, or the escape 2 amax + 1 where
+ * |r| > amax (16 a vector), then the per-table counts (ntab x (2 amax + 2), zeroed by the caller) in a scalar pass. */
+#if METRAW_X86
+SIMD_FN static void index_avx512(const int32_t *r, const int32_t *t, i64 n, i64 amax, i64 nt, int32_t *idx,
+                                 i64 *counts)
+{
+    const i64 alpha = 2 * amax + 2;
+    const __m512i A = _mm512_set1_epi32((int)amax), NA = _mm512_set1_epi32((int)-amax);
+    const __m512i E = _mm512_set1_epi32((int)(alpha - 1));
+    for (i64 i = 0; i < n; i += 16) {
+        const __mmask16 mk = n - i >= 16 ? 0xFFFF : (__mmask16)((1u << (n - i)) - 1);
+        __m512i v = _mm512_maskz_loadu_epi32(mk, r + i);
+        __mmask16 out = _mm512_cmpgt_epi32_mask(v, A) | _mm512_cmplt_epi32_mask(v, NA);
+        _mm512_mask_storeu_epi32(idx + i, mk, _mm512_mask_mov_epi32(_mm512_add_epi32(v, A), out, E));
+    }
+    /* counts: runs of one bin in a row (smooth areas) would chain each increment on the last; two sub-histograms
+     * (even and odd pixels) halve that chain */
+    int32_t *odd = (int32_t *)calloc((size_t)(nt * alpha), sizeof(int32_t));
+    if (!odd) {
+        for (i64 i = 0; i < n; i++) counts[(i64)t[i] * alpha + idx[i]] += 1;
+        return;
+    }
+    i64 i = 0;
+    for (; i + 1 < n; i += 2) {
+        counts[(i64)t[i] * alpha + idx[i]] += 1;
+        odd[(i64)t[i + 1] * alpha + idx[i + 1]] += 1;
+    }
+    for (; i < n; i++) counts[(i64)t[i] * alpha + idx[i]] += 1;
+    for (i64 k = 0; k < nt * alpha; k++) counts[k] += odd[k];
+    free(odd);
+}
+#endif
+
+/* predictive._index (only where metraw_simd_available()) */
+void metraw_index(const int32_t *r, const int32_t *t, i64 n, i64 amax, i64 ntab, int32_t *idx, i64 *counts)
+{
+#if METRAW_X86
+    index_avx512(r, t, n, amax, ntab, idx, counts);
+#else
+    (void)r; (void)t; (void)n; (void)amax; (void)ntab; (void)idx; (void)counts;
 #endif
 }
 

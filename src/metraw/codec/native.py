@@ -1,11 +1,11 @@
 """The codec's per-pixel loops compiled from C (``_simd.c``, AVX-512), where they are built and run: the decoder's
 sequential loop (lanes in registers), the encoder's residual pass (8 pixels of a row at a time) and its rANS pass
-(8 lanes at a time), its causal buffer, the dither and the forward transform.
+(8 lanes at a time), its causal buffer, alphabet indices, the dither and the forward transform.
 
 ``pip install`` builds the extension ``metraw.codec._simd`` when a C compiler is present; the build is optional: without
 a compiler, on a CPU without AVX-512 (F and DQ), or with ``METRAW_NATIVE=0`` in the environment, ``LIB`` is None and
 the codec runs its numba loops (``decoder.decode_plane``, ``predictive._residuals``, ``predictive._rans_encode``,
-``predictive._front``, ``prepare._dither_grid_kernel``, ``prepare._forward_kernel``).
+``predictive._front``, ``predictive._index``, ``prepare._dither_grid_kernel``, ``prepare._forward_kernel``).
 Both run the same integer arithmetic, so the streams and decoded values are the same (tests compare them); only the speed differs. The extension
 takes streams of ``LANE_COUNTS`` lanes (today's encoder writes 8); others take the numba loop.
 
@@ -55,6 +55,8 @@ def _load() -> ctypes.CDLL | None:
     lib.metraw_forward.restype = None
     lib.metraw_front.argtypes = [p, p, i64, i64, i64, p]
     lib.metraw_front.restype = None
+    lib.metraw_index.argtypes = [p, p, i64, i64, i64, p, p]
+    lib.metraw_index.restype = None
     return lib if lib.metraw_simd_available() else None
 
 
@@ -154,3 +156,15 @@ def front(s: np.ndarray, u: np.ndarray, c0: int) -> np.ndarray:
     p = np.empty((h + 2, w + 4), np.int64)
     LIB.metraw_front(_addr(s, np.int32), _addr(u, np.float64), h, w, int(c0) << 16, p.ctypes.data)
     return p
+
+
+def index(r: np.ndarray, t: np.ndarray, amax: int, ntab: int) -> tuple[np.ndarray, np.ndarray]:
+    """``predictive._index`` (the same alphabet indices, int32, and per-table counts, int64 ntab x (2 amax + 2)) of
+    residuals ``r`` and table indices ``t`` (int32, C-contiguous, every t < ntab)."""
+    if r.shape != t.shape or not 1 <= amax <= 2**30:
+        raise ValueError("native index: residuals and table indices of one shape, 1 <= amax, are needed")
+    idx = np.empty(r.size, np.int32)
+    counts = np.zeros((ntab, 2 * amax + 2), np.int64)
+    LIB.metraw_index(_addr(r, np.int32), _addr(t, np.int32), r.size, int(amax), int(ntab), idx.ctypes.data,
+                     counts.ctypes.data)
+    return idx, counts

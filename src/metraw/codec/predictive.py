@@ -542,14 +542,19 @@ def _model_of_front(front, nact, stride):
 
 def _code_section(r, t, amax, ntab, shared, hs, ws, nl):
     """Entropy-code the residuals ``r`` with table indices ``t`` (planes concatenated row-major,
-    shapes ``hs`` x ``ws``) in ``nl`` rANS lanes, in three compiled calls (each without the GIL): the
-    tables, the rANS pass (C where ``metraw.codec.native`` is built and nl is a multiple of 8, else
-    numba; the same words), the escapes and stored tables. Shared sections code with 8-bit tables
+    shapes ``hs`` x ``ws``) in ``nl`` rANS lanes, in four compiled calls (each without the GIL): the
+    alphabet indices and counts and the rANS pass (C where ``metraw.codec.native`` is built, the rANS
+    pass where nl is a multiple of 8; else numba; the same values), the tables, the escapes and stored
+    tables. Shared sections code with 8-bit tables
     (frequencies / 16, ``_normalise``d again; both sides use the same integers).
 
     Returns (idx, coding freq, table bytes, bytes per table, lane states, lane word counts, words,
     word starts per lane, escape values, escapes per lane)."""
-    idx, freq, stored, cum, rcp, rs, rl, lr, starts = _section_tables(r, t, amax, ntab, shared, hs, ws, nl)
+    if native.LIB is not None:
+        idx, counts = native.index(r, t, amax, ntab)
+    else:
+        idx, counts = _index(r, t, amax, ntab)
+    freq, stored, cum, rcp, rs, rl, lr, starts = _section_tables(counts, shared, hs, ws, nl)
     out = np.empty(r.size + 1, np.uint16)   # one word per symbol, and one the compiled pass may write past the last
     if native.LIB is not None and nl % 8 == 0:
         states, nws = native.rans_encode(idx, t, freq, cum, rcp, rs, rl, lr, starts, out)
@@ -560,10 +565,9 @@ def _code_section(r, t, amax, ntab, shared, hs, ws, nl):
 
 
 @nb.njit(cache=True, nogil=True)
-def _section_tables(r, t, amax, ntab, shared, hs, ws, nl):
-    """``_code_section``'s first part: alphabet indices, coding and stored frequencies, cumulative
-    frequencies and reciprocals (the rANS tables), and the lanes' rows (``_lane_rows``)."""
-    idx, counts = _index(r, t, amax, ntab)
+def _section_tables(counts, shared, hs, ws, nl):
+    """``_code_section``'s tables from the symbol counts (``_index``): coding and stored frequencies,
+    cumulative frequencies and reciprocals (the rANS tables), and the lanes' rows (``_lane_rows``)."""
     freq = _normalise(counts)
     stored = freq
     if shared:
@@ -583,7 +587,7 @@ def _section_tables(r, t, amax, ntab, shared, hs, ws, nl):
             acc += freq[i, j]
             rcp[i, j] = 1.0 / max(freq[i, j], 1)
     rs, rl, lr, starts = _lane_rows(hs, ws, nl)
-    return idx, freq, stored, cum, rcp, rs, rl, lr, starts
+    return freq, stored, cum, rcp, rs, rl, lr, starts
 
 
 @nb.njit(cache=True, nogil=True)
