@@ -112,18 +112,26 @@ back to back on a noisy host): the edges of each row group (3 (L - 1) columns on
 1-thread, same process, alternating, canon_dng step 1: decode
 55.8 -> 36.8 ms, micasense 32.3 -> 21.6, spacenet_pan 9.8 -> 6.7 (numba 8-lane decode = numba 4-lane decode: the
 numba loop runs 8-lane groups as two 4-row groups); encode 60.5 -> 50.9, 26.4 -> 22.7, 9.5 -> 8.8 (load ~1.7).
-(4) The dither and the forward transform (d5fcb01). Plus, in numba, the least-squares sampling loop without a view
-per sample (1.35x on that loop, same bytes).
-``--speed`` at d5fcb01 (21 rounds, load 0.8-1.0; bpp as in issue #18's table), JPEG-LS / metraw 2-thread wall,
-encode / decode, steps 1 and 2: canon_dng 2.69 / 3.17 and 2.56 / 3.43; micasense 3.36 / 3.56 and 3.65 / 3.79;
-spacenet_pan 2.45 / 3.02 and 2.46 / 3.15; 1-thread CPU / JPEG-LS: 0.63 / 0.47, 0.65 / 0.51; 0.49 / 0.44, 0.47 / 0.45;
-0.67 / 0.51, 0.66 / 0.48; par (CPU / wall on 2 threads) 1.70-1.86. 20 MP frame: 2-thread 340 / 216 ms (step 1) and
-344 / 203 ms (step 2), 58-59 / 93-98 Mpix/s, x JPEG-LS 2.49 / 3.32 and 2.49 / 3.83. (At ec80929, before (4): canon_dng
-2.47 / 3.25 and 2.40 / 3.18, micasense 3.26 / 3.35 and 3.48 / 3.43.)
-Left: canon_dng's encode at 2.56-2.69x (3x needs ~12-17 % less CPU). Its 1-thread encode, ~45 ms: least squares
-~10 (front 3.7, normal equations on 28 k samples a plane at stride 3 ~6), residual pass (C, bound by the two 512-bit
-ports: 12 vpmullq a vector) ~8, rANS (C, gather-bound) ~5.6, alphabet indices and histograms ~4 (4 sub-histograms:
-no faster), the rest (escape mask, noise check, container) ~5.
+(4) The dither and the forward transform (d5fcb01), the encoder's causal buffer (1f6ab1a), its alphabet indices and
+counts (2b57d2b). Plus, in numba, the least-squares sampling loop without a view per sample (1.35x on that loop,
+same bytes). At 2b57d2b, 1-thread CPU with the compiled loops against without (METRAW_NATIVE off; same process,
+alternating, 11 rounds, step 1): encode canon_dng 65.1 -> 48.0 ms (1.36x), micasense 30.4 -> 19.3 (1.58x),
+spacenet_pan 10.1 -> 7.8 (1.30x); decode 59.3 -> 37.3 (1.59x), 34.7 -> 20.4 (1.70x), 9.7 -> 6.3 (1.54x).
+``--speed`` at 2b57d2b (21 rounds, load 1.1-1.3; bpp as in issue #18's table), JPEG-LS / metraw 2-thread wall,
+encode / decode, steps 1 and 2: canon_dng 2.64 / 3.27 and 2.66 / 3.46; micasense 3.78 / 3.62 and 3.77 / 3.57;
+spacenet_pan 2.58 / 3.09 and 2.67 / 2.96; 1-thread CPU / JPEG-LS: 0.62 / 0.50, 0.64 / 0.51; 0.43 / 0.47, 0.44 / 0.47;
+0.59 / 0.52, 0.61 / 0.53; par (CPU / wall on 2 threads) 1.74-1.86. 20 MP frame: 2-thread 257 / 199 ms (step 1) and
+275 / 209 ms (step 2), 73-78 / 95-101 Mpix/s, x JPEG-LS 3.10 / 3.53 and 3.15 / 3.90. The runs before it, same
+benchmark: at 1f6ab1a (load 1.1-1.9) canon_dng 2.80 / 3.29 and 2.79 / 3.37, micasense 3.70 / 3.87 and 3.51 / 3.65,
+20 MP 3.09 / 3.37 and 2.92 / 3.30; at d5fcb01 canon_dng 2.69 / 3.17 and 2.56 / 3.43; at ec80929 (before (4))
+2.47 / 3.25 and 2.40 / 3.18. JPEG-LS's own times moved by up to 20 % between these runs (canon_dng encode 66-84 ms):
+the host's pace, not the code.
+Left: canon_dng's encode at 2.56-2.80x (3x needs ~7-15 % less CPU). Its 1-thread encode (~41-48 ms): least squares
+~9 (normal equations on 28 k samples a plane at stride 3 ~6, thresholds ~2), residual pass (C, bound by the two
+512-bit ports: 12 vpmullq a vector) ~8, rANS (C, gather-bound) ~5.6, causal buffer (C, memory-bound) ~2, alphabet
+indices and counts (C) ~3, transform and dither (C) ~3, the rest (escape mask, noise check, container) ~4.
+Tried, not taken: a hand multi-quickselect for the thresholds (146 against np.partition's 235 us a plane: ~0.7 ms a
+frame); 4 sub-histograms in numba's _index (no faster).
 
 A vectorised pass can only take taps whose coefficients do not depend on the activity context (which needs W).
 ``benchmarks/codec_predictors.py`` (2026-11-26; empirical H(r | context, phase) in float arithmetic, no side
