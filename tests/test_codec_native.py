@@ -253,3 +253,20 @@ def test_the_compiled_loops_are_built_where_a_compiler_and_avx512_are():
     if not (shutil.which("cc") and platform.machine() == "x86_64" and "avx512f" in flags and "avx512dq" in flags):
         pytest.skip("no C compiler or no AVX-512 here: the numba loops are expected")
     assert native.LIB is not None, "metraw.codec._simd was not built or not loaded (pip install -e . builds it)"
+
+
+def test_a_library_of_another_interface_version_is_left_unused(monkeypatch):
+    """A library built from an older ``_simd.c`` (its interface number differs, or it has none) is not called: one
+    warning names the rebuild, and the codec keeps its numba loops."""
+    import importlib.util
+    import warnings
+
+    if importlib.util.find_spec("metraw.codec._simd") is None:
+        pytest.skip("the extension is not built here")
+    monkeypatch.delenv("METRAW_NATIVE", raising=False)
+    monkeypatch.setattr(native, "ABI", native.ABI + 1)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        lib = native._load()
+    assert lib is None
+    assert len(caught) == 1 and "pip install -e ." in str(caught[0].message)

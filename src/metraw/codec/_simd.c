@@ -635,6 +635,10 @@ void metraw_index(const int32_t *r, const int32_t *t, i64 n, i64 amax, i64 ntab,
 #endif
 }
 
+/* The functions' signatures and meaning, version: metraw.codec.native.ABI must match it, so a library built from an
+ * older _simd.c (an editable install is not rebuilt by a pull) is left unused rather than called wrongly. */
+int metraw_simd_abi(void) { return 1; }
+
 /* 1 when this CPU runs the AVX-512 steady part (AVX-512 F and DQ), else 0 */
 int metraw_simd_available(void)
 {

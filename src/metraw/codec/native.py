@@ -18,6 +18,7 @@ from __future__ import annotations
 import ctypes
 import importlib.util
 import os
+import warnings
 
 import numpy as np
 
@@ -25,10 +26,14 @@ import numpy as np
 LANE_COUNTS = (8, 16)
 #: Bytes the compiled loop may read past the end of the symbol table and of the word array (32-bit gathers).
 READ_PAST_END_BYTES = 4
+#: The library's interface version (``metraw_simd_abi`` in ``_simd.c``): raised with any change of its functions.
+ABI = 1
 
 
 def _load() -> ctypes.CDLL | None:
-    """The extension's library, or None (not built, not loadable, CPU without AVX-512, or METRAW_NATIVE=0)."""
+    """The extension's library, or None (not built, not loadable, built from another version of ``_simd.c``, CPU
+    without AVX-512, or METRAW_NATIVE=0). A stale library (an editable install not rebuilt after a pull) gets one
+    warning naming the fix; the codec then runs its numba loops."""
     if os.environ.get("METRAW_NATIVE", "1").strip() == "0":
         return None
     spec = importlib.util.find_spec("metraw.codec._simd")
@@ -36,7 +41,14 @@ def _load() -> ctypes.CDLL | None:
         return None
     try:
         lib = ctypes.CDLL(spec.origin)
-    except OSError:
+        lib.metraw_simd_abi.restype = ctypes.c_int
+        abi = lib.metraw_simd_abi()
+    except (OSError, AttributeError):
+        abi = None
+    if abi != ABI:
+        warnings.warn(f"{spec.origin} was built from another version of metraw's _simd.c (interface {abi}, this "
+                      f"code needs {ABI}): the codec runs its numba loops; rebuild it with pip install -e .",
+                      stacklevel=2)
         return None
     p, i64, c_int = ctypes.c_void_p, ctypes.c_int64, ctypes.c_int
     lib.metraw_simd_available.argtypes = []
