@@ -6,8 +6,9 @@ sequential loop (lanes in registers), the encoder's residual pass (8 pixels of a
 a compiler, on a CPU without AVX-512 (F and DQ), or with ``METRAW_NATIVE=0`` in the environment, ``LIB`` is None and
 the codec runs its numba loops (``decoder.decode_plane``, ``predictive._residuals``, ``predictive._rans_encode``,
 ``predictive._front``, ``predictive._index``, ``prepare._dither_grid_kernel``, ``prepare._forward_kernel``).
-Both run the same integer arithmetic, so the streams and decoded values are the same (tests compare them); only the speed differs. The extension
-takes streams of ``LANE_COUNTS`` lanes (today's encoder writes 8); others take the numba loop.
+Both run the same arithmetic, so the streams and decoded values are the same (tests compare them); only the speed
+differs. The compiled decoder takes streams of ``LANE_COUNTS`` lanes (today's encoder writes 8); others take the numba
+loop.
 
 The C functions are called through ctypes (which releases the GIL, so tiles decode in parallel threads); they use no
 Python API. Arrays are passed by address: the caller keeps them alive, C-contiguous and of the documented dtypes.
@@ -77,7 +78,7 @@ LIB = _load()
 
 def _addr(a: np.ndarray, dtype) -> int:
     if a.dtype != dtype or not a.flags.c_contiguous:
-        raise TypeError(f"native decoder: expected a C-contiguous {np.dtype(dtype)} array, got {a.dtype}")
+        raise TypeError(f"native codec loop: expected a C-contiguous {np.dtype(dtype)} array, got {a.dtype}")
     return a.ctypes.data
 
 
