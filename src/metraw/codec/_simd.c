@@ -426,7 +426,7 @@ SIMD_FN static void rans_lanes8(const int32_t *idx, const int32_t *tab, i64 alph
 
 void metraw_rans_encode(const int32_t *idx, const int32_t *tab, i64 alpha, const i64 *freq, const i64 *cum,
                         const double *rcp, const i64 *rs, const i64 *rl, const i64 *lr, const i64 *ls, i64 nl,
-                        uint16_t *out, u64 *xs, i64 *nws, int simd)
+                        uint16_t *out, u64 *xs, i64 *nws)
 {
     i64 ci[16], ce[16], cq[16];
     i64 longest = 0, shortest = -1;
@@ -443,9 +443,7 @@ void metraw_rans_encode(const int32_t *idx, const int32_t *tab, i64 alpha, const
     }
     i64 lo = 0;
 #if METRAW_X86
-    if (simd && nl % 8 == 0 && shortest >= 16) lo = shortest;   /* >= 16 symbols: the scatter stays in the lane */
-#else
-    (void)simd;
+    if (nl % 8 == 0 && shortest >= 16) lo = shortest;   /* >= 16 symbols: the scatter stays in the lane */
 #endif
     for (i64 k = longest - 1; k >= lo; k--) {
         for (i64 j = 0; j < nl; j++) {
@@ -637,7 +635,7 @@ void metraw_index(const int32_t *r, const int32_t *t, i64 n, i64 amax, i64 ntab,
 
 /* The functions' signatures and meaning, version: metraw.codec.native.ABI must match it, so a library built from an
  * older _simd.c (an editable install is not rebuilt by a pull) is left unused rather than called wrongly. */
-int metraw_simd_abi(void) { return 1; }
+int metraw_simd_abi(void) { return 2; }
 
 /* 1 when this CPU runs the AVX-512 steady part (AVX-512 F and DQ), else 0 */
 int metraw_simd_available(void)
@@ -651,13 +649,13 @@ int metraw_simd_available(void)
 }
 
 /* metraw.codec.decoder.decode_plane: p the (h + 2) x (w + 4) padded buffer, u the fixed-point dither (h x w),
- * sym the symbols out (h x w); lut and words readable 4 bytes past their ends (gathers read 32 bits); simd 1: the
- * AVX-512 steady part for groups of 8 or 16 lanes (only where metraw_simd_available()). Returns 1, or 0 when a lane
+ * sym the symbols out (h x w); lut and words readable 4 bytes past their ends (gathers read 32 bits); groups of 8
+ * or 16 lanes run the AVX-512 steady part (call only where metraw_simd_available()). Returns 1, or 0 when a lane
  * ran past its words or escapes (corrupt stream). */
 int metraw_decode_plane(i64 *p, i64 h, i64 w, const int32_t *u, int32_t *sym, const i64 *thr7, const i64 *coef8x13,
                    i64 tab0, i64 pshift, const void *lut, int lut16, const uint32_t *fcum, i64 alpha, i64 amax,
                    const uint16_t *words, u64 *xs, i64 *pos, const i64 *pmin, const int32_t *esc, i64 *epos,
-                   const i64 *eend, i64 nl, int simd)
+                   const i64 *eend, i64 nl)
 {
     model_t m = {thr7, coef8x13, tab0, pshift, alpha, amax, lut, lut16, fcum, words, esc};
     const i64 ws = w + 4;
@@ -665,14 +663,12 @@ int metraw_decode_plane(i64 *p, i64 h, i64 w, const int32_t *u, int32_t *sym, co
     for (i64 y0 = 0; y0 < h; y0 += nl) {
         i64 nr = nl < h - y0 ? nl : h - y0;
         const i64 XS0 = 3 * (nl - 1) + 1;
-        int fast = simd && nr == nl && (nl == 8 || nl == 16) && w >= XS0 + 2;
+        int fast = METRAW_X86 && nr == nl && (nl == 8 || nl == 16) && w >= XS0 + 2;
         for (i64 xsw = 0; xsw < w + 3 * (nr - 1); xsw++) {
 #if METRAW_X86
             if (fast && xsw == XS0) {
                 if (!(nl == 8 ? steady8 : steady16)(pf, y0, w, u, &m, xs, pos, pmin, epos, eend)) return 0;
             }
-#else
-            fast = 0;
 #endif
             if (fast && xsw >= XS0 && xsw <= w - 2) continue;
             if (!(lut16 ? general_step(1, pf, xsw, y0, nr, w, u, &m, xs, pos, pmin, epos, eend)

@@ -51,6 +51,13 @@ def _u(i):
 CTAB_MAX = 1 << 15
 
 
+def predictor_table(coef, bias) -> np.ndarray:
+    """Per activity context the 11 coefficients, their sum and the bias ((nact, 13) int64): the predictor as the
+    per-pixel loops read it (sum_i k_i (n_i - W) = sum_i k_i n_i - W sum_i k_i)."""
+    c11 = np.asarray(coef, np.int64).reshape(-1, NTAP - 1)
+    return np.concatenate([c11, c11.sum(1, keepdims=True), np.asarray(bias, np.int64).reshape(-1, 1)], 1)
+
+
 def context_table(thr: np.ndarray) -> np.ndarray | None:
     """Table of the activity context c = #{i: act > thr_i} (thresholds multiples of 2^8, as stored)
     by k = min(((act - 1) >> 8) + 1, size - 1): act > 2^8 T <=> (act - 1) >> 8 >= T for act >= 0, so
@@ -447,8 +454,7 @@ def _decode(mv: memoryview, dithers: list[np.ndarray], outs) -> list[np.ndarray]
         g = 0 if shared else k
         thr, coef, bias = heads[g]
         thr7 = np.concatenate([thr, np.full(MAX_NACT - 1 - thr.size, np.iinfo(np.int64).max, np.int64)])
-        c11 = coef.reshape(nact, NTAP - 1)
-        coef13 = np.concatenate([c11, c11.sum(1, keepdims=True), bias[:, None]], 1).reshape(-1)
+        coef13 = predictor_table(coef, bias).reshape(-1)
         h, w = u.shape
         p = buf[:(h + 2) * (w + 4)].reshape(h + 2, w + 4)
         _init_front(p, np.int64(c0s[k]) << 16)

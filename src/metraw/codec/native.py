@@ -28,7 +28,7 @@ LANE_COUNTS = (8, 16)
 #: Bytes the compiled loop may read past the end of the symbol table and of the word array (32-bit gathers).
 READ_PAST_END_BYTES = 4
 #: The library's interface version (``metraw_simd_abi`` in ``_simd.c``): raised with any change of its functions.
-ABI = 1
+ABI = 2
 
 
 def _load() -> ctypes.CDLL | None:
@@ -55,11 +55,11 @@ def _load() -> ctypes.CDLL | None:
     lib.metraw_simd_available.argtypes = []
     lib.metraw_simd_available.restype = c_int
     lib.metraw_decode_plane.argtypes = [p, i64, i64, p, p, p, p, i64, i64, p, c_int, p, i64, i64, p, p, p, p, p, p, p,
-                                        i64, c_int]
+                                        i64]
     lib.metraw_decode_plane.restype = c_int
     lib.metraw_residuals.argtypes = [p, i64, i64, p, i64, p, i64, i64, p, p]
     lib.metraw_residuals.restype = i64
-    lib.metraw_rans_encode.argtypes = [p, p, i64, p, p, p, p, p, p, p, i64, p, p, p, c_int]
+    lib.metraw_rans_encode.argtypes = [p, p, i64, p, p, p, p, p, p, p, i64, p, p, p]
     lib.metraw_rans_encode.restype = None
     u64, f64 = ctypes.c_uint64, ctypes.c_double
     lib.metraw_dither_grid.argtypes = [u64, u64, i64, i64, i64, i64, i64, p]
@@ -82,36 +82,38 @@ def _addr(a: np.ndarray, dtype) -> int:
     return a.ctypes.data
 
 
+def _eight_contexts(table: np.ndarray) -> np.ndarray:
+    """A predictor table (``decoder.predictor_table``, nact x 13) padded with zeros to the 8 contexts the vector
+    code permutes over."""
+    out = np.zeros((8, 13), np.int64)
+    out[:table.shape[0]] = table
+    return out
+
+
 def decode_plane(p, u, sym, thr7, coef13, tab0, pshift, lut, fcum, amax, words, xs, pos, pmin, esc, epos, eend) -> bool:
     """``decoder.decode_plane`` (same arguments but ``ctab``, same results) in the compiled loop; ``LIB`` must be
     loaded and ``xs.size`` in ``LANE_COUNTS``. ``lut`` and ``words`` must be readable ``READ_PAST_END_BYTES`` past
     their ends (``decoder`` allocates them so); ``coef13`` holds 13 values per context (padded here to 8 contexts)."""
     h, w = p.shape[0] - 2, p.shape[1] - 4
-    coef = np.zeros(8 * 13, np.int64)
-    coef[:coef13.size] = coef13
+    coef = _eight_contexts(coef13.reshape(-1, 13))
     lut16 = lut.dtype == np.int16
     ok = LIB.metraw_decode_plane(
         _addr(p, np.int64), h, w, _addr(u, np.int32), _addr(sym, np.int32), _addr(thr7, np.int64),
         _addr(coef, np.int64),
         int(tab0), int(pshift), _addr(lut, np.int16 if lut16 else np.uint8), int(lut16), _addr(fcum, np.uint32),
         fcum.shape[1], int(amax), _addr(words, np.uint16), _addr(xs, np.uint64), _addr(pos, np.int64),
-        _addr(pmin, np.int64), _addr(esc, np.int32), _addr(epos, np.int64), _addr(eend, np.int64), xs.size, 1)
+        _addr(pmin, np.int64), _addr(esc, np.int32), _addr(epos, np.int64), _addr(eend, np.int64), xs.size)
     return bool(ok)
 
 
-def residuals(p, thr, coef, bias, tab0, pshift, r_out, t_out, off) -> int:
+def residuals(p, thr, table, tab0, pshift, r_out, t_out, off) -> int:
     """``predictive._residuals`` (the encoder's residual pass over one plane, same results) in AVX-512, 8 pixels of a
-    row at a time: ``p`` the plane's padded buffer, ``thr`` its nact - 1 thresholds, ``coef`` (nact, 11) and ``bias``
-    (nact) its predictors; residuals and table indices go to ``r_out`` / ``t_out`` (int32) at ``off``. Returns
+    row at a time: ``p`` the plane's padded buffer, ``thr`` its nact - 1 thresholds, ``table`` its predictors
+    (``decoder.predictor_table``); residuals and table indices go to ``r_out`` / ``t_out`` (int32) at ``off``. Returns
     max |r|."""
     h, w = p.shape[0] - 2, p.shape[1] - 4
-    nact = bias.size
-    coef13 = np.zeros((8, 13), np.int64)
-    c11 = np.asarray(coef, np.int64).reshape(nact, 11)
-    coef13[:nact, :11] = c11
-    coef13[:nact, 11] = c11.sum(1)
-    coef13[:nact, 12] = bias
-    if not (off >= 0 and off + h * w <= min(r_out.size, t_out.size) and thr.size == nact - 1 <= 7):
+    coef13 = _eight_contexts(table)
+    if not (off >= 0 and off + h * w <= min(r_out.size, t_out.size) and thr.size == table.shape[0] - 1 <= 7):
         raise ValueError("native residuals: outputs too small or thresholds do not match the predictors")
     thr = np.ascontiguousarray(thr, np.int64)
     return int(LIB.metraw_residuals(_addr(p, np.int64), h, w, _addr(thr, np.int64), thr.size, _addr(coef13, np.int64),
@@ -133,7 +135,7 @@ def rans_encode(idx, tab, freq, cum, rcp, rs, rl, lr, ls, out):
     LIB.metraw_rans_encode(_addr(idx, np.int32), _addr(tab, np.int32), freq.shape[1], _addr(freq, np.int64),
                            _addr(cum, np.int64), _addr(rcp, np.float64), _addr(rs, np.int64), _addr(rl, np.int64),
                            _addr(lr, np.int64), _addr(ls, np.int64), nl, _addr(out, np.uint16), _addr(xs, np.uint64),
-                           _addr(nws, np.int64), 1)
+                           _addr(nws, np.int64))
     return xs, nws
 
 

@@ -57,6 +57,7 @@ from metraw.codec import native
 from metraw.codec.container import put_varint
 from metraw.codec.decoder import (  # noqa: F401  (the format's constants; decode_planes re-exported)
     _HEAD, COEF_BITS, FRAC, MAX_NACT, MAX_RESID, NPH, NTAP, PROB_BITS, PROB_SCALE, RANS_L, _normalise, decode_planes,
+    predictor_table,
     fixed_point)
 
 MIN_FIT = 64                   # fewer samples in a context: use the default predictor
@@ -516,16 +517,20 @@ def _fit(ata, atb):
     return coef, bias
 
 
-def _model_plane(s, u, nact, stride):
-    """One plane's causal buffer and model, in compiled calls without the GIL (the buffer in C where
-    ``metraw.codec.native`` is built): returns (front, c0, thr, coef, bias). ``stride``: the least-squares
-    sampling lattice (activities on twice that)."""
+def _causal_buffer(s, u):
+    """(front, c0) of ``_front_c0``: the buffer in C where ``metraw.codec.native`` is built and the plane is
+    contiguous int32 symbols with a float64 dither, else in numba."""
     if native.LIB is not None and s.dtype == np.int32 and s.flags.c_contiguous and u.dtype == np.float64 \
             and u.flags.c_contiguous:
         c0 = _mean_symbol(s)
-        front = native.front(s, u, c0)
-    else:
-        front, c0 = _front_c0(s, u)
+        return native.front(s, u, c0), c0
+    return _front_c0(s, u)
+
+
+def _model_plane(s, u, nact, stride):
+    """One plane's causal buffer (``_causal_buffer``) and model, in compiled calls without the GIL: returns
+    (front, c0, thr, coef, bias). ``stride``: the least-squares sampling lattice (activities on twice that)."""
+    front, c0 = _causal_buffer(s, u)
     thr, coef, bias = _model_of_front(front, nact, stride)
     return front, c0, thr, coef, bias
 
@@ -670,7 +675,7 @@ def _shared_model(planes, nact: int, memo: dict):
     layouts of the same planes (``encode_planes`` tries several)."""
     if "fronts" not in memo:
         stride = _ls_stride(sum(s.size for s, _ in planes))
-        fronts, c0s = zip(*(_front_c0(s, u) for s, u in planes))
+        fronts, c0s = zip(*(_causal_buffer(s, u) for s, u in planes))
         c0s = [int(c0) for c0 in c0s]
         memo["fronts"] = stride, c0s, fronts, np.concatenate([_activity_samples(f, 2 * stride) for f in fronts])
     stride, c0s, fronts, acts = memo["fronts"]
@@ -709,7 +714,7 @@ def _encode_planes(planes, shared: bool, nact: int, pshift: int, account: list |
     off = 0
     for (s, _), (front, thr, coef, bias, tab0) in zip(planes, models):
         if native.LIB is not None:
-            rmax = max(rmax, native.residuals(front, thr, coef, bias, tab0, pshift, r_all, t_all, off))
+            rmax = max(rmax, native.residuals(front, thr, predictor_table(coef, bias), tab0, pshift, r_all, t_all, off))
         else:
             rmax = max(rmax, int(_residuals(s, front, thr, coef, bias, tab0, pshift, r_all, t_all, off)))
         off += s.size
