@@ -8,6 +8,8 @@ extension is not built or the CPU has no AVX-512.
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 
@@ -152,6 +154,44 @@ def test_compiled_causal_buffer_is_numbas():
 
 
 @needs_native
+def test_compiled_plane_buffer_is_dither_forward_and_front(monkeypatch):
+    """The encoder's one-pass plane buffer (dither, forward transform and causal buffer from the DN) against the three
+    steps in numba (``_dither_grid_kernel``, ``_forward_kernel``, ``_front_c0``), exactly: CFA cells of 1 to 4 pixels
+    (contiguous rows, the 32-bit load of 2-pixel cells, the scalar path), planes ending at the array's end (nothing
+    read past it), widths with partial vectors, dither starts past 2^32, steps 0.5 / 1 / 2, DN below black and at or
+    past white. And ``codec.encode`` writes the same bytes with it as without it."""
+    from metraw.codec import prepare
+
+    rng = np.random.default_rng(12)
+    for trial in range(120):
+        h, w = (int(v) for v in rng.integers(1, 40, 2))
+        cell = int(rng.integers(1, 5))
+        frame = rng.integers(0, 17000, (h * cell + int(rng.integers(0, 3)), w * cell + int(rng.integers(0, 3))))
+        frame = frame.astype(np.uint16)
+        frame.flat[:4] = [0, 99, 16000, 16999]
+        dy, dx = (int(v) for v in rng.integers(0, cell, 2))
+        plane = frame[dy::cell, dx::cell] if trial % 2 else frame[dy::cell, dx::cell][:h, :w]
+        seed, start, step = int(rng.integers(0, 2**62)), int(rng.integers(0, 2**34)), float(rng.choice([0.5, 1, 2]))
+        keys, args = prepare.dither_keys(seed), prepare.forward_args(PROF, step)
+        u = prepare._dither_grid_kernel(*keys, start, *plane.shape, cell * frame.shape[1], cell)
+        front, c0 = predictive._front_c0(prepare._forward_kernel(plane, *args, u), u)
+        got, got_c0 = native.plane_buffer(plane, keys, start, cell * frame.shape[1], cell, args)
+        np.testing.assert_array_equal(got, front)
+        assert got_c0 == c0
+    img = _image(300, 222, "RGGB", 400, 3)
+    calls = []
+    compiled = native.plane_buffer
+    with monkeypatch.context() as m:
+        m.setattr(native, "plane_buffer", lambda *a: calls.append(1) or compiled(*a))
+        with_buffer = codec.encode(img, 1.0, 5)
+    with monkeypatch.context() as m:   # the buffers from _tile_symbols, as without the compiled plane buffer
+        m.setattr(codec, "_tile_buffers", lambda data, r0, r1, profile, step, seed: [
+            predictive._causal_buffer(s, u) for _, u, s in codec._tile_symbols(data, r0, r1, profile, step, seed)])
+        without = codec.encode(img, 1.0, 5)
+    assert len(calls) == 8 and with_buffer == without   # 2 row tiles x 4 planes
+
+
+@needs_native
 def test_compiled_alphabet_indices_and_counts_are_numbas():
     """Alphabet indices (escape past +-amax) and per-table counts against numba's ``_index``: lengths with a partial
     last vector and odd lengths (the two sub-histograms), long runs of one bin, residuals at +-amax and beyond."""
@@ -254,6 +294,8 @@ def test_the_compiled_loops_are_built_where_a_compiler_and_avx512_are():
     flags = cpuinfo.read_text().split() if cpuinfo.exists() else []
     if not (shutil.which("cc") and platform.machine() == "x86_64" and "avx512f" in flags and "avx512dq" in flags):
         pytest.skip("no C compiler or no AVX-512 here: the numba loops are expected")
+    if os.environ.get("METRAW_NATIVE", "1").strip() == "0":
+        pytest.skip("METRAW_NATIVE=0: the numba loops are asked for")
     assert native.LIB is not None, "metraw.codec._simd was not built or not loaded (pip install -e . builds it)"
 
 

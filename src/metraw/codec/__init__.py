@@ -29,7 +29,7 @@ import numba as nb
 import numpy as np
 
 from metraw.cfa import plane_offsets, cell_size
-from metraw.codec import container, entropy, predictive, prepare
+from metraw.codec import container, entropy, native, predictive, prepare
 from metraw.errors import MetrawError
 from metraw.image import RawImage
 from metraw.profile import CalibrationProfile
@@ -220,6 +220,30 @@ def _tile_symbols(data: np.ndarray, r0: int, r1: int, profile: CalibrationProfil
             for g, u in zip(_plane_grid(r0, r1, w, pattern), _plane_dithers(seed, r0, r1, w, pattern))]
 
 
+def _tile_buffers(data: np.ndarray, r0: int, r1: int, profile: CalibrationProfile, step: float,
+                  seed: int) -> list[tuple[np.ndarray, int]]:
+    """Per CFA plane of the row tile r0 .. r1 - 1 of ``data``: its causal buffer (front, c0) as
+    ``predictive.encode_planes`` makes it from ``_tile_symbols``, made straight from the DN in one compiled pass per
+    plane where ``metraw.codec.native`` is built (no dither or symbol arrays: less memory traffic), else from
+    ``_tile_symbols``."""
+    if native.LIB is None:
+        return [predictive._causal_buffer(s, u) for _, u, s in _tile_symbols(data, r0, r1, profile, step, seed)]
+    w = data.shape[1]
+    cell = cell_size(profile.cfa_pattern)
+    keys, args = prepare.dither_keys(seed), prepare.forward_args(profile, step)
+    return [native.plane_buffer(data[r0 + dy:r1:cell, dx::cell], keys, (r0 + dy) * w + dx, cell * w, cell, args)
+            for dy, dx, _, _ in _plane_grid(r0, r1, w, profile.cfa_pattern)]
+
+
+def _buffer_symbols(front: np.ndarray) -> np.ndarray:
+    """The symbols of the central 256 x 256 crop of a plane from its causal buffer (front = s 2^16 - floor(u 2^16),
+    floor(u 2^16) in [-2^15, 2^15)): all that ``_noise_sigma_of_planes`` reads of a plane (``_hh_values``)."""
+    ph, pw = front.shape[0] - 2, front.shape[1] - 4
+    y0, x0 = max(0, ph // 2 - 128), max(0, pw // 2 - 128)
+    crop = front[2 + y0:2 + y0 + min(256, ph - y0), 2 + x0:2 + x0 + min(256, pw - x0)]
+    return (crop + 32767) >> 16
+
+
 def _check_encode_args(image, step, seed, caller: str) -> tuple[float, int]:
     """(step, seed) as float and int after checking them and ``image`` (one clear error each)."""
     if not isinstance(image, RawImage):
@@ -281,11 +305,12 @@ def encode(image: RawImage, step: float = 1.0, seed: int = 0, check_profile: boo
 
     def work(tile):
         r0, r1 = tile
-        _, us, syms = zip(*_tile_symbols(data, r0, r1, prof, step, seed))
+        buffers = _tile_buffers(data, r0, r1, prof, step, seed)
         # the profile check looks at the first row tile only (half the frame at most: plenty)
-        measured = _noise_sigma_of_planes(syms, step) if check_profile and r0 == 0 else None
+        measured = (_noise_sigma_of_planes([_buffer_symbols(f) for f, _ in buffers], step)
+                    if check_profile and r0 == 0 else None)
         acc = [] if account is not None else None
-        return predictive.encode_planes(list(zip(syms, us)), acc), acc, measured
+        return predictive.encode_buffers(buffers, acc), acc, measured
 
     results = _map_tiles(work, tiles)
     esc = prepare.escape_mask(data, prof)

@@ -1,6 +1,7 @@
 """The codec's per-pixel loops compiled from C (``_simd.c``, AVX-512), where they are built and run: the decoder's
 sequential loop (lanes in registers), the encoder's residual pass (8 pixels of a row at a time) and its rANS pass
-(8 lanes at a time), its causal buffer, alphabet indices, the dither and the forward transform.
+(8 lanes at a time), its causal buffer (from the DN in one pass with the dither and the forward transform, or from
+the symbols), alphabet indices, the dither and the forward transform.
 
 ``pip install`` builds the extension ``metraw.codec._simd`` when a C compiler is present; the build is optional: without
 a compiler, on a CPU without AVX-512 (F and DQ), or with ``METRAW_NATIVE=0`` in the environment, ``LIB`` is None and
@@ -28,7 +29,7 @@ LANE_COUNTS = (8, 16)
 #: Bytes the compiled loop may read past the end of the symbol table and of the word array (32-bit gathers).
 READ_PAST_END_BYTES = 4
 #: The library's interface version (``metraw_simd_abi`` in ``_simd.c``): raised with any change of its functions.
-ABI = 2
+ABI = 3
 
 
 def _load() -> ctypes.CDLL | None:
@@ -66,6 +67,8 @@ def _load() -> ctypes.CDLL | None:
     lib.metraw_dither_grid.restype = None
     lib.metraw_forward.argtypes = [p, i64, i64, i64, i64, f64, f64, f64, f64, f64, p, p]
     lib.metraw_forward.restype = None
+    lib.metraw_plane_buffer.argtypes = [p, i64, i64, i64, i64, u64, u64, i64, i64, i64, f64, f64, f64, f64, f64, p]
+    lib.metraw_plane_buffer.restype = i64
     lib.metraw_front.argtypes = [p, p, i64, i64, i64, p]
     lib.metraw_front.restype = None
     lib.metraw_index.argtypes = [p, p, i64, i64, i64, p, p]
@@ -171,6 +174,26 @@ def front(s: np.ndarray, u: np.ndarray, c0: int) -> np.ndarray:
     p = np.empty((h + 2, w + 4), np.int64)
     LIB.metraw_front(_addr(s, np.int32), _addr(u, np.float64), h, w, int(c0) << 16, p.ctypes.data)
     return p
+
+
+def plane_buffer(data: np.ndarray, keys: tuple[int, int], start: int, row_step: int, col_step: int,
+                 forward_args: tuple[float, float, float, float, float]) -> tuple[np.ndarray, int]:
+    """The encoder's causal buffer of a CFA plane straight from its DN, in one pass: (front, c0) as
+    ``predictive._front_c0`` gives them for the symbols ``prepare.forward(data, ..., u)`` and the dither
+    ``u = prepare.dither_grid(seed, start, h, w, row_step, col_step)``, without making either array. ``data`` uint16
+    (h, w) at any positive strides; ``keys`` the dither's (k1, k2) (``prepare.dither_keys``); ``forward_args``
+    (black, 1 / K, c, xmax, 1 / q) (``prepare.forward_args``)."""
+    h, w = data.shape
+    rs, cs = (st // data.itemsize for st in data.strides)
+    if data.dtype != np.uint16 or rs <= 0 or cs <= 0 or h * w == 0:
+        raise TypeError("native plane buffer: non-empty uint16 data with positive strides are needed")
+    p = np.empty((h + 2, w + 4), np.int64)
+    total = LIB.metraw_plane_buffer(data.ctypes.data, h, w, rs, cs, keys[0], keys[1], int(start), int(row_step),
+                                    int(col_step), *forward_args, p.ctypes.data)
+    c0 = int(np.rint(np.float64(total) / np.float64(h * w)))   # predictive._mean_symbol
+    p[:2] = c0 << 16
+    p[2, :2] = c0 << 16
+    return p, c0
 
 
 def index(r: np.ndarray, t: np.ndarray, amax: int, ntab: int) -> tuple[np.ndarray, np.ndarray]:

@@ -38,7 +38,7 @@ the causal buffer, the residual pass (8 pixels at a time), the alphabet indices 
 the same bytes; the numba decoder runs the steady part of each 4-row group with the lane states in
 registers; both evaluate sum_i k_i (n_i - W) as sum_i k_i n_i - W sum_i k_i (exact integers, the
 same value).
-The encoder's work is a few compiled calls per section (``_model_plane``, ``_residuals``,
+The encoder's work is a few compiled calls per section (``_model_of_front``, the residual pass,
 ``_code_section``), each releasing the GIL, so that row tiles in parallel threads rarely wait on
 each other for the interpreter. The decoder is ``metraw.codec.decoder``
 (unsigned indices into flat views, context by table lookup, lane limits checked once per group
@@ -222,14 +222,14 @@ def _normal_equations(p, thr, stride, ata, atb):
 
 
 @nb.njit(cache=True, nogil=True)
-def _residuals(s, p, thr, coef, bias, tab0, pshift, r_out, t_out, off):
-    """Residuals r (phase folded) and table indices of one plane (symbols ``s``, only its shape read:
-    the symbols are in the padded buffer ``p``) into flat outputs at ``off``.
+def _residuals(p, thr, coef, bias, tab0, pshift, r_out, t_out, off):
+    """Residuals r (phase folded) and table indices of one plane (its padded buffer ``p``, which holds
+    the symbols) into flat outputs at ``off``.
 
     Row by row in passes without a sequential dependence (every neighbour is known to the
     encoder), so they vectorise; the integer arithmetic is that of ``decoder.decode_pixel``.
     Returns max |r|."""
-    h, w = s.shape
+    h, w = p.shape[0] - 2, p.shape[1] - 4
     half = np.int64(1 << 15)
     rmax = np.int64(0)
     nthr = thr.size
@@ -527,17 +527,10 @@ def _causal_buffer(s, u):
     return _front_c0(s, u)
 
 
-def _model_plane(s, u, nact, stride):
-    """One plane's causal buffer (``_causal_buffer``) and model, in compiled calls without the GIL: returns
-    (front, c0, thr, coef, bias). ``stride``: the least-squares sampling lattice (activities on twice that)."""
-    front, c0 = _causal_buffer(s, u)
-    thr, coef, bias = _model_of_front(front, nact, stride)
-    return front, c0, thr, coef, bias
-
-
 @nb.njit(cache=True, nogil=True)
 def _model_of_front(front, nact, stride):
-    """The model of a plane's causal buffer: (thr, coef, bias) (see ``_model_plane``)."""
+    """The model of a plane's causal buffer, one compiled call without the GIL: (thr, coef, bias). ``stride``: the
+    least-squares sampling lattice (activities on twice that)."""
     thr = _thresholds(_activity_samples(front, 2 * stride), nact)
     ata = np.zeros((nact, NTAP, NTAP))
     atb = np.zeros((nact, NTAP))
@@ -634,7 +627,14 @@ def _section_escapes_and_tables(r, idx, stored, rs, rl, lr, amax, shared):
 
 
 def encode_planes(planes: list[tuple[np.ndarray, np.ndarray]], account: list | None = None) -> bytes:
-    """Code planes given as (symbols int32, dither float in [-1/2, 1/2)) pairs into one section.
+    """Code planes given as (symbols int32, dither float in [-1/2, 1/2)) pairs into one section: ``encode_buffers``
+    of their causal buffers (``_causal_buffer``)."""
+    return encode_buffers([_causal_buffer(s, u) for s, u in planes], account)
+
+
+def encode_buffers(buffers: list[tuple[np.ndarray, int]], account: list | None = None) -> bytes:
+    """Code planes given by their causal buffers, (front, c0) pairs (``_causal_buffer``, or straight from the DN by
+    ``native.plane_buffer``; front (h + 2) x (w + 4) int64), into one section.
 
     Tiles of >= ``SHARED_BELOW`` pixels: per-plane models, ``n_activity_contexts`` contexts x
     ``NPH`` phase bins, 12-bit tables, ``LANES`` rANS lanes. Smaller tiles: one model for all planes,
@@ -644,17 +644,16 @@ def encode_planes(planes: list[tuple[np.ndarray, np.ndarray]], account: list | N
     8 len(section): the plane's ideal code length (``_plane_symbol_bits``), plus its group's side
     information (predictor, thresholds, tables; split by pixels where planes share a model), plus
     a share of the common overhead (plane header, rANS flush) proportional to its code length."""
-    total = sum(s.size for s, _ in planes)
-    if total >= SHARED_BELOW:
-        nact = n_activity_contexts(min(s.size for s, _ in planes))
-        return _encode_planes(planes, False, nact, 0, account)
+    sizes = [(f.shape[0] - 2) * (f.shape[1] - 4) for f, _ in buffers]
+    if sum(sizes) >= SHARED_BELOW:
+        return _encode_planes(buffers, False, n_activity_contexts(min(sizes)), 0, account)
     best, best_acc = None, None
     memo = {}  # the candidates share buffers, activities and (same nact) the whole model
     for nact, pshift in ((1, 2), (1, 0), (2, 0)):
-        if nact > 1 and total < 2048:
+        if nact > 1 and sum(sizes) < 2048:
             continue
         acc = [] if account is not None else None
-        blob = _encode_planes(planes, True, nact, pshift, acc, memo)
+        blob = _encode_planes(buffers, True, nact, pshift, acc, memo)
         if best is None or len(blob) < len(best):
             best, best_acc = blob, acc
     if account is not None:
@@ -669,16 +668,16 @@ def _ls_stride(npix: int) -> int:
     return 2 * int(np.sqrt(npix / LS_SAMPLES) / 2) + 1
 
 
-def _shared_model(planes, nact: int, memo: dict):
-    """One model for all ``planes`` (small tiles): (c0 per plane, [(front, thr, coef, bias, tab0)] per
-    plane). ``memo`` keeps the buffers, activity samples and each nact's model for the other candidate
-    layouts of the same planes (``encode_planes`` tries several)."""
-    if "fronts" not in memo:
-        stride = _ls_stride(sum(s.size for s, _ in planes))
-        fronts, c0s = zip(*(_causal_buffer(s, u) for s, u in planes))
-        c0s = [int(c0) for c0 in c0s]
-        memo["fronts"] = stride, c0s, fronts, np.concatenate([_activity_samples(f, 2 * stride) for f in fronts])
-    stride, c0s, fronts, acts = memo["fronts"]
+def _shared_model(buffers, nact: int, memo: dict):
+    """One model for all planes (small tiles; ``buffers`` their (front, c0)): (c0 per plane, [(front, thr, coef, bias,
+    tab0)] per plane). ``memo`` keeps the activity samples and each nact's model for the other candidate layouts of
+    the same planes (``encode_buffers`` tries several)."""
+    fronts = [f for f, _ in buffers]
+    c0s = [int(c0) for _, c0 in buffers]
+    if "acts" not in memo:
+        stride = _ls_stride(sum((f.shape[0] - 2) * (f.shape[1] - 4) for f in fronts))
+        memo["acts"] = stride, np.concatenate([_activity_samples(f, 2 * stride) for f in fronts])
+    stride, acts = memo["acts"]
     if nact not in memo:
         thr = _thresholds(acts, nact)
         ata = np.zeros((nact, NTAP, NTAP))
@@ -687,16 +686,18 @@ def _shared_model(planes, nact: int, memo: dict):
             _normal_equations(f, thr, stride, ata, atb)
         coef, bias = _fit(ata, atb)
         memo[nact] = [(f, thr, coef, bias, 0) for f in fronts]
-    return list(c0s), memo[nact]
+    return c0s, memo[nact]
 
 
-def _encode_planes(planes, shared: bool, nact: int, pshift: int, account: list | None = None,
+def _encode_planes(buffers, shared: bool, nact: int, pshift: int, account: list | None = None,
                    memo: dict | None = None) -> bytes:
-    """One section with the given model layout (``memo``: see ``_shared_model``). The numerical work
-    runs in a few compiled calls that release the GIL (per plane ``_model_plane`` and ``_residuals``,
-    then ``_code_section``), so row tiles coded in parallel threads seldom wait for each other."""
-    npl = len(planes)
-    total = sum(s.size for s, _ in planes)
+    """One section of the planes of causal ``buffers`` with the given model layout (``memo``: see ``_shared_model``).
+    The numerical work runs in a few compiled calls that release the GIL (per plane ``_model_of_front`` and the
+    residual pass, then ``_code_section``), so row tiles coded in parallel threads seldom wait for each other."""
+    npl = len(buffers)
+    shapes = [(f.shape[0] - 2, f.shape[1] - 4) for f, _ in buffers]
+    sizes = [h * w for h, w in shapes]
+    total = sum(sizes)
     nph = NPH >> pshift
     ntab = (1 if shared else npl) * nact * nph
     r_all = np.empty(total, np.int32)
@@ -704,20 +705,19 @@ def _encode_planes(planes, shared: bool, nact: int, pshift: int, account: list |
     c0s, group_heads = [], []
     rmax = 0
     if shared:  # one model for all planes: activities and normal equations pooled over the planes
-        c0s, models = _shared_model(planes, nact, {} if memo is None else memo)
+        c0s, models = _shared_model(buffers, nact, {} if memo is None else memo)
     else:
         models = []
-        for k, (s, u) in enumerate(planes):
-            front, c0, thr, coef, bias = _model_plane(s, u, nact, _ls_stride(s.size))
+        for k, ((front, c0), n) in enumerate(zip(buffers, sizes)):
             c0s.append(int(c0))
-            models.append((front, thr, coef, bias, k * nact * nph))
+            models.append((front, *_model_of_front(front, nact, _ls_stride(n)), k * nact * nph))
     off = 0
-    for (s, _), (front, thr, coef, bias, tab0) in zip(planes, models):
+    for n, (front, thr, coef, bias, tab0) in zip(sizes, models):
         if native.LIB is not None:
             rmax = max(rmax, native.residuals(front, thr, predictor_table(coef, bias), tab0, pshift, r_all, t_all, off))
         else:
-            rmax = max(rmax, int(_residuals(s, front, thr, coef, bias, tab0, pshift, r_all, t_all, off)))
-        off += s.size
+            rmax = max(rmax, int(_residuals(front, thr, coef, bias, tab0, pshift, r_all, t_all, off)))
+        off += n
     for _, thr, coef, bias, _ in models[:1] if shared else models:
         group_heads.append((thr >> 8).astype("<u4").tobytes() + coef.astype("<i2").tobytes()
                            + np.clip(bias, -2**31, 2**31 - 1).astype("<i4").tobytes())
@@ -725,8 +725,7 @@ def _encode_planes(planes, shared: bool, nact: int, pshift: int, account: list |
     nl = 1 if shared else LANES
     (idx, freq, tab_bytes, tab_len, states, nws, out, starts, esc_vals,
      esc_cnt) = _code_section(r_all, t_all, amax, max(ntab, 1), shared,
-                              np.array([s.shape[0] for s, _ in planes], np.int64),
-                              np.array([s.shape[1] for s, _ in planes], np.int64), nl)
+                              np.array([h for h, _ in shapes], np.int64), np.array([w for _, w in shapes], np.int64), nl)
     parts = [_HEAD.pack(npl, nact, pshift, int(shared), nl, 8 if shared else 16, amax)]
     for j in range(nl):
         parts.append(struct.pack("<I", int(states[j])))
@@ -741,23 +740,23 @@ def _encode_planes(planes, shared: bool, nact: int, pshift: int, account: list |
     blob = b"".join(parts)
     if account is not None:
         groups = [list(range(npl))] if shared else [[k] for k in range(npl)]
-        account[:] = _account(planes, groups, idx, t_all, freq, 2 * amax + 1, group_heads, tab_len.tolist(),
+        account[:] = _account(sizes, groups, idx, t_all, freq, 2 * amax + 1, group_heads, tab_len.tolist(),
                               nact * nph, len(blob))
     return blob
 
 
-def _account(planes, groups, idx, t_all, freq, esc_i, group_heads, tables, tabs_per_group, nbytes) -> list[float]:
-    """Per-plane bits of a section (see ``encode_planes``); they sum to 8 ``nbytes``. ``tables``: bytes
-    of each coding table as stored."""
-    sizes = np.array([s.size for s, _ in planes], np.int64)
+def _account(sizes, groups, idx, t_all, freq, esc_i, group_heads, tables, tabs_per_group, nbytes) -> list[float]:
+    """Per-plane bits of a section (see ``encode_buffers``; ``sizes`` the planes' pixel counts); they sum to 8
+    ``nbytes``. ``tables``: bytes of each coding table as stored."""
+    sizes = np.array(sizes, np.int64)
     bounds = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
     bits = _plane_symbol_bits(idx, t_all, freq, bounds, esc_i)
-    side = np.zeros(len(planes))
+    side = np.zeros(sizes.size)
     for gi, g in enumerate(groups):
         gbits = 8.0 * (len(group_heads[gi]) + sum(tables[gi * tabs_per_group:(gi + 1) * tabs_per_group]))
         gpix = sizes[g].sum()
         for k in g:
             side[k] += gbits * (sizes[k] / gpix if gpix else 1.0 / len(g))
     rest = 8.0 * nbytes - bits.sum() - side.sum()
-    w = bits / bits.sum() if bits.sum() > 0 else np.full(len(planes), 1.0 / len(planes))
+    w = bits / bits.sum() if bits.sum() > 0 else np.full(sizes.size, 1.0 / sizes.size)
     return list(bits + side + rest * w)

@@ -73,6 +73,12 @@ def _dither_grid_kernel(k1, k2, start, rows, cols, row_step, col_step):
     return out
 
 
+def dither_keys(seed: int) -> tuple[int, int]:
+    """The dither hash's two 32-bit keys (k1, k2) for ``seed`` (``dither``)."""
+    key = _splitmix64(int(seed))
+    return key & 0xFFFFFFFF, (key >> 32) & 0xFFFFFFFF
+
+
 def dither(seed: int, start: int, count: int) -> np.ndarray:
     """Uniform dither in [-1/2, 1/2) for flat pixel indices ``start .. start+count-1`` (float64).
 
@@ -80,15 +86,13 @@ def dither(seed: int, start: int, count: int) -> np.ndarray:
     by ``splitmix64(seed)``, so any tile regenerates its own dither without the rest of the
     frame. The 24-bit output is exact in float32/float64. Compiled (numba), releases the GIL.
     """
-    key = _splitmix64(int(seed))
-    return _dither_kernel(key & 0xFFFFFFFF, (key >> 32) & 0xFFFFFFFF, int(start), int(count))
+    return _dither_kernel(*dither_keys(seed), int(start), int(count))
 
 
 def dither_grid(seed: int, start: int, rows: int, cols: int, row_step: int, col_step: int) -> np.ndarray:
     """``dither`` of the pixels start + i row_step + j col_step (i < rows, j < cols) as a contiguous
     (rows, cols) array: a CFA plane's dither without the rest of the frame's."""
-    key = _splitmix64(int(seed))
-    args = (key & 0xFFFFFFFF, (key >> 32) & 0xFFFFFFFF, int(start), int(rows), int(cols), int(row_step), int(col_step))
+    args = (*dither_keys(seed), int(start), int(rows), int(cols), int(row_step), int(col_step))
     if native.LIB is not None:
         return native.dither_grid(*args)
     return _dither_grid_kernel(*args)
@@ -139,18 +143,24 @@ def _forward_kernel(data, black, inv_k, c, xmax, inv_step, u):
     return out
 
 
+def forward_args(profile: CalibrationProfile, step: float) -> tuple[float, float, float, float, float]:
+    """The forward transform's constants (black [DN], 1 / K [e-/DN], c [e-], xmax [e-], 1 / q) for the compiled
+    kernels: z = 2 sqrt(min(max((y - black) / K + c, 0), xmax)) (see ``forward``)."""
+    k = profile.gain_dn_per_e
+    c = offset_e(profile)
+    xmax = (profile.white_level_dn - profile.black_level_dn) / k + c
+    return float(profile.black_level_dn), 1.0 / k, c, xmax, 1.0 / step
+
+
 def forward(data: np.ndarray, profile: CalibrationProfile, step: float, u: np.ndarray) -> np.ndarray:
     """Symbols k = round(z / q + u) (int32) for DN ``data`` with dither ``u`` (same shape).
 
     Escaped pixels get the symbol of the nearest valid value so prediction stays smooth.
     """
-    k = profile.gain_dn_per_e
-    c = offset_e(profile)
-    xmax = (profile.white_level_dn - profile.black_level_dn) / k + c
     data = np.asarray(data)
     if data.ndim != 2:
         return forward(data.reshape(1, -1), profile, step, np.asarray(u).reshape(1, -1)).reshape(data.shape)
-    args = (float(profile.black_level_dn), 1.0 / k, c, xmax, 1.0 / step)
+    args = forward_args(profile, step)
     if native.LIB is not None and data.dtype == np.uint16 and all(st > 0 for st in data.strides):
         return native.forward(data, *args, np.ascontiguousarray(u, dtype=np.float64))
     return _forward_kernel(data, *args, np.asarray(u, dtype=np.float64))
