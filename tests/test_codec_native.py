@@ -192,6 +192,38 @@ def test_compiled_plane_buffer_is_dither_forward_and_front(monkeypatch):
 
 
 @needs_native
+def test_compiled_decoder_dither_and_inverse_are_numbas():
+    """The decoder's fixed-point dither (``fixed_dither`` of ``_dither_grid_kernel``) and the inverse transform with
+    the dither made on the way (``_inverse_dn_kernel``) against numba, exactly, into CFA planes of a frame with cells
+    of 1 to 4 pixels (the merged 32-bit stores of 2-pixel cells, the scalar path): every pixel of the plane written,
+    every other pixel of the frame left as it was; symbols far outside the DN range (clipped to 65535)."""
+    from metraw.codec import decoder, prepare
+
+    rng = np.random.default_rng(14)
+    for trial in range(80):
+        h, w = (int(v) for v in rng.integers(1, 45, 2))
+        cell = int(rng.integers(1, 5))
+        shape = (h * cell + int(rng.integers(0, 3)), w * cell + int(rng.integers(0, 3)))
+        dy, dx = (int(v) for v in rng.integers(0, cell, 2))
+        seed, start, step = int(rng.integers(0, 2**62)), int(rng.integers(0, 2**34)), float(rng.choice([0.5, 1, 2]))
+        keys = prepare.dither_keys(seed)
+        frame = np.full(shape, 7777, np.uint16)
+        plane = frame[dy::cell, dx::cell]
+        u = prepare._dither_grid_kernel(*keys, start, *plane.shape, cell * shape[1], cell)
+        np.testing.assert_array_equal(native.dither_fixed(*keys, start, *plane.shape, cell * shape[1], cell),
+                                      decoder.fixed_dither(u))
+        sym = rng.integers(-50, 3000, plane.shape).astype(np.int32)
+        sym.flat[:2] = [-100000, 100000]
+        ref = np.empty(plane.shape, np.uint16)
+        prepare._inverse_dn_kernel(sym, u, *prepare.inverse_args(PROF, step), ref)
+        native.inverse_dn(sym, keys, start, cell * shape[1], cell, *prepare.inverse_args(PROF, step), plane)
+        np.testing.assert_array_equal(plane, ref)
+        others = np.ones(shape, bool)
+        others[dy::cell, dx::cell] = False
+        assert np.all(frame[others] == 7777)
+
+
+@needs_native
 def test_compiled_alphabet_indices_and_counts_are_numbas():
     """Alphabet indices (escape past +-amax) and per-table counts against numba's ``_index``: lengths with a partial
     last vector and odd lengths (the two sub-histograms), long runs of one bin, residuals at +-amax and beyond."""

@@ -399,10 +399,19 @@ def decode(blob: bytes | memoryview, profile: CalibrationProfile | None = None) 
 
     def work(args):
         (r0, r1), sec = args
-        us = _plane_dithers(seed, r0, r1, w, pattern)
-        syms = predictive.decode_planes(sec, us)
-        for (dy, dx, _, _), sym, u in zip(_plane_grid(r0, r1, w, pattern), syms, us):
-            prepare.inverse_dn(sym, prof, step, u, out[r0 + dy:r1:cell, dx::cell])
+        if native.LIB is None:
+            us = _plane_dithers(seed, r0, r1, w, pattern)
+            syms = predictive.decode_planes(sec, us)
+            for (dy, dx, _, _), sym, u in zip(_plane_grid(r0, r1, w, pattern), syms, us):
+                prepare.inverse_dn(sym, prof, step, u, out[r0 + dy:r1:cell, dx::cell])
+            return
+        # compiled: the fixed-point dither for the decoder, and the inverse making its float dither on the way (no
+        # float dither arrays); the same values
+        grid, keys, inv = _plane_grid(r0, r1, w, pattern), prepare.dither_keys(seed), prepare.inverse_args(prof, step)
+        syms = predictive.decode_planes(sec, [native.dither_fixed(*keys, (r0 + dy) * w + dx, ph, pw, cell * w, cell)
+                                              for dy, dx, ph, pw in grid])
+        for (dy, dx, _, _), sym in zip(grid, syms):
+            native.inverse_dn(sym, keys, (r0 + dy) * w + dx, cell * w, cell, *inv, out[r0 + dy:r1:cell, dx::cell])
 
     _map_tiles(work, list(zip(tiles, sections[:-1])))
     if len(sections[-1]):

@@ -383,8 +383,9 @@ def _init_front(p, c0):
 
 
 def decode_planes(blob, dithers: list[np.ndarray], outs: list[np.ndarray] | None = None) -> list[np.ndarray]:
-    """Inverse of ``encode_planes``; ``dithers`` are the planes' dither arrays (same shapes). The
-    symbols (int32) go to ``outs`` (arrays or views of the planes' shapes) if given."""
+    """Inverse of ``encode_planes``; ``dithers`` are the planes' dither arrays (same shapes): float in [-1/2, 1/2), or
+    their fixed-point values floor(u 2^16) as int32 (``fixed_dither``). The symbols (int32) go to ``outs`` (arrays
+    or views of the planes' shapes) if given."""
     try:
         return _decode(memoryview(blob), dithers, outs)
     except (struct.error, ValueError, IndexError) as exc:
@@ -458,7 +459,8 @@ def _decode(mv: memoryview, dithers: list[np.ndarray], outs) -> list[np.ndarray]
         h, w = u.shape
         p = buf[:(h + 2) * (w + 4)].reshape(h + 2, w + 4)
         _init_front(p, np.int64(c0s[k]) << 16)
-        u16 = fixed_dither(np.ascontiguousarray(u, np.float64))
+        u16 = (np.ascontiguousarray(u) if u.dtype == np.int32
+               else fixed_dither(np.ascontiguousarray(u, np.float64)))
         if compiled:
             sym = outs[k] if outs[k].flags.c_contiguous and outs[k].dtype == np.int32 else np.empty(u.shape, np.int32)
             ok = native.decode_plane(p, u16, sym, thr7, coef13, g * nact * nph, pshift, lut, fcum, amax, words, xs,

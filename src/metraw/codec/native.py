@@ -1,12 +1,15 @@
 """The codec's per-pixel loops compiled from C (``_simd.c``, AVX-512), where they are built and run: the decoder's
 sequential loop (lanes in registers), the encoder's residual pass (8 pixels of a row at a time) and its rANS pass
 (8 lanes at a time), its causal buffer (from the DN in one pass with the dither and the forward transform, or from
-the symbols), alphabet indices, the dither and the forward transform.
+the symbols), alphabet indices, the dither and the forward transform; the decoder's fixed-point dither and its inverse
+transform (the dither made on the way). C sources: ``_simd.c`` (the coder's loops), ``_simd_prepare.c`` (dither and
+transforms), ``_simd.h``.
 
 ``pip install`` builds the extension ``metraw.codec._simd`` when a C compiler is present; the build is optional: without
 a compiler, on a CPU without AVX-512 (F and DQ), or with ``METRAW_NATIVE=0`` in the environment, ``LIB`` is None and
 the codec runs its numba loops (``decoder.decode_plane``, ``predictive._residuals``, ``predictive._rans_encode``,
-``predictive._front``, ``predictive._index``, ``prepare._dither_grid_kernel``, ``prepare._forward_kernel``).
+``predictive._front``, ``predictive._index``, ``prepare._dither_grid_kernel``, ``prepare._forward_kernel``,
+``decoder.fixed_dither``, ``prepare._inverse_dn_kernel``).
 Both run the same arithmetic, so the streams and decoded values are the same (tests compare them); only the speed
 differs. The compiled decoder takes streams of ``LANE_COUNTS`` lanes (today's encoder writes 8); others take the numba
 loop.
@@ -69,6 +72,10 @@ def _load() -> ctypes.CDLL | None:
     lib.metraw_forward.restype = None
     lib.metraw_plane_buffer.argtypes = [p, i64, i64, i64, i64, u64, u64, i64, i64, i64, f64, f64, f64, f64, f64, p]
     lib.metraw_plane_buffer.restype = i64
+    lib.metraw_dither_fixed.argtypes = [u64, u64, i64, i64, i64, i64, i64, p]
+    lib.metraw_dither_fixed.restype = None
+    lib.metraw_inverse_dn.argtypes = [p, i64, i64, u64, u64, i64, i64, i64, f64, f64, f64, p, i64, i64]
+    lib.metraw_inverse_dn.restype = None
     lib.metraw_front.argtypes = [p, p, i64, i64, i64, p]
     lib.metraw_front.restype = None
     lib.metraw_index.argtypes = [p, p, i64, i64, i64, p, p]
@@ -148,6 +155,29 @@ def dither_grid(k1: int, k2: int, start: int, rows: int, cols: int, row_step: in
     if out.size:
         LIB.metraw_dither_grid(k1, k2, start, rows, cols, row_step, col_step, out.ctypes.data)
     return out
+
+
+def dither_fixed(k1: int, k2: int, start: int, rows: int, cols: int, row_step: int, col_step: int) -> np.ndarray:
+    """``decoder.fixed_dither`` of ``prepare._dither_grid_kernel``'s values (int32 floor(u 2^16)) without the float
+    dither array: the decoder's dither of a plane."""
+    out = np.empty((rows, cols), np.int32)
+    if out.size:
+        LIB.metraw_dither_fixed(k1, k2, start, rows, cols, row_step, col_step, out.ctypes.data)
+    return out
+
+
+def inverse_dn(sym: np.ndarray, keys: tuple[int, int], start: int, row_step: int, col_step: int, half_step: float,
+               k: float, offset: float, out: np.ndarray) -> None:
+    """``prepare._inverse_dn_kernel`` (the same uint16 DN into ``out``) with the dither of ``prepare.dither_grid``
+    (``keys`` from ``prepare.dither_keys``, pixels start + i row_step + j col_step) made on the way: ``sym`` int32
+    (h, w) C-contiguous, ``out`` uint16 (h, w) at any positive strides (a CFA plane of the frame)."""
+    h, w = sym.shape
+    rs, cs = (st // out.itemsize for st in out.strides)
+    if out.dtype != np.uint16 or out.shape != sym.shape or rs <= 0 or cs <= 0:
+        raise TypeError("native inverse: a uint16 output of the symbols' shape with positive strides is needed")
+    if sym.size:
+        LIB.metraw_inverse_dn(_addr(sym, np.int32), h, w, keys[0], keys[1], int(start), int(row_step), int(col_step),
+                              half_step, k, offset, out.ctypes.data, rs, cs)
 
 
 def forward(data: np.ndarray, black: float, inv_k: float, c: float, xmax: float, inv_step: float,

@@ -192,12 +192,17 @@ def _inverse_dn_kernel(sym, u, half_step, k, offset, out):
 def inverse_dn(symbols: np.ndarray, profile: CalibrationProfile, step: float, u: np.ndarray,
                out: np.ndarray | None = None) -> np.ndarray:
     """``to_dn(inverse(...))`` in one compiled pass (same float64 arithmetic), uint16 into ``out``."""
-    k = profile.gain_dn_per_e
     if out is None:
         out = np.empty(symbols.shape, np.uint16)
-    _inverse_dn_kernel(symbols, np.asarray(u, np.float64), 0.5 * step, k,
-                       profile.black_level_dn - k * offset_e(profile) - k * step * step / 48.0, out)
+    _inverse_dn_kernel(symbols, np.asarray(u, np.float64), *inverse_args(profile, step), out)
     return out
+
+
+def inverse_args(profile: CalibrationProfile, step: float) -> tuple[float, float, float]:
+    """The inverse transform's constants (q / 2, K [DN/e-], offset [DN]) for the compiled kernels:
+    y = K ((s - u) q / 2)^2 + offset with offset = black - K c - K q^2 / 48 (see ``inverse``)."""
+    k = profile.gain_dn_per_e
+    return 0.5 * step, k, profile.black_level_dn - k * offset_e(profile) - k * step * step / 48.0
 
 
 def to_dn(values: np.ndarray) -> np.ndarray:
