@@ -1,7 +1,8 @@
 """Stored .mraw files of format version 3 still decode, bit for bit.
 
 The blobs under tests/fixtures/codec were written by the version-3 encoder (metraw commit e5cee37,
-before the throughput work of issue #18; the ``_8lanes`` file by that of 2026-11-28, 8 rANS lanes) from the images
+before the throughput work of issue #18; the ``_8lanes`` and ``_16lanes`` files by those of 2026-11-28, 8 and 16 rANS
+lanes) from the images
 ``fixture_images`` regenerates
 deterministically; FIXTURES holds the SHA-256 of each blob and of its decoded pixels. An encoder
 change may change the bytes it writes (these tests do not encode), but every decoder must read
@@ -34,6 +35,8 @@ FIXTURES = {
                                 "5e0abf6dab865bfe8a408925dcd2c6d51cf991320cc1aee07995ada3b5486fa6"),
     "v3_mono_300x440_q2_8lanes.mraw": (2.0, "638d98f12dfb027a2ea53007772b4c5b0fd1a35653a1682e889792bd02a385c0",
                                        "5e0abf6dab865bfe8a408925dcd2c6d51cf991320cc1aee07995ada3b5486fa6"),
+    "v3_mono_300x440_q2_16lanes.mraw": (2.0, "03c778893bf3d9dd330a16a351d6d97d5a2d1caa3b676cca3e27cbeb37bc5a98",
+                                        "5e0abf6dab865bfe8a408925dcd2c6d51cf991320cc1aee07995ada3b5486fa6"),
 }
 
 
@@ -49,16 +52,16 @@ def fixture_images() -> dict[str, RawImage]:
     data = expose(mean, mono, rng_from_seed(12))
     data[5, 7:40] = 16000            # saturated run: escapes
     data[290, 100:110] = 0           # below the transform's domain: escapes
-    # the same mono image again from the encoder of 2026-11-28 (8 rANS lanes; format version 3 as before)
+    # the same mono image again from the encoders of 2026-11-28 (8, then 16 rANS lanes; format version 3 as before)
     return {"v3_rggb_64x48_q1.mraw": small, "v3_mono_300x440_q2.mraw": RawImage(data, mono),
-            "v3_mono_300x440_q2_8lanes.mraw": RawImage(data, mono)}
+            "v3_mono_300x440_q2_8lanes.mraw": RawImage(data, mono), "v3_mono_300x440_q2_16lanes.mraw": RawImage(data, mono)}
 
 
 def _sha(b: bytes) -> str:
     return hashlib.sha256(b).hexdigest()
 
 
-@pytest.mark.parametrize("loop", ["compiled", "numba"])
+@pytest.mark.parametrize("loop", ["compiled, two vectors", "compiled, 8-row halves", "numba"])
 @pytest.mark.parametrize("name", sorted(FIXTURES))
 def test_stored_version3_blob_decodes_bit_exact(name, loop, monkeypatch):
     from metraw.codec import native
@@ -67,6 +70,8 @@ def test_stored_version3_blob_decodes_bit_exact(name, loop, monkeypatch):
         monkeypatch.setattr(native, "LIB", None)
     elif native.LIB is None:
         pytest.skip("compiled codec loop not built or no AVX-512 on this CPU")
+    else:   # how the compiled loop runs a 16-lane group (the same values either way)
+        monkeypatch.setattr(native, "TWO_VECTORS", loop == "compiled, two vectors")
     step, blob_sha, pix_sha = FIXTURES[name]
     blob = (HERE / name).read_bytes()
     assert _sha(blob) == blob_sha, "the stored fixture changed: fixtures are never rewritten"
@@ -81,10 +86,11 @@ def test_stored_version3_blob_decodes_bit_exact(name, loop, monkeypatch):
 
 def test_fixtures_cover_both_section_layouts():
     """One fixture codes its tile with a shared model (small tiles), the others per-plane models in
-    4 (before 2026-11-28) and 8 rANS lanes on 2 row tiles, with escapes."""
+    4 (before 2026-11-28), 8 and 16 rANS lanes on 2 row tiles, with escapes."""
     from metraw.codec import predictive
 
-    for name, lanes in (("v3_mono_300x440_q2.mraw", 4), ("v3_mono_300x440_q2_8lanes.mraw", 8)):
+    for name, lanes in (("v3_mono_300x440_q2.mraw", 4), ("v3_mono_300x440_q2_8lanes.mraw", 8),
+                        ("v3_mono_300x440_q2_16lanes.mraw", 16)):
         hdr, secs = container.unpack((HERE / name).read_bytes())
         assert len(hdr.tiles) == 2 and len(secs[-1]) > 0
         assert all(predictive._HEAD.unpack_from(s, 0)[3:5] == (0, lanes) for s in secs[:-1])

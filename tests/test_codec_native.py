@@ -51,10 +51,12 @@ def _image(h, w, pattern, electrons, seed):
 
 
 @needs_native
-@pytest.mark.parametrize("lanes", [8, 16])
+@pytest.mark.parametrize("lanes, two_vectors", [(8, True), (16, True), (16, False)])
 @pytest.mark.parametrize("pattern", ["RGGB", "mono"])
-def test_compiled_loop_decodes_what_the_numba_loop_decodes(lanes, pattern, monkeypatch):
+def test_compiled_loop_decodes_what_the_numba_loop_decodes(lanes, two_vectors, pattern, monkeypatch):
+    """16-lane groups both ways the compiled loop runs them: two vectors side by side, and two groups of 8 rows."""
     monkeypatch.setattr(predictive, "LANES", lanes)
+    monkeypatch.setattr(native, "TWO_VECTORS", two_vectors)
     cell = 2 if pattern == "RGGB" else 1
     first_steady = 3 * (lanes - 1) + 1
     # plane widths: below, at and just past the steady part's first column; heights: full groups and a short one
@@ -280,26 +282,28 @@ def test_compiled_loop_rejects_corrupt_streams_like_the_numba_loop(monkeypatch):
     s = np.rint(200 + rng.normal(0, 2, shape) + u).astype(np.int32)
     s[rng.integers(0, shape[0], 6), rng.integers(0, shape[1], 6)] += 5000  # escaped residuals
     blob = predictive.encode_planes([(s, u)])
-    assert blob[4] == predictive.LANES == 8   # header: nplanes, nact, phase shift, shared, lanes, ...
+    assert blob[4] == predictive.LANES == 16   # header: nplanes, nact, phase shift, shared, lanes, ...
     errors = 0
     for trial in range(12):
         damaged = bytearray(blob)
         for i in rng.integers(len(blob) // 3, len(blob), 1 + trial % 4):
             damaged[i] ^= int(rng.integers(1, 256))
-        outcomes = []
-        for lib in (native.LIB, None):
+        outcomes = []   # compiled with a 16-lane group's two vectors side by side, as 8-row halves; numba
+        for lib, two_vectors in ((native.LIB, True), (native.LIB, False), (None, False)):
             with monkeypatch.context() as m:
                 m.setattr(native, "LIB", lib)
+                m.setattr(native, "TWO_VECTORS", two_vectors)
                 try:
                     outcomes.append(predictive.decode_planes(bytes(damaged), [u])[0])
                 except MetrawError as exc:
                     outcomes.append(str(exc))
         if isinstance(outcomes[0], str):
-            assert outcomes[0] == outcomes[1]
+            assert outcomes[0] == outcomes[1] == outcomes[2]
             errors += 1
         else:
-            assert not isinstance(outcomes[1], str)
-            np.testing.assert_array_equal(outcomes[0], outcomes[1])
+            for other in outcomes[1:]:
+                assert not isinstance(other, str)
+                np.testing.assert_array_equal(outcomes[0], other)
     assert errors >= 6   # most damage is caught
 
 

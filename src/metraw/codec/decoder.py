@@ -3,11 +3,12 @@
 ``decode_planes`` parses a section (plane header, predictors, frequency tables, lane words and
 escapes, all in compiled code where it loops) and runs the per-pixel loop (compiled, ``nogil``).
 
-Lane j of a section holds rows j, j + L, ... of a plane (L = 8 lanes for large tiles since 2026-11-28, 4 before;
-the header says which) and runs 3 pixels behind lane j - 1, so its causal neighbours are ready and the dependency
-chains overlap. The arithmetic is the encoder's (``predictive._residuals``) to the bit. Streams of 8 or 16 lanes
-decode in the compiled C loop where it is built and the CPU has AVX-512 (``metraw.codec.native``: the 8 lanes of a
-row group side by side in one vector register), else, and for other lane counts, in ``decode_plane`` here (numba).
+Lane j of a section holds rows j, j + L, ... of a plane (L = 16 lanes for large tiles since 2026-11-28, 8 earlier
+that day, 4 before; the header says which) and runs 3 pixels behind lane j - 1, so its causal neighbours are ready
+and the dependency chains overlap. The arithmetic is the encoder's (``predictive._residuals``) to the bit. Streams of
+8 or 16 lanes decode in the compiled C loop where it is built and the CPU has AVX-512 (``metraw.codec.native``: 8
+lanes of a row group side by side in one vector register, 16 in two), else, and for other lane counts, in
+``decode_plane`` here (numba, groups of 4 rows).
 
 Speed: every array access uses an unsigned index (a cast of the signed one: free) so numba emits
 no negative-index wrap-around (a compare and a select per index, ~30 indexings per pixel); the

@@ -27,7 +27,7 @@ import warnings
 
 import numpy as np
 
-#: Lane counts the compiled steady loop runs (8 lanes = one 512-bit register of int64, 16 = two).
+#: Lane counts the compiled steady loop runs (8 lanes = one 512-bit register of int64, 16 = two: ``TWO_VECTORS``).
 LANE_COUNTS = (8, 16)
 #: Bytes the compiled loop may read past the end of the symbol table and of the word array (32-bit gathers).
 READ_PAST_END_BYTES = 4
@@ -59,7 +59,9 @@ def _load() -> ctypes.CDLL | None:
     lib.metraw_simd_available.argtypes = []
     lib.metraw_simd_available.restype = c_int
     lib.metraw_decode_plane.argtypes = [p, i64, i64, p, p, p, p, i64, i64, p, c_int, p, i64, i64, p, p, p, p, p, p, p,
-                                        i64]
+                                        i64, c_int]
+    lib.metraw_two_vector_steady.argtypes = []
+    lib.metraw_two_vector_steady.restype = c_int
     lib.metraw_decode_plane.restype = c_int
     lib.metraw_residuals.argtypes = [p, i64, i64, p, i64, p, i64, i64, p, p]
     lib.metraw_residuals.restype = i64
@@ -84,6 +86,9 @@ def _load() -> ctypes.CDLL | None:
 
 
 LIB = _load()
+#: Whether the compiled decoder runs a 16-lane group's two vectors side by side (AMD CPUs: the overlap hides the
+#: gathers' latency) or as two groups of 8 rows one after the other (others); the same values either way.
+TWO_VECTORS = bool(LIB.metraw_two_vector_steady()) if LIB is not None else False
 
 
 def _addr(a: np.ndarray, dtype) -> int:
@@ -112,7 +117,8 @@ def decode_plane(p, u, sym, thr7, coef13, tab0, pshift, lut, fcum, amax, words, 
         _addr(coef, np.int64),
         int(tab0), int(pshift), _addr(lut, np.int16 if lut16 else np.uint8), int(lut16), _addr(fcum, np.uint32),
         fcum.shape[1], int(amax), _addr(words, np.uint16), _addr(xs, np.uint64), _addr(pos, np.int64),
-        _addr(pmin, np.int64), _addr(esc, np.int32), _addr(epos, np.int64), _addr(eend, np.int64), xs.size)
+        _addr(pmin, np.int64), _addr(esc, np.int32), _addr(epos, np.int64), _addr(eend, np.int64), xs.size,
+        int(TWO_VECTORS))
     return bool(ok)
 
 

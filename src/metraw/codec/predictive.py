@@ -24,10 +24,10 @@ activity context has its own least-squares predictor x ~ W + sum_i c_i (n_i - W)
 causal neighbours (fitted by the encoder, stored) and each (activity, phase) context its own
 static rANS table. The number of activity contexts shrinks with the plane size so that side
 information stays a small fraction of the rate (small images: one context, tables shared by
-the planes). Large tiles code their rows in 8 interleaved rANS lanes (row classes, each with
+the planes). Large tiles code their rows in 16 interleaved rANS lanes (row classes, each with
 its own state; the decoder runs lane j three pixels behind lane j - 1, so the dependency chains
-overlap, and the compiled C decoder runs the 8 lanes side by side in one AVX-512 register: 4 lanes
-before 2026-11-28, +0.01-0.05 % bits for 8). Decoding is a sequential compiled loop (C or numba,
+overlap, and the compiled C decoder runs 8 lanes side by side in one AVX-512 register, 16 in two:
+4 lanes before 2026-11-28, then 8, then 16: +0.01-0.05 % bits for 8, +0.01-0.15 % more for 16). Decoding is a sequential compiled loop (C or numba,
 without the GIL), so tiles decode in parallel threads.
 
 Speed without changing the stream: the encoder computes activities, contexts and predictions row
@@ -62,7 +62,7 @@ from metraw.codec.decoder import (  # noqa: F401  (the format's constants; decod
 
 MIN_FIT = 64                   # fewer samples in a context: use the default predictor
 SHARED_BELOW = 1 << 16         # tiles with fewer pixels share one model across their planes
-LANES = 8                      # rANS lanes (row classes) for tiles of >= SHARED_BELOW pixels (4 before 2026-11-28)
+LANES = 16                     # rANS lanes (row classes) for tiles of >= SHARED_BELOW pixels (see the module docstring)
 
 
 def n_activity_contexts(pixels_per_group: int) -> int:
