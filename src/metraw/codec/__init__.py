@@ -10,8 +10,10 @@ prediction in the reconstructed domain, rANS with static tables per (activity, d
 context, compiled with numba; frames of 256 rows or more are cut into row tiles (2, or more
 of at most ``TILE_PIXELS`` each beyond 5 MP; the tiling depends on the frame only) coded in
 parallel threads (the kernels release the GIL), each tile's CFA planes as contiguous arrays and
-with 16 interleaved rANS lanes; small tiles share one model across their planes. Escape lists use ``metraw.codec.entropy``. The blob has a compact
-binary header with an optional embedded profile and a CRC-32C (``metraw.codec.container``).
+with 16 interleaved rANS lanes; small tiles share one model across their planes. Escape lists
+use ``metraw.codec.entropy``. The blob has a compact binary header with an optional embedded
+profile and a CRC-32C (``metraw.codec.container``). The per-pixel loops run in C with AVX-512
+where ``metraw.codec.native`` is built, else in numba: the same bytes and values.
 
 Only the pixel array is coded; ``mask`` and ``flags`` are not part of the blob.
 """

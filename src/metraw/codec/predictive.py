@@ -27,8 +27,9 @@ information stays a small fraction of the rate (small images: one context, table
 the planes). Large tiles code their rows in 16 interleaved rANS lanes (row classes, each with
 its own state; the decoder runs lane j three pixels behind lane j - 1, so the dependency chains
 overlap, and the compiled C decoder runs 8 lanes side by side in one AVX-512 register, 16 in two:
-4 lanes before 2026-11-28, then 8, then 16: +0.01-0.05 % bits for 8, +0.01-0.15 % more for 16). Decoding is a sequential compiled loop (C or numba,
-without the GIL), so tiles decode in parallel threads.
+4 lanes before 2026-11-28, then 8, then 16: +0.01-0.05 % bits for 8, +0.01-0.15 % more for 16).
+Decoding is a sequential compiled loop (C or numba, without the GIL), so tiles decode in parallel
+threads.
 
 Speed without changing the stream: the encoder computes activities, contexts and predictions row
 by row in passes without a sequential dependence; the least squares accumulate X^T X from
@@ -725,7 +726,8 @@ def _encode_planes(buffers, shared: bool, nact: int, pshift: int, account: list 
     nl = 1 if shared else LANES
     (idx, freq, tab_bytes, tab_len, states, nws, out, starts, esc_vals,
      esc_cnt) = _code_section(r_all, t_all, amax, max(ntab, 1), shared,
-                              np.array([h for h, _ in shapes], np.int64), np.array([w for _, w in shapes], np.int64), nl)
+                              np.array([h for h, _ in shapes], np.int64),
+                              np.array([w for _, w in shapes], np.int64), nl)
     parts = [_HEAD.pack(npl, nact, pshift, int(shared), nl, 8 if shared else 16, amax)]
     for j in range(nl):
         parts.append(struct.pack("<I", int(states[j])))
