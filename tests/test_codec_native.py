@@ -98,11 +98,13 @@ def _decode_planes_both(blob, us, monkeypatch):
 
 
 @needs_native
+@pytest.mark.parametrize("lanes", [8, 16])
 @pytest.mark.parametrize("pattern", ["RGGB", "mono"])
-def test_compiled_encoder_passes_write_the_numba_encoders_bytes(pattern, monkeypatch):
+def test_compiled_encoder_passes_write_the_numba_encoders_bytes(pattern, lanes, monkeypatch):
     """The encoder with the compiled residual and rANS passes and with numba's: the same stream, byte for byte
     (plane widths that leave a partial last vector of 8, heights that leave lanes of unequal length, faint and
-    bright, with escapes and 16-bit tables)."""
+    bright, with escapes and 16-bit tables; the rANS pass's lanes 8 or 16 at a time)."""
+    monkeypatch.setattr(predictive, "LANES", lanes)
     rng = np.random.default_rng(2)
     cases = [_image(130, 2 * 77 + 2, pattern, 40.0, seed=1), _image(520, 526, pattern, 20000.0, seed=2)]
     spiky = expose(np.full((520, 520), 2000.0), PROF, rng_from_seed(1))

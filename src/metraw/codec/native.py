@@ -65,7 +65,7 @@ def _load() -> ctypes.CDLL | None:
     lib.metraw_decode_plane.restype = c_int
     lib.metraw_residuals.argtypes = [p, i64, i64, p, i64, p, i64, i64, p, p]
     lib.metraw_residuals.restype = i64
-    lib.metraw_rans_encode.argtypes = [p, p, i64, p, p, p, p, p, p, p, i64, p, p, p]
+    lib.metraw_rans_encode.argtypes = [p, p, i64, i64, i64, p, p, p, p, p, p, p, i64, p, p, p]
     lib.metraw_rans_encode.restype = None
     u64, f64 = ctypes.c_uint64, ctypes.c_double
     lib.metraw_dither_grid.argtypes = [u64, u64, i64, i64, i64, i64, i64, p]
@@ -148,10 +148,10 @@ def rans_encode(idx, tab, freq, cum, rcp, rs, rl, lr, ls, out):
         raise ValueError("native rANS: 1-16 lanes and one output word per symbol, plus one, are needed")
     xs = np.empty(nl, np.uint64)
     nws = np.empty(nl, np.int64)
-    LIB.metraw_rans_encode(_addr(idx, np.int32), _addr(tab, np.int32), freq.shape[1], _addr(freq, np.int64),
-                           _addr(cum, np.int64), _addr(rcp, np.float64), _addr(rs, np.int64), _addr(rl, np.int64),
-                           _addr(lr, np.int64), _addr(ls, np.int64), nl, _addr(out, np.uint16), _addr(xs, np.uint64),
-                           _addr(nws, np.int64))
+    LIB.metraw_rans_encode(_addr(idx, np.int32), _addr(tab, np.int32), idx.size, freq.shape[0], freq.shape[1],
+                           _addr(freq, np.int64), _addr(cum, np.int64), _addr(rcp, np.float64), _addr(rs, np.int64),
+                           _addr(rl, np.int64), _addr(lr, np.int64), _addr(ls, np.int64), nl, _addr(out, np.uint16),
+                           _addr(xs, np.uint64), _addr(nws, np.int64))
     return xs, nws
 
 
