@@ -392,6 +392,24 @@ def test_context_table_matches_threshold_compares(monkeypatch):
     assert np.array_equal(predictive.decode_planes(blob, [u])[0], s)
 
 
+def test_activity_thresholds_are_the_sorted_samples_at_their_ranks():
+    """The encoder's thresholds come from order statistics of activity >> 8 by a histogram, with the ranks among the
+    largest values (past the histogram) selected exactly: equal to a full sort's, for values in and past the
+    histogram, ties, a constant sample and one value."""
+    from metraw.codec import predictive
+
+    rng = np.random.default_rng(21)
+    top = predictive.HIST_BINS << 8
+    samples = [rng.integers(0, 2**20, 5000), rng.integers(0, 2 * top, 3001), np.full(700, top + 5), np.array([9]),
+               np.where(rng.random(4000) < 0.6, rng.integers(0, 512, 4000), rng.integers(top, 2**40, 4000))]
+    for sample in samples:
+        sample = sample.astype(np.int64)
+        for nact in (2, 4, 8):
+            kth = np.array([((sample.size - 1) * k) // nact for k in range(1, nact)], np.int64)
+            got = predictive._order_statistics_shifted(sample, kth)
+            assert np.array_equal(got, np.sort(sample)[kth] >> 8)
+
+
 def test_frames_up_to_5_mp_keep_two_tiles_and_larger_ones_get_tiles_of_at_most_2_5_mp():
     # the shared real frames (canon_dng 2 MP, micasense 1.2 MP, spacenet_pan 0.4 MP) and the workflow's 1 MP scenes
     # keep the 2 tiles their streams were measured with; a 20 MP frame gets 8 (codec.TILE_PIXELS)

@@ -463,6 +463,39 @@ def _plane_symbol_bits(idx, tab, freq, bounds, esc_i):
     return out
 
 
+#: Bins of ``_order_statistics_shifted``'s histogram (values sample >> 8 at or past it are selected exactly apart)
+HIST_BINS = 1 << 16
+
+
+@nb.njit(cache=True, nogil=True)
+def _order_statistics_shifted(sample, kth):
+    """The order statistics at ranks ``kth`` (ascending) of v = ``sample`` >> 8 (``sample`` >= 0): what
+    sorted(sample)[kth] >> 8 is, as >> 8 keeps the order. By a histogram of v (``HIST_BINS`` bins; ranks that
+    fall past them by ``np.partition`` of those values): ~5x faster than partitioning ``sample``."""
+    hist = np.zeros(HIST_BINS + 1, np.int64)
+    for i in range(sample.size):
+        hist[min(sample[i] >> 8, HIST_BINS)] += 1
+    out = np.empty(kth.size, np.int64)
+    below = 0  # values in the bins before b
+    b = 0
+    for j in range(kth.size):
+        while b < HIST_BINS and below + hist[b] <= kth[j]:
+            below += hist[b]
+            b += 1
+        out[j] = b
+    if b == HIST_BINS:  # ranks among the largest values: exactly, by partitioning them
+        big = np.empty(hist[HIST_BINS], np.int64)
+        m = 0
+        for i in range(sample.size):
+            if sample[i] >> 8 >= HIST_BINS:
+                big[m] = sample[i] >> 8
+                m += 1
+        for j in range(kth.size):
+            if out[j] == HIST_BINS:
+                out[j] = np.partition(big, kth[j] - below)[kth[j] - below]
+    return out
+
+
 @nb.njit(cache=True, nogil=True)
 def _thresholds(sample, nact):
     """nact - 1 activity thresholds (multiples of 256 at the 'lower' sample quantiles k / nact of
@@ -474,10 +507,9 @@ def _thresholds(sample, nact):
     kth = np.empty(nact - 1, np.int64)
     for k in range(1, nact):
         kth[k - 1] = ((n - 1) * k) // nact
-    srt = np.partition(sample, kth)  # the order statistics at kth, as a full sort has them (4x faster)
-    q = np.empty(nact - 1, np.int64)
-    for k in range(1, nact):
-        q[k - 1] = min(srt[kth[k - 1]] >> 8, np.int64(0xFFFFFFFE))
+    q = _order_statistics_shifted(sample, kth)
+    for k in range(nact - 1):
+        q[k] = min(q[k], np.int64(0xFFFFFFFE))
     uq = np.unique(q)
     thr[:uq.size] = uq << 8
     return thr
