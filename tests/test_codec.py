@@ -410,6 +410,20 @@ def test_activity_thresholds_are_the_sorted_samples_at_their_ranks():
             assert np.array_equal(got, np.sort(sample)[kth] >> 8)
 
 
+def test_noise_check_mean_absolute_deviation_by_histogram_is_the_sorts():
+    """The profile check's mean absolute deviation from the median: by a histogram for integer values (the HH band of
+    integer symbols) exactly the sorted median's number, for odd and even counts, ties and one value; other values
+    (non-integers, ranges past the histogram) by the sort."""
+    rng = np.random.default_rng(22)
+    cases = [rng.integers(-30, 31, 65536), rng.integers(-30, 31, 4095), np.full(10, 7), np.array([-3]),
+             rng.integers(-9, 9, 2) * 2 + 1, np.array([0, 0, 10, 10, 10]), np.array([0, 0, 0, 10, 10, 10])]
+    for v in cases:
+        v = v.astype(np.float64)
+        assert codec._mean_abs_dev(v) == np.mean(np.abs(v - np.median(v)))
+    for v in (rng.normal(0, 5, 3001), rng.integers(-2**20, 2**20, 3000).astype(np.float64)):
+        assert codec._mean_abs_dev(v) == pytest.approx(np.mean(np.abs(v - np.median(v))), rel=1e-12)
+
+
 def test_frames_up_to_5_mp_keep_two_tiles_and_larger_ones_get_tiles_of_at_most_2_5_mp():
     # the shared real frames (canon_dng 2 MP, micasense 1.2 MP, spacenet_pan 0.4 MP) and the workflow's 1 MP scenes
     # keep the 2 tiles their streams were measured with; a 20 MP frame gets 8 (codec.TILE_PIXELS)
