@@ -133,6 +133,36 @@ indices and counts (C) ~3, transform and dither (C) ~3, the rest (escape mask, n
 Tried, not taken: a hand multi-quickselect for the thresholds (146 against np.partition's 235 us a plane: ~0.7 ms a
 frame); 4 sub-histograms in numba's _index (no faster).
 
+Done 2026-11-28 (afternoon session, on a 2-core AMD EPYC Zen 5 VM with AVX-512, where JPEG-LS runs ~1.8x faster than on
+the Intel Emerald Rapids VM above: canon_dng 39 / 35 ms encode / decode). ``--speed`` at d4b0a04 (the state above) on
+this machine: canon_dng 2.57 / 2.96 and 2.57 / 2.98, micasense 3.63 / 2.95 and 3.54 / 3.01, spacenet_pan 3.04 / 2.89
+and 3.10 / 2.91 (steps 1 and 2, JPEG-LS / metraw 2-thread wall, encode / decode). perf on one core then: encode
+rANS 20 %, residual pass 17 %, forward transform 12.5 % (memory-bound in the frame: 2.6 ms against 1.2 ms alone),
+alphabet indices 6 %, causal buffer 5.5 %, dither 3 %, numba 26 % (least squares ~2.9 ms, thresholds 1.1, profile
+check 0.55); decode: the steady loop 71 % (its samples on the instructions after the gathers), the edges' scalar path
+9 %, numba 9 % (inverse transform, fixed-point dither), dither 3 %. Steps, each with the same bytes (sha256 of every
+``frames()`` stream at steps 0.5 / 1 / 2, both loops) unless said:
+(1) the encoder's plane buffer straight from the DN in one C pass per CFA plane (dither hash, forward transform,
+causal buffer; no dither or symbol arrays in memory): encode 1-thread 24.1 -> 20.9 ms, 2-thread wall 14.3 -> 12.2;
+(2) the decoder's fixed-point dither and its inverse transform in C (the dither made on the way): decode 2-thread
+wall 11.2-11.6 -> 10.6 ms; (3) 16 rANS lanes (bits +0.01-0.15 % against 8) and the decoder's 16-lane groups as two
+vectors side by side (their chains overlap, hiding the gathers' latency): decode 1-thread 19.6 -> 16.6 ms
+(micasense 10.8 -> 8.9), only on AMD: on Intel, where two vectors measured 10-25 % slower (above), a 16-lane group runs
+as two 8-row groups, the 8-lane speed (``native.TWO_VECTORS``; the same values, tested both ways); (4) the encoder's
+rANS pass 16 lanes as two vectors, with one gather of each symbol's table entry and one of its packed frequency and
+cumulative frequency (the reciprocal by an IEEE division): 5.5 -> 4.0 ms a frame; (5) the activity thresholds by a
+histogram of activity >> 8: 1.1 -> 0.08 ms; (6) the profile check's mean absolute deviation by a histogram: 0.5 ->
+0.03 ms. Tried, not taken: the least squares in C (sampling and Gram sums in a fixed order shared with numba; the same
+bytes) took 3.2 ms against numba's 2.9 (the scalar sampling ~1.8 ms, bound by the samples' scattered reads and
+context stores); narrowing stores in registers instead of vpmovqd to memory (no change); the tiles' escapes found in
+their threads (no change). At dbc82d6 + (6), 1-thread CPU with the compiled loops against without (METRAW_NATIVE off;
+same process, alternating, 11 rounds, step 1): encode canon_dng 23.0 -> 18.3 ms (1.26x), micasense 11.0 -> 7.8
+(1.41x), spacenet_pan 4.0 -> 2.9 (1.38x); decode 27.7 -> 16.4 (1.69x), 16.0 -> 8.9 (1.79x), 4.8 -> 3.1 (1.56x).
+``--speed`` (21 rounds, load 1.0-1.1): canon_dng 3.59 / 3.71 and 3.61 / 3.77; micasense 5.12 / 3.88 and 5.15 / 3.97;
+spacenet_pan 4.03 / 3.43 and 4.04 / 3.46; 1-thread CPU / JPEG-LS 0.46 / 0.46, 0.45 / 0.46; 0.30 / 0.43, 0.30 / 0.43;
+0.40 / 0.48, 0.39 / 0.48; bpp 2.416 / 1.543, 2.382 / 1.525, 2.254 / 1.480; 20 MP frame 104.9 / 86.6 ms (step 1),
+190 / 231 Mpix/s, x JPEG-LS 4.01 / 4.08.
+
 A vectorised pass can only take taps whose coefficients do not depend on the activity context (which needs W).
 ``benchmarks/codec_predictors.py`` (2026-11-26; empirical H(r | context, phase) in float arithmetic, no side
 information, steps 1 / 2) measured such predictors against today's: one shared predictor canon_dng +1.5 / +2.0 %,
