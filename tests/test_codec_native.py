@@ -193,6 +193,8 @@ def test_compiled_plane_buffer_is_dither_forward_and_front(monkeypatch):
             predictive._causal_buffer(s, u) for _, u, s in codec._tile_symbols(data, r0, r1, profile, step, seed)])
         without = codec.encode(img, 1.0, 5)
     assert len(calls) == 8 and with_buffer == without   # 2 row tiles x 4 planes
+    flipped = RawImage(img.data[::-1, ::-1], img.profile)   # negative strides: the buffers from _tile_symbols
+    assert codec.encode(flipped, 1.0, 5) == codec.encode(RawImage(img.data[::-1, ::-1].copy(), img.profile), 1.0, 5)
 
 
 @needs_native

@@ -251,9 +251,9 @@ def _tile_buffers(data: np.ndarray, r0: int, r1: int, profile: CalibrationProfil
                   seed: int) -> list[tuple[np.ndarray, int]]:
     """Per CFA plane of the row tile r0 .. r1 - 1 of ``data``: its causal buffer (front, c0) as
     ``predictive.encode_planes`` makes it from ``_tile_symbols``, made straight from the DN in one compiled pass per
-    plane where ``metraw.codec.native`` is built (no dither or symbol arrays: less memory traffic), else from
-    ``_tile_symbols``."""
-    if native.LIB is None:
+    plane where ``metraw.codec.native`` is built (no dither or symbol arrays: less memory traffic) and ``data``'s
+    strides are positive, else from ``_tile_symbols``."""
+    if native.LIB is None or min(data.strides) <= 0:
         return [predictive._causal_buffer(s, u) for _, u, s in _tile_symbols(data, r0, r1, profile, step, seed)]
     w = data.shape[1]
     cell = cell_size(profile.cfa_pattern)

@@ -1,6 +1,6 @@
 """The codec's per-pixel loops compiled from C (``_simd.c``, AVX-512), where they are built and run: the decoder's
 sequential loop (lanes in registers), the encoder's residual pass (8 pixels of a row at a time) and its rANS pass
-(8 lanes at a time), its causal buffer (from the DN in one pass with the dither and the forward transform, or from
+(16 lanes at a time), its causal buffer (from the DN in one pass with the dither and the forward transform, or from
 the symbols), alphabet indices, the dither and the forward transform; the decoder's fixed-point dither and its inverse
 transform (the dither made on the way). C sources: ``_simd.c`` (the coder's loops), ``_simd_prepare.c`` (dither and
 transforms), ``_simd.h``.
@@ -11,8 +11,8 @@ the codec runs its numba loops (``decoder.decode_plane``, ``predictive._residual
 ``predictive._front``, ``predictive._index``, ``prepare._dither_grid_kernel``, ``prepare._forward_kernel``,
 ``decoder.fixed_dither``, ``prepare._inverse_dn_kernel``).
 Both run the same arithmetic, so the streams and decoded values are the same (tests compare them); only the speed
-differs. The compiled decoder takes streams of ``LANE_COUNTS`` lanes (today's encoder writes 8); others take the numba
-loop.
+differs. The compiled decoder takes streams of ``LANE_COUNTS`` lanes (today's encoder writes 16); others take the
+numba loop.
 
 The C functions are called through ctypes (which releases the GIL, so tiles decode in parallel threads); they use no
 Python API. Arrays are passed by address: the caller keeps them alive, C-contiguous and of the documented dtypes.
@@ -138,7 +138,7 @@ def residuals(p, thr, table, tab0, pshift, r_out, t_out, off) -> int:
 
 
 def rans_encode(idx, tab, freq, cum, rcp, rs, rl, lr, ls, out):
-    """``predictive._rans_encode`` (the same states, word counts and words in ``out``) with 8 lanes at a time in
+    """``predictive._rans_encode`` (the same states, word counts and words in ``out``) with 16 lanes at a time in
     AVX-512: ``idx``, ``tab`` int32 per symbol; ``freq``, ``cum`` int64 and ``rcp`` float64, tables x alphabet;
     ``rs``, ``rl``, ``lr``, ``ls`` the lanes' rows (``predictive._lane_rows``, int64); ``out`` uint16, one word per
     symbol and one more (the 32-bit scatter writes a word past a lane's next). Returns (states uint64, word counts

@@ -34,9 +34,10 @@ threads.
 Speed without changing the stream: the encoder computes activities, contexts and predictions row
 by row in passes without a sequential dependence; the least squares accumulate X^T X from
 per-context sample buffers in vectorised blocks (encoder only: the coefficients are stored);
-the causal buffer, the residual pass (8 pixels at a time), the alphabet indices and the rANS pass
-(8 lanes at a time) run in C with AVX-512 where ``metraw.codec.native`` is built, else in numba, to
-the same bytes; the numba decoder runs the steady part of each 4-row group with the lane states in
+the causal buffer (with the dither and the forward transform, from the DN), the residual pass (8
+pixels at a time), the alphabet indices and the rANS pass (16 lanes at a time) run in C with AVX-512
+where ``metraw.codec.native`` is built, else in numba, to the same bytes; the activity thresholds
+come from a histogram; the numba decoder runs the steady part of each 4-row group with the lane states in
 registers; both evaluate sum_i k_i (n_i - W) as sum_i k_i n_i - W sum_i k_i (exact integers, the
 same value).
 The encoder's work is a few compiled calls per section (``_model_of_front``, the residual pass,
