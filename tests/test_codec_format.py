@@ -54,7 +54,8 @@ def fixture_images() -> dict[str, RawImage]:
     data[290, 100:110] = 0           # below the transform's domain: escapes
     # the same mono image again from the encoders of 2026-11-28 (8, then 16 rANS lanes; format version 3 as before)
     return {"v3_rggb_64x48_q1.mraw": small, "v3_mono_300x440_q2.mraw": RawImage(data, mono),
-            "v3_mono_300x440_q2_8lanes.mraw": RawImage(data, mono), "v3_mono_300x440_q2_16lanes.mraw": RawImage(data, mono)}
+            "v3_mono_300x440_q2_8lanes.mraw": RawImage(data, mono),
+            "v3_mono_300x440_q2_16lanes.mraw": RawImage(data, mono)}
 
 
 def _sha(b: bytes) -> str:

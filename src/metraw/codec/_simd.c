@@ -391,8 +391,9 @@ INLINE SIMD_FN void rans_lanes(const int NV, const int32_t *ent, const u64 *fc, 
                                     _mm512_cvtepi64_epi32(_mm512_and_si512(X[v], m16)), 2);
             NW[v] = _mm512_mask_add_epi64(NW[v], emit, NW[v], one);
             const __m512i Xs = _mm512_mask_srli_epi64(X[v], emit, X[v], 16);
-            __m512d prod = _mm512_mul_round_pd(_mm512_cvtepu64_pd(Xs), R, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
-            __m512i q = _mm512_cvttpd_epu64(_mm512_add_round_pd(prod, eps, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC));
+            const int rn = _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC;
+            __m512d prod = _mm512_mul_round_pd(_mm512_cvtepu64_pd(Xs), R, rn);
+            __m512i q = _mm512_cvttpd_epu64(_mm512_add_round_pd(prod, eps, rn));
             __m512i rem = _mm512_sub_epi64(Xs, _mm512_mul_epu32(q, F));
             X[v] = _mm512_add_epi64(_mm512_add_epi64(_mm512_slli_epi64(q, PROB_BITS), rem), C);
             if (k > 0) {
@@ -429,8 +430,9 @@ SIMD_FN static void entries_avx512(const int32_t *idx, const int32_t *tab, i64 n
     const __m512i A = _mm512_set1_epi32((int)alpha);
     for (i64 i = 0; i < n; i += 16) {
         const __mmask16 mk = n - i >= 16 ? 0xFFFF : (__mmask16)((1u << (n - i)) - 1);
-        _mm512_mask_storeu_epi32(ent + i, mk, _mm512_add_epi32(_mm512_mullo_epi32(_mm512_maskz_loadu_epi32(mk, tab + i), A),
-                                                               _mm512_maskz_loadu_epi32(mk, idx + i)));
+        const __m512i t = _mm512_maskz_loadu_epi32(mk, tab + i);
+        const __m512i e = _mm512_add_epi32(_mm512_mullo_epi32(t, A), _mm512_maskz_loadu_epi32(mk, idx + i));
+        _mm512_mask_storeu_epi32(ent + i, mk, e);
     }
 }
 #endif
@@ -472,10 +474,9 @@ void metraw_rans_encode(const int32_t *idx, const int32_t *tab, i64 n, i64 ntab,
         if (ent && fc) {
             entries_avx512(idx, tab, n, alpha, ent);
             for (i64 e = 0; e < ntab * alpha; e++) fc[e] = (u64)freq[e] | ((u64)cum[e] << 32);
-            for (i64 g = 0; g < nl; g += 16) {
-                if (g + 16 <= nl) rans_lanes16(ent, fc, rs, rl, out, lo, xs + g, nws + g, ci + g, ce + g, cq + g, ls + g);
-                else rans_lanes8(ent, fc, rs, rl, out, lo, xs + g, nws + g, ci + g, ce + g, cq + g, ls + g);
-            }
+            for (i64 g = 0; g < nl; g += 16)
+                (g + 16 <= nl ? rans_lanes16 : rans_lanes8)(ent, fc, rs, rl, out, lo, xs + g, nws + g, ci + g, ce + g,
+                                                            cq + g, ls + g);
         } else {   /* out of memory: the scalar coder */
             for (i64 k = lo - 1; k >= 0; k--)
                 for (i64 j = 0; j < nl; j++) {

@@ -209,10 +209,12 @@ SIMD_FN static void inverse_dn_avx512(const int32_t *sym, i64 rows, i64 cols, u6
             if (out_col_stride == 1) {
                 _mm512_mask_cvtepi32_storeu_epi16(o + j, mk, d32);
             } else if (out_col_stride == 2 && n == 16 && j + 16 < cols) {
-                /* the 16 words hold this plane's pixels j .. j + 15 and the next plane's beside them, all in this row */
+                /* the 16 words hold this plane's pixels j .. j + 15 and the next plane's beside them, all in this
+                 * row */
                 uint32_t *w32 = (uint32_t *)(o + 2 * j);
                 const __m512i old = _mm512_loadu_si512(w32);
-                _mm512_storeu_si512(w32, _mm512_or_si512(_mm512_and_si512(old, _mm512_set1_epi32((int)0xFFFF0000u)), d32));
+                const __m512i keep = _mm512_and_si512(old, _mm512_set1_epi32((int)0xFFFF0000u));
+                _mm512_storeu_si512(w32, _mm512_or_si512(keep, d32));
             } else {
                 int32_t tmp[16];
                 _mm512_storeu_si512(tmp, d32);
