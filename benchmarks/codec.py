@@ -6,6 +6,8 @@ run (2 threads for metraw). Writes docs/figures/codec_rd.png.  Run: nice -n 5 py
 Speed only (real frames, steps 1 and 2: 2-thread wall and 1-thread CPU ratios against JPEG-LS):
 nice -n 5 python benchmarks/codec.py --speed   (all cases round-robin, medians of SPEED_REPS rounds;
 then the 20 MP frame: absolute times and Mpix/s)
+Compiled loops against numba (1-thread CPU, the real frames at step 1, same process, alternating rounds):
+nice -n 5 python benchmarks/codec.py --native
 
 Where the time goes (issue #18; CPU ms on one core, THREADS = 1, step 1, medians of 7 calls per
 stage, 2 shared cores under load 2-9 from other users: +-10 %). Before = commit e5cee37, after =
@@ -473,9 +475,47 @@ def speed_large() -> None:
     print("# x jls = JPEG-LS wall / metraw wall (metraw on 2 threads); cpu1 = metraw CPU on 1 thread / JPEG-LS CPU")
 
 
+def native_main(rounds: int = 11) -> int:
+    """1-thread CPU of encode and decode with the compiled loops (``metraw.codec.native``) and with numba's (``LIB``
+    set to None, as METRAW_NATIVE=0 does), same process, alternating; medians of ``rounds`` (a sample: 3 calls;
+    encode without the profile check)."""
+    from metraw.codec import native
+
+    if native.LIB is None:
+        print("metraw.codec._simd is not built or not used here (no compiler, no AVX-512, or METRAW_NATIVE=0)")
+        return 1
+    lib, threads = native.LIB, codec.THREADS
+    print(f"# load: {os.getloadavg()} at the start; two_vectors={native.TWO_VECTORS}")
+    codec.THREADS = 1
+    try:
+        for name, img in frames():
+            if name not in REAL_NAMES:
+                continue
+            blob = codec.encode(img, 1.0, 0, check_profile=False)
+            ms = {}
+            for _ in range(rounds):
+                for key, which in (("numba", None), ("C", lib)):
+                    native.LIB = which
+                    for what, fn in (("enc", lambda: codec.encode(img, 1.0, 0, check_profile=False)),
+                                     ("dec", lambda: codec.decode(blob))):
+                        t = time.process_time()
+                        for _ in range(3):
+                            fn()
+                        ms.setdefault((what, key), []).append((time.process_time() - t) / 3 * 1e3)
+            m = {k: float(np.median(v)) for k, v in ms.items()}
+            print(f"{name:13s} encode {m['enc', 'numba']:6.1f} -> {m['enc', 'C']:6.1f} ms "
+                  f"({m['enc', 'numba'] / m['enc', 'C']:.2f}x)   decode {m['dec', 'numba']:6.1f} -> "
+                  f"{m['dec', 'C']:6.1f} ms ({m['dec', 'numba'] / m['dec', 'C']:.2f}x)")
+    finally:
+        native.LIB, codec.THREADS = lib, threads
+    return 0
+
+
 def main() -> int:
     if "--speed" in sys.argv[1:]:
         return speed_main()
+    if "--native" in sys.argv[1:]:
+        return native_main()
     print(f"# load: {os.getloadavg()} at the start (2 cores)")
     rows = []
     rd = {}
