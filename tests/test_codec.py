@@ -396,17 +396,17 @@ def test_activity_thresholds_are_the_sorted_samples_at_their_ranks():
     """The encoder's thresholds come from order statistics of activity >> 8 by a histogram, with the ranks among the
     largest values (past the histogram) selected exactly: equal to a full sort's, for values in and past the
     histogram, ties, a constant sample and one value."""
-    from metraw.codec import predictive
+    from metraw.codec import model
 
     rng = np.random.default_rng(21)
-    top = predictive.HIST_BINS << 8
+    top = model.HIST_BINS << 8
     samples = [rng.integers(0, 2**20, 5000), rng.integers(0, 2 * top, 3001), np.full(700, top + 5), np.array([9]),
                np.where(rng.random(4000) < 0.6, rng.integers(0, 512, 4000), rng.integers(top, 2**40, 4000))]
     for sample in samples:
         sample = sample.astype(np.int64)
         for nact in (2, 4, 8):
             kth = np.array([((sample.size - 1) * k) // nact for k in range(1, nact)], np.int64)
-            got = predictive._order_statistics_shifted(sample, kth)
+            got = model.order_statistics_shifted(sample, kth)
             assert np.array_equal(got, np.sort(sample)[kth] >> 8)
 
 

@@ -21,7 +21,7 @@ Per group of planes (each CFA plane its own group, or all planes together for sm
 the activity context is the quantised local activity |W-NW| + |N-NW| + |N-NE| + |W-WW| +
 |N-NN| of decoded neighbours (``nact`` contexts, thresholds at quantiles, stored); each
 activity context has its own least-squares predictor x ~ W + sum_i c_i (n_i - W) + b over 12
-causal neighbours (fitted by the encoder, stored) and each (activity, phase) context its own
+causal neighbours (fitted by the encoder, ``metraw.codec.model``; stored) and each (activity, phase) context its own
 static rANS table. The number of activity contexts shrinks with the plane size so that side
 information stays a small fraction of the rate (small images: one context, tables shared by
 the planes). Large tiles code their rows in 16 interleaved rANS lanes (row classes, each with
@@ -40,7 +40,7 @@ where ``metraw.codec.native`` is built, else in numba, to the same bytes; the ac
 come from a histogram; the numba decoder runs the steady part of each 4-row group with the lane states in
 registers; both evaluate sum_i k_i (n_i - W) as sum_i k_i n_i - W sum_i k_i (exact integers, the
 same value).
-The encoder's work is a few compiled calls per section (``_model_of_front``, the residual pass,
+The encoder's work is a few compiled calls per section (``model.model_of_front``, the residual pass,
 ``_code_section``), each releasing the GIL, so that row tiles in parallel threads rarely wait on
 each other for the interpreter. The decoder is ``metraw.codec.decoder``
 (unsigned indices into flat views, context by table lookup, lane limits checked once per group
@@ -55,43 +55,15 @@ import struct
 import numba as nb
 import numpy as np
 
-from metraw.codec import native
+from metraw.codec import model, native
 from metraw.codec.container import put_varint
 from metraw.codec.decoder import (  # noqa: F401  (the format's constants; decode_planes re-exported)
     _HEAD, COEF_BITS, FRAC, MAX_NACT, MAX_RESID, NPH, NTAP, PROB_BITS, PROB_SCALE, RANS_L, _normalise, decode_planes,
     predictor_table,
     fixed_point)
 
-MIN_FIT = 64                   # fewer samples in a context: use the default predictor
 SHARED_BELOW = 1 << 16         # tiles with fewer pixels share one model across their planes
 LANES = 16                     # rANS lanes (row classes) for tiles of >= SHARED_BELOW pixels (see the module docstring)
-
-
-def n_activity_contexts(pixels_per_group: int) -> int:
-    """Activity contexts for a group of ``pixels_per_group`` pixels (side info vs gain)."""
-    if pixels_per_group < 4096:
-        return 1
-    if pixels_per_group < 16384:
-        return 2
-    if pixels_per_group < 65536:
-        return 4
-    return MAX_NACT
-
-
-@nb.njit(cache=True, nogil=True, inline="always")
-def _activity(p, y, x):
-    w_ = p[y, x - 1]
-    n_ = p[y - 1, x]
-    nw = p[y - 1, x - 1]
-    return abs(w_ - nw) + abs(n_ - nw) + abs(n_ - p[y - 1, x + 1]) + abs(w_ - p[y, x - 2]) + abs(n_ - p[y - 2, x])
-
-
-@nb.njit(cache=True, nogil=True, inline="always")
-def _ctx_of(act, thr):
-    c = 0
-    for i in range(thr.size):  # thresholds ascending: a branch-free count
-        c += act > thr[i]
-    return c
 
 
 @nb.njit(cache=True, nogil=True)
@@ -136,91 +108,6 @@ def _front_c0(s, u):
     (front, c0). c0 is stored in the stream: the decoder pads with the same value."""
     c0 = _mean_symbol(s)
     return _front(s, u, c0 << 16), c0
-
-
-@nb.njit(cache=True, nogil=True)
-def _activity_samples(p, stride):
-    """Activities on the sampling lattice (rows every ``stride``, sheared columns)."""
-    h = p.shape[0] - 2
-    w = p.shape[1] - 4
-    out = np.empty(((h + stride - 1) // stride) * ((w + stride - 1) // stride + 1), np.int64)
-    n = 0
-    for y in range(0, h, stride):
-        for x0 in range((y // stride) % stride, w, stride):  # sheared lattice: no column aliasing
-            out[n] = _activity(p, y + 2, x0 + 2)
-            n += 1
-    return out[:n]
-
-
-#: Least-squares samples per group (sampling lattice of the encoder's fit; encoder only). 16384 samples
-#: for 12 x 8 unknowns cost < 0.002 bit/pixel against 65536 and a quarter of the fitting time.
-LS_SAMPLES = 16384
-LS_BLOCK = 512                  # samples buffered per activity context before they are added to X^T X
-
-
-@nb.njit(cache=True, nogil=True, fastmath=True)
-def _gram_add(buf, n, ata_c, atb_c):
-    """Add X^T X (lower triangle) and X^T t of ``n`` buffered samples (rows of ``buf``: 12 regressors,
-    then the target). Encoder only (the fitted coefficients are stored in the stream), so the
-    summation order is free: vectorised dot products."""
-    for i in range(12):
-        di = buf[i]
-        for j in range(i + 1):
-            dj = buf[j]
-            acc = 0.0
-            for m in range(n):
-                acc += di[m] * dj[m]
-            ata_c[i, j] += acc
-        dt = buf[12]
-        acc = 0.0
-        for m in range(n):
-            acc += di[m] * dt[m]
-        atb_c[i] += acc
-
-
-@nb.njit(cache=True, nogil=True)
-def _normal_equations(p, thr, stride, ata, atb):
-    """Accumulate per-context X^T X (lower triangle) and X^T t of t = x - W on (n_i - W, 1) over
-    the sampling lattice (rows every ``stride``, sheared columns: no column aliasing). Samples are
-    buffered per context (``LS_BLOCK``, cache resident) and added in vectorised blocks."""
-    h = p.shape[0] - 2
-    w = p.shape[1] - 4
-    nact = thr.size + 1
-    buf = np.empty((nact, 13, LS_BLOCK + 24))  # padded rows: no 4 KiB cache-set aliasing
-    fill = np.zeros(nact, np.int64)
-    sc = 1.0 / 65536.0
-    for y in range(0, h, stride):
-        yy = y + 2
-        r0 = p[yy]
-        r1 = p[yy - 1]
-        r2 = p[yy - 2]
-        for x0 in range((y // stride) % stride, w, stride):
-            xx = x0 + 2
-            c = _ctx_of(_activity(p, yy, xx), thr)
-            k = fill[c]
-            # buf[c, i, k], not a view buf[c] per sample: a view in the loop costs reference counting
-            ref = r0[xx - 1]
-            buf[c, 0, k] = (r1[xx] - ref) * sc
-            buf[c, 1, k] = (r1[xx - 1] - ref) * sc
-            buf[c, 2, k] = (r1[xx + 1] - ref) * sc
-            buf[c, 3, k] = (r0[xx - 2] - ref) * sc
-            buf[c, 4, k] = (r2[xx] - ref) * sc
-            buf[c, 5, k] = (r1[xx - 2] - ref) * sc
-            buf[c, 6, k] = (r2[xx - 1] - ref) * sc
-            buf[c, 7, k] = (r2[xx + 1] - ref) * sc
-            buf[c, 8, k] = (r1[xx + 2] - ref) * sc
-            buf[c, 9, k] = (r2[xx - 2] - ref) * sc
-            buf[c, 10, k] = (r2[xx + 2] - ref) * sc
-            buf[c, 11, k] = 1.0
-            buf[c, 12, k] = (r0[xx] - ref) * sc
-            k += 1
-            if k == LS_BLOCK:
-                _gram_add(buf[c], k, ata[c], atb[c])
-                k = 0
-            fill[c] = k
-    for c in range(nact):
-        if fill[c]:
-            _gram_add(buf[c], fill[c], ata[c], atb[c])
 
 
 @nb.njit(cache=True, nogil=True)
@@ -464,93 +351,6 @@ def _plane_symbol_bits(idx, tab, freq, bounds, esc_i):
     return out
 
 
-#: Bins of ``_order_statistics_shifted``'s histogram (values sample >> 8 at or past it are selected exactly apart)
-HIST_BINS = 1 << 16
-
-
-@nb.njit(cache=True, nogil=True)
-def _order_statistics_shifted(sample, kth):
-    """The order statistics at ranks ``kth`` (ascending) of v = ``sample`` >> 8 (``sample`` >= 0): what
-    sorted(sample)[kth] >> 8 is, as >> 8 keeps the order. By a histogram of v (``HIST_BINS`` bins; ranks that
-    fall past them by ``np.partition`` of those values): ~5x faster than partitioning ``sample``."""
-    hist = np.zeros(HIST_BINS + 1, np.int64)
-    for i in range(sample.size):
-        hist[min(sample[i] >> 8, HIST_BINS)] += 1
-    out = np.empty(kth.size, np.int64)
-    below = 0  # values in the bins before b
-    b = 0
-    for j in range(kth.size):
-        while b < HIST_BINS and below + hist[b] <= kth[j]:
-            below += hist[b]
-            b += 1
-        out[j] = b
-    if b == HIST_BINS:  # ranks among the largest values: exactly, by partitioning them
-        big = np.empty(hist[HIST_BINS], np.int64)
-        m = 0
-        for i in range(sample.size):
-            if sample[i] >> 8 >= HIST_BINS:
-                big[m] = sample[i] >> 8
-                m += 1
-        for j in range(kth.size):
-            if out[j] == HIST_BINS:
-                out[j] = np.partition(big, kth[j] - below)[kth[j] - below]
-    return out
-
-
-@nb.njit(cache=True, nogil=True)
-def _thresholds(sample, nact):
-    """nact - 1 activity thresholds (multiples of 256 at the 'lower' sample quantiles k / nact of
-    ``sample``, duplicates removed), padded with 0xFFFFFFFF 2^8."""
-    thr = np.full(nact - 1, np.int64(0xFFFFFFFF) << 8)
-    n = sample.size
-    if nact == 1 or n == 0:
-        return thr
-    kth = np.empty(nact - 1, np.int64)
-    for k in range(1, nact):
-        kth[k - 1] = ((n - 1) * k) // nact
-    q = _order_statistics_shifted(sample, kth)
-    for k in range(nact - 1):
-        q[k] = min(q[k], np.int64(0xFFFFFFFE))
-    uq = np.unique(q)
-    thr[:uq.size] = uq << 8
-    return thr
-
-
-@nb.njit(cache=True, nogil=True)
-def _fit(ata, atb):
-    """Per-context least-squares coefficients (``COEF_BITS`` fixed point, nact x 11 flat) and bias
-    (``FRAC`` bits) from the lower triangles of X^T X and X^T t (``_normal_equations``).
-
-    A context with fewer than ``MIN_FIT`` samples, or a solution that is not finite or has a
-    coefficient of magnitude >= 7.9, gets the default predictor (W + N) / 2."""
-    nact = ata.shape[0]
-    coef = np.zeros(nact * (NTAP - 1), np.int64)
-    bias = np.zeros(nact, np.int64)
-    reg = np.empty((NTAP, NTAP))
-    for c in range(nact):
-        for i in range(NTAP):
-            for j in range(i + 1):
-                reg[i, j] = ata[c, i, j]
-                reg[j, i] = ata[c, i, j]
-            reg[i, i] += 1e-6
-        try:
-            sol = np.linalg.solve(reg, atb[c].copy())
-        except Exception:  # singular (cannot happen for a Gram matrix + 1e-6 I, but never fail the encode)
-            sol = np.full(NTAP, np.nan)
-        ok = ata[c, NTAP - 1, NTAP - 1] >= MIN_FIT
-        for i in range(NTAP):
-            ok &= np.isfinite(sol[i])
-        for i in range(NTAP - 1):
-            ok &= abs(sol[i]) < 7.9
-        if ok:
-            for i in range(NTAP - 1):
-                coef[c * (NTAP - 1) + i] = np.int64(np.rint(sol[i] * (1 << COEF_BITS)))
-            bias[c] = np.int64(np.rint(min(max(sol[NTAP - 1], -16000.0), 16000.0) * (1 << FRAC)))
-        else:
-            coef[c * (NTAP - 1)] = 1 << (COEF_BITS - 1)  # (W + N) / 2 when a context has too few samples
-    return coef, bias
-
-
 def _causal_buffer(s, u):
     """(front, c0) of ``_front_c0``: the buffer in C where ``metraw.codec.native`` is built and the plane is
     contiguous int32 symbols with a float64 dither, else in numba."""
@@ -559,18 +359,6 @@ def _causal_buffer(s, u):
         c0 = _mean_symbol(s)
         return native.front(s, u, c0), c0
     return _front_c0(s, u)
-
-
-@nb.njit(cache=True, nogil=True)
-def _model_of_front(front, nact, stride):
-    """The model of a plane's causal buffer, one compiled call without the GIL: (thr, coef, bias). ``stride``: the
-    least-squares sampling lattice (activities on twice that)."""
-    thr = _thresholds(_activity_samples(front, 2 * stride), nact)
-    ata = np.zeros((nact, NTAP, NTAP))
-    atb = np.zeros((nact, NTAP))
-    _normal_equations(front, thr, stride, ata, atb)
-    coef, bias = _fit(ata, atb)
-    return thr, coef, bias
 
 
 def _code_section(r, t, amax, ntab, shared, hs, ws, nl):
@@ -670,7 +458,7 @@ def encode_buffers(buffers: list[tuple[np.ndarray, int]], account: list | None =
     """Code planes given by their causal buffers, (front, c0) pairs (``_causal_buffer``, or straight from the DN by
     ``native.plane_buffer``; front (h + 2) x (w + 4) int64), into one section.
 
-    Tiles of >= ``SHARED_BELOW`` pixels: per-plane models, ``n_activity_contexts`` contexts x
+    Tiles of >= ``SHARED_BELOW`` pixels: per-plane models, ``model.n_activity_contexts`` contexts x
     ``NPH`` phase bins, 12-bit tables, ``LANES`` rANS lanes. Smaller tiles: one model for all planes,
     8-bit tables, and the smallest of (1, 1), (1, NPH), (2, NPH) (activity contexts, phase bins).
 
@@ -680,7 +468,7 @@ def encode_buffers(buffers: list[tuple[np.ndarray, int]], account: list | None =
     a share of the common overhead (plane header, rANS flush) proportional to its code length."""
     sizes = [(f.shape[0] - 2) * (f.shape[1] - 4) for f, _ in buffers]
     if sum(sizes) >= SHARED_BELOW:
-        return _encode_planes(buffers, False, n_activity_contexts(min(sizes)), 0, account)
+        return _encode_planes(buffers, False, model.n_activity_contexts(min(sizes)), 0, account)
     best, best_acc = None, None
     memo = {}  # the candidates share buffers, activities and (same nact) the whole model
     for nact, pshift in ((1, 2), (1, 0), (2, 0)):
@@ -695,13 +483,6 @@ def encode_buffers(buffers: list[tuple[np.ndarray, int]], account: list | None =
     return best
 
 
-def _ls_stride(npix: int) -> int:
-    """Least-squares sampling stride for a group of ``npix`` pixels: ~``LS_SAMPLES`` samples for
-    12 x nact unknowns. Odd, so that even and odd rows are sampled (sensors with row-pair offsets,
-    e.g. MicaSense, bias a fit on even rows only)."""
-    return 2 * int(np.sqrt(npix / LS_SAMPLES) / 2) + 1
-
-
 def _shared_model(buffers, nact: int, memo: dict):
     """One model for all planes (small tiles; ``buffers`` their (front, c0)): (c0 per plane, [(front, thr, coef, bias,
     tab0)] per plane). ``memo`` keeps the activity samples and each nact's model for the other candidate layouts of
@@ -709,16 +490,16 @@ def _shared_model(buffers, nact: int, memo: dict):
     fronts = [f for f, _ in buffers]
     c0s = [int(c0) for _, c0 in buffers]
     if "acts" not in memo:
-        stride = _ls_stride(sum((f.shape[0] - 2) * (f.shape[1] - 4) for f in fronts))
-        memo["acts"] = stride, np.concatenate([_activity_samples(f, 2 * stride) for f in fronts])
+        stride = model.ls_stride(sum((f.shape[0] - 2) * (f.shape[1] - 4) for f in fronts))
+        memo["acts"] = stride, np.concatenate([model.activity_samples(f, 2 * stride) for f in fronts])
     stride, acts = memo["acts"]
     if nact not in memo:
-        thr = _thresholds(acts, nact)
+        thr = model.thresholds(acts, nact)
         ata = np.zeros((nact, NTAP, NTAP))
         atb = np.zeros((nact, NTAP))
         for f in fronts:
-            _normal_equations(f, thr, stride, ata, atb)
-        coef, bias = _fit(ata, atb)
+            model.normal_equations(f, thr, stride, ata, atb)
+        coef, bias = model.fit(ata, atb)
         memo[nact] = [(f, thr, coef, bias, 0) for f in fronts]
     return c0s, memo[nact]
 
@@ -726,7 +507,7 @@ def _shared_model(buffers, nact: int, memo: dict):
 def _encode_planes(buffers, shared: bool, nact: int, pshift: int, account: list | None = None,
                    memo: dict | None = None) -> bytes:
     """One section of the planes of causal ``buffers`` with the given model layout (``memo``: see ``_shared_model``).
-    The numerical work runs in a few compiled calls that release the GIL (per plane ``_model_of_front`` and the
+    The numerical work runs in a few compiled calls that release the GIL (per plane ``model.model_of_front`` and the
     residual pass, then ``_code_section``), so row tiles coded in parallel threads seldom wait for each other."""
     npl = len(buffers)
     shapes = [(f.shape[0] - 2, f.shape[1] - 4) for f, _ in buffers]
@@ -744,7 +525,7 @@ def _encode_planes(buffers, shared: bool, nact: int, pshift: int, account: list 
         models = []
         for k, ((front, c0), n) in enumerate(zip(buffers, sizes)):
             c0s.append(int(c0))
-            models.append((front, *_model_of_front(front, nact, _ls_stride(n)), k * nact * nph))
+            models.append((front, *model.model_of_front(front, nact, model.ls_stride(n)), k * nact * nph))
     off = 0
     for n, (front, thr, coef, bias, tab0) in zip(sizes, models):
         if native.LIB is not None:
