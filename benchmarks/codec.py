@@ -164,6 +164,9 @@ same process, alternating, 11 rounds, step 1): encode canon_dng 23.0 -> 18.3 ms 
 spacenet_pan 4.03 / 3.43 and 4.04 / 3.46; 1-thread CPU / JPEG-LS 0.46 / 0.46, 0.45 / 0.46; 0.30 / 0.43, 0.30 / 0.43;
 0.40 / 0.48, 0.39 / 0.48; bpp 2.416 / 1.543, 2.382 / 1.525, 2.254 / 1.480; 20 MP frame 104.9 / 86.6 ms (step 1),
 190 / 231 Mpix/s, x JPEG-LS 4.01 / 4.08.
+Then (7) a 16-lane group's edges as 8-lane ramps (A = lanes 0-7 alone in its steady part while B = lanes 8-15
+starts, both vectors, B alone while A ends): the scalar path 17 % -> 10 % of decode, decode 1-thread against 8 lanes
+1.16 -> 1.21x (canon_dng) and 1.23 -> 1.25x (micasense), the same values.
 
 A vectorised pass can only take taps whose coefficients do not depend on the activity context (which needs W).
 ``benchmarks/codec_predictors.py`` (2026-11-26; empirical H(r | context, phase) in float arithmetic, no side

@@ -13,7 +13,9 @@
  * steady loop reads no pixel it or its neighbours wrote; the rows above lane 0 (the previous group's last two rows)
  * enter as two more histories (G). Per step: 5 gathers (dither, symbol table, frequency table, rANS word, escape)
  * and one scatter of the 8 values. The edges of each group (the first 3 (L - 1) + 1 and the last column steps)
- * take the scalar path. */
+ * take the scalar path; 16-lane groups run two vectors side by side (two chains: the gathers' latency overlaps)
+ * with 8-lane edges (decode_group16). The encoder's passes follow the decoder (residuals, rANS, causal buffer,
+ * alphabet indices); _simd_prepare.c holds the dither and transforms. */
 #include "_simd.h"
 
 #define PROB_BITS 12          /* metraw.codec.decoder.PROB_BITS */
@@ -166,13 +168,13 @@ SIMD_FN static void vmodel_init(vmodel_t *vm, const model_t *m)
     vm->lut = m->lut; vm->lut16 = m->lut16; vm->fcum = m->fcum; vm->words = m->words; vm->esc = m->esc;
 }
 
-/* steady part of a group of NV x 8 rows: xs_ = 3 (8 NV - 1) + 1 .. w - 2, lane j at x = xs_ - 3 j of row y0 + j */
+/* steady part of a group of NV x 8 rows: column steps xs0 .. x_last, lane j at x = xs_ - 3 j of row y0 + j; every lane
+ * in its row (xs0 >= 3 (8 NV - 1) + 1, x_last <= w - 2) and the pixels before it decoded */
 INLINE SIMD_FN int steady(const int NV, i64 *pf, i64 y0, i64 w, const int32_t *u, const model_t *m, u64 *xs, i64 *pos,
-              const i64 *pmin, i64 *epos, const i64 *eend)
+              const i64 *pmin, i64 *epos, const i64 *eend, i64 xs0, i64 x_last)
 {
     const i64 ws = w + 4;
     const i64 b0 = (y0 + 2) * ws + 2;
-    const i64 xs0 = 3 * (8 * NV - 1) + 1;
     const __m512i lane = _mm512_set_epi64(7, 6, 5, 4, 3, 2, 1, 0);
     const __m512i vidx = _mm512_mullo_epi64(lane, _mm512_set1_epi64(ws - 3));   /* buffer offset of lane j */
     const __m512i uidx = _mm512_mullo_epi64(lane, _mm512_set1_epi64(w - 3));    /* dither offset of lane j */
@@ -191,7 +193,7 @@ INLINE SIMD_FN int steady(const int NV, i64 *pf, i64 y0, i64 w, const int32_t *u
     /* G[k]: lane 6 = R0[x + 6 - k], lane 7 = R1[x + 3 - k] (the rows above lane 0 as two more lanes' histories) */
 #define GV(x) _mm512_mask_mov_epi64(_mm512_set1_epi64(R0[(x) + 6]), 0x80, _mm512_set1_epi64(R1[(x) + 3]))
     for (int k = 1; k <= 8; k++) G[k] = GV(xs0 - k);
-    for (i64 x0 = xs0; x0 <= w - 2; x0++) {
+    for (i64 x0 = xs0; x0 <= x_last; x0++) {
         __m512i pv[2];
         for (int v = 0; v < NV; v++) {
             const __m512i *A = v ? H[v - 1] : G;    /* the history of the lanes above this vector's lane 0 */
@@ -232,11 +234,11 @@ INLINE SIMD_FN int steady(const int NV, i64 *pf, i64 y0, i64 w, const int32_t *u
 }
 
 SIMD_FN static int steady8(i64 *pf, i64 y0, i64 w, const int32_t *u, const model_t *m, u64 *xs, i64 *pos,
-                           const i64 *pmin, i64 *epos, const i64 *eend)
-{ return steady(1, pf, y0, w, u, m, xs, pos, pmin, epos, eend); }
+                           const i64 *pmin, i64 *epos, const i64 *eend, i64 xs0, i64 x_last)
+{ return steady(1, pf, y0, w, u, m, xs, pos, pmin, epos, eend, xs0, x_last); }
 SIMD_FN static int steady16(i64 *pf, i64 y0, i64 w, const int32_t *u, const model_t *m, u64 *xs, i64 *pos,
-                            const i64 *pmin, i64 *epos, const i64 *eend)
-{ return steady(2, pf, y0, w, u, m, xs, pos, pmin, epos, eend); }
+                            const i64 *pmin, i64 *epos, const i64 *eend, i64 xs0, i64 x_last)
+{ return steady(2, pf, y0, w, u, m, xs, pos, pmin, epos, eend, xs0, x_last); }
 
 #endif
 
@@ -598,23 +600,49 @@ int metraw_simd_available(void)
 #endif
 }
 
+/* general_step over column steps [from, to) of the lanes of rows y0 .. y0 + nr - 1 (lanes xs .. eend: theirs) */
+static int general_steps(i64 *pf, i64 from, i64 to, i64 y0, i64 nr, i64 w, const int32_t *u, const model_t *m,
+                         u64 *xs, i64 *pos, const i64 *pmin, i64 *epos, const i64 *eend)
+{
+    for (i64 xsw = from; xsw < to; xsw++)
+        if (!(m->lut16 ? general_step(1, pf, xsw, y0, nr, w, u, m, xs, pos, pmin, epos, eend)
+                       : general_step(0, pf, xsw, y0, nr, w, u, m, xs, pos, pmin, epos, eend))) return 0;
+    return 1;
+}
+
+#if METRAW_X86
+/* a full 16-lane group with its two vectors side by side (w >= 48): A = lanes 0-7, B = lanes 8-15 (B's column step s
+ * is A's s + 24). The ramps of 16 staggered lanes would take the scalar path for 46 column steps at each end; here
+ * only 8-lane ramps do: A's start ramp, A alone in its steady part while B starts, both vectors, then B alone while A
+ * ends, B's end. Each lane decodes its pixels in order and after the pixels above it (A runs ahead of B), so the
+ * values are those of any other schedule. */
+SIMD_FN static int decode_group16(i64 *pf, i64 y0, i64 w, const int32_t *u, const model_t *m, u64 *xs, i64 *pos,
+                                  const i64 *pmin, i64 *epos, const i64 *eend)
+{
+    const i64 S8 = 3 * 7 + 1, S16 = 3 * 15 + 1, yb = y0 + 8;
+    return general_steps(pf, 0, S8, y0, 8, w, u, m, xs, pos, pmin, epos, eend)
+        && steady8(pf, y0, w, u, m, xs, pos, pmin, epos, eend, S8, S16 - 1)
+        && general_steps(pf, 0, S8, yb, 8, w, u, m, xs + 8, pos + 8, pmin + 8, epos + 8, eend + 8)
+        && steady16(pf, y0, w, u, m, xs, pos, pmin, epos, eend, S16, w - 2)
+        && general_steps(pf, w - 1, w - 1 + S8, y0, 8, w, u, m, xs, pos, pmin, epos, eend)
+        && steady8(pf, yb, w, u, m, xs + 8, pos + 8, pmin + 8, epos + 8, eend + 8, w - 1 - 24, w - 2)
+        && general_steps(pf, w - 1, w - 1 + S8, yb, 8, w, u, m, xs + 8, pos + 8, pmin + 8, epos + 8, eend + 8);
+}
+#endif
+
 /* one row group: rows y0 .. y0 + nr - 1 in lanes 0 .. nr - 1 of a group of nl lanes (xs .. eend: those lanes') */
 static int decode_group(i64 *pf, i64 y0, i64 nr, i64 nl, i64 w, const int32_t *u, const model_t *m, u64 *xs, i64 *pos,
                         const i64 *pmin, i64 *epos, const i64 *eend)
 {
     const i64 XS0 = 3 * (nl - 1) + 1;
-    const int fast = METRAW_X86 && nr == nl && (nl == 8 || nl == 16) && w >= XS0 + 2;
-    for (i64 xsw = 0; xsw < w + 3 * (nr - 1); xsw++) {
 #if METRAW_X86
-        if (fast && xsw == XS0) {
-            if (!(nl == 8 ? steady8 : steady16)(pf, y0, w, u, m, xs, pos, pmin, epos, eend)) return 0;
-        }
+    if (nl == 16 && nr == 16 && w >= 48) return decode_group16(pf, y0, w, u, m, xs, pos, pmin, epos, eend);
+    if (nl == 8 && nr == 8 && w >= XS0 + 2)
+        return general_steps(pf, 0, XS0, y0, nr, w, u, m, xs, pos, pmin, epos, eend)
+            && steady8(pf, y0, w, u, m, xs, pos, pmin, epos, eend, XS0, w - 2)
+            && general_steps(pf, w - 1, w + 3 * (nr - 1), y0, nr, w, u, m, xs, pos, pmin, epos, eend);
 #endif
-        if (fast && xsw >= XS0 && xsw <= w - 2) continue;
-        if (!(m->lut16 ? general_step(1, pf, xsw, y0, nr, w, u, m, xs, pos, pmin, epos, eend)
-                       : general_step(0, pf, xsw, y0, nr, w, u, m, xs, pos, pmin, epos, eend))) return 0;
-    }
-    return 1;
+    return general_steps(pf, 0, w + 3 * (nr - 1), y0, nr, w, u, m, xs, pos, pmin, epos, eend);
 }
 
 /* metraw.codec.decoder.decode_plane: p the (h + 2) x (w + 4) padded buffer, u the fixed-point dither (h x w),
