@@ -166,7 +166,12 @@ spacenet_pan 4.03 / 3.43 and 4.04 / 3.46; 1-thread CPU / JPEG-LS 0.46 / 0.46, 0.
 190 / 231 Mpix/s, x JPEG-LS 4.01 / 4.08.
 Then (7) a 16-lane group's edges as 8-lane ramps (A = lanes 0-7 alone in its steady part while B = lanes 8-15
 starts, both vectors, B alone while A ends): the scalar path 17 % -> 10 % of decode, decode 1-thread against 8 lanes
-1.16 -> 1.21x (canon_dng) and 1.23 -> 1.25x (micasense), the same values.
+1.16 -> 1.21x (canon_dng) and 1.23 -> 1.25x (micasense), the same values. After it, ``--native`` (load ~1): encode
+canon_dng 22.7 -> 17.2 ms (1.32x), micasense 10.7 -> 7.1 (1.52x), spacenet_pan 3.9 -> 2.7 (1.43x); decode 27.2 -> 15.1
+(1.80x), 15.6 -> 8.4 (1.85x), 4.7 -> 2.9 (1.63x). ``--speed`` (load 0.7-1.0): canon_dng 3.49 / 3.72 and 3.47 / 3.83,
+micasense 4.89 / 3.89 and 5.01 / 3.99, spacenet_pan 3.99 / 3.53 and 3.96 / 3.57; 1-thread CPU / JPEG-LS 0.31-0.47;
+20 MP frame 110.9 / 85.4 ms at step 1 (180 / 234 Mpix/s). The 20 MP frame's step-2 encode times vary between runs
+(132-252 ms of CPU over three runs of 7 rounds, against 163-174 at step 1): not looked into.
 
 A vectorised pass can only take taps whose coefficients do not depend on the activity context (which needs W).
 ``benchmarks/codec_predictors.py`` (2026-11-26; empirical H(r | context, phase) in float arithmetic, no side
