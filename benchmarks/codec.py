@@ -171,7 +171,9 @@ canon_dng 22.7 -> 17.2 ms (1.32x), micasense 10.7 -> 7.1 (1.52x), spacenet_pan 3
 (1.80x), 15.6 -> 8.4 (1.85x), 4.7 -> 2.9 (1.63x). ``--speed`` (load 0.7-1.0): canon_dng 3.49 / 3.72 and 3.47 / 3.83,
 micasense 4.89 / 3.89 and 5.01 / 3.99, spacenet_pan 3.99 / 3.53 and 3.96 / 3.57; 1-thread CPU / JPEG-LS 0.31-0.47;
 20 MP frame 110.9 / 85.4 ms at step 1 (180 / 234 Mpix/s). The 20 MP frame's step-2 encode times vary between runs
-(132-252 ms of CPU over three runs of 7 rounds, against 163-174 at step 1): not looked into.
+(132-252 ms of CPU over three runs of 7 rounds, against 163-174 at step 1); alone, 1 thread, alternating steps in one
+process: 158-162 ms at step 2 and 163-166 at step 1, so the spread is the benchmark's (its rounds interleave JPEG-LS's
+20 MP calls), not the coder's.
 
 A vectorised pass can only take taps whose coefficients do not depend on the activity context (which needs W).
 ``benchmarks/codec_predictors.py`` (2026-11-26; empirical H(r | context, phase) in float arithmetic, no side
