@@ -354,3 +354,26 @@ def test_a_library_of_another_interface_version_is_left_unused(monkeypatch):
         lib = native._load()
     assert lib is None
     assert len(caught) == 1 and "pip install -e ." in str(caught[0].message)
+def test_a_library_lacking_a_function_is_left_unused(monkeypatch):
+    """A library of the right interface number that lacks a function the code calls (a broken build) is not used: one
+    warning, the numba loops, no failed import."""
+    import warnings
+
+    class Partial:   # the interface number and nothing else
+        pass
+
+    def abi():
+        return native.ABI
+
+    lib = Partial()
+    lib.metraw_simd_abi = abi
+    monkeypatch.delenv("METRAW_NATIVE", raising=False)
+    monkeypatch.setattr(native.importlib.util, "find_spec",
+                        lambda name: type("Spec", (), {"origin": native.__file__})())
+    monkeypatch.setattr(native.ctypes, "CDLL", lambda path: lib)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert native._load() is None
+    assert len(caught) == 1 and "lacks a function" in str(caught[0].message)
+
+

@@ -55,6 +55,17 @@ def _load() -> ctypes.CDLL | None:
                       f"code needs {ABI}): the codec runs its numba loops; rebuild it with pip install -e .",
                       stacklevel=2)
         return None
+    try:
+        _declare(lib)
+    except AttributeError as exc:   # the interface number matches but a function is missing: a broken build
+        warnings.warn(f"{spec.origin} lacks a function this code calls ({exc}): the codec runs its numba loops; "
+                      f"rebuild it with pip install -e .", stacklevel=2)
+        return None
+    return lib if lib.metraw_simd_available() else None
+
+
+def _declare(lib: ctypes.CDLL) -> None:
+    """The C functions' signatures (``_simd.c``, ``_simd_prepare.c``) on ``lib``."""
     p, i64, c_int = ctypes.c_void_p, ctypes.c_int64, ctypes.c_int
     lib.metraw_simd_available.argtypes = []
     lib.metraw_simd_available.restype = c_int
@@ -82,7 +93,6 @@ def _load() -> ctypes.CDLL | None:
     lib.metraw_front.restype = None
     lib.metraw_index.argtypes = [p, p, i64, i64, i64, p, p]
     lib.metraw_index.restype = None
-    return lib if lib.metraw_simd_available() else None
 
 
 LIB = _load()
