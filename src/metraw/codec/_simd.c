@@ -168,8 +168,8 @@ SIMD_FN static void vmodel_init(vmodel_t *vm, const model_t *m)
     vm->lut = m->lut; vm->lut16 = m->lut16; vm->fcum = m->fcum; vm->words = m->words; vm->esc = m->esc;
 }
 
-/* steady part of a group of NV x 8 rows: column steps xs0 .. x_last, lane j at x = xs_ - 3 j of row y0 + j; every lane
- * in its row (xs0 >= 3 (8 NV - 1) + 1, x_last <= w - 2) and the pixels before it decoded */
+/* steady part of a group of NV x 8 rows: column steps s = xs0 .. x_last, lane j at x = s - 3 j of row y0 + j; every
+ * lane in its row (xs0 >= 3 (8 NV - 1) + 1, x_last <= w - 2) and the pixels before it decoded */
 INLINE SIMD_FN int steady(const int NV, i64 *pf, i64 y0, i64 w, const int32_t *u, const model_t *m, u64 *xs, i64 *pos,
               const i64 *pmin, i64 *epos, const i64 *eend, i64 xs0, i64 x_last)
 {
@@ -457,8 +457,17 @@ void metraw_rans_encode(const int32_t *idx, const int32_t *tab, i64 n, i64 ntab,
         if (q >= lr[j]) { ci[j] = rs[q] + rl[q] - 1; ce[j] = rs[q]; }
     }
     i64 lo = 0;
+    int32_t *ent = NULL;
+    u64 *fc = NULL;
 #if METRAW_X86
-    if (nl % 8 == 0 && shortest >= 16) lo = shortest;   /* >= 16 symbols: the scatter stays in the lane */
+    if (nl % 8 == 0 && shortest >= 16) {   /* >= 16 symbols: the scatter stays in the lane */
+        /* one gather of each symbol's table entry and one of the entry's frequency and cumulative frequency in the
+         * lanes' loop, instead of five (symbol, table, frequency, cumulative frequency, reciprocal); without the
+         * memory for them, the scalar coder codes every symbol */
+        ent = (int32_t *)malloc((size_t)(n > 0 ? n : 1) * sizeof(int32_t));
+        fc = (u64 *)malloc((size_t)(ntab * alpha > 0 ? ntab * alpha : 1) * sizeof(u64));
+        if (ent && fc) lo = shortest;
+    }
 #endif
     for (i64 k = longest - 1; k >= lo; k--) {
         for (i64 j = 0; j < nl; j++) {
@@ -469,27 +478,15 @@ void metraw_rans_encode(const int32_t *idx, const int32_t *tab, i64 n, i64 ntab,
     }
 #if METRAW_X86
     if (lo > 0) {
-        /* one gather of each symbol's table entry and one of the entry's frequency and cumulative frequency in the
-         * lanes' loop, instead of five (symbol, table, frequency, cumulative frequency, reciprocal) */
-        int32_t *ent = (int32_t *)malloc((size_t)(n > 0 ? n : 1) * sizeof(int32_t));
-        u64 *fc = (u64 *)malloc((size_t)(ntab * alpha > 0 ? ntab * alpha : 1) * sizeof(u64));
-        if (ent && fc) {
-            entries_avx512(idx, tab, n, alpha, ent);
-            for (i64 e = 0; e < ntab * alpha; e++) fc[e] = (u64)freq[e] | ((u64)cum[e] << 32);
-            for (i64 g = 0; g < nl; g += 16)
-                (g + 16 <= nl ? rans_lanes16 : rans_lanes8)(ent, fc, rs, rl, out, lo, xs + g, nws + g, ci + g, ce + g,
-                                                            cq + g, ls + g);
-        } else {   /* out of memory: the scalar coder */
-            for (i64 k = lo - 1; k >= 0; k--)
-                for (i64 j = 0; j < nl; j++) {
-                    enc_symbol(idx, tab, alpha, freq, cum, rcp, out, ls[j], &nws[j], &xs[j], ci[j]);
-                    enc_cursor(&ci[j], &ce[j], &cq[j], rs, rl, k > 0);
-                }
-        }
-        free(ent);
-        free(fc);
+        entries_avx512(idx, tab, n, alpha, ent);
+        for (i64 e = 0; e < ntab * alpha; e++) fc[e] = (u64)freq[e] | ((u64)cum[e] << 32);
+        for (i64 g = 0; g < nl; g += 16)
+            (g + 16 <= nl ? rans_lanes16 : rans_lanes8)(ent, fc, rs, rl, out, lo, xs + g, nws + g, ci + g, ce + g,
+                                                        cq + g, ls + g);
     }
 #endif
+    free(ent);
+    free(fc);
 }
 
 /* The encoder's causal buffer (metraw.codec.predictive._front): p (h + 2) x (w + 4) of s 2^16 - floor(u 2^16), the
@@ -619,13 +616,14 @@ static int general_steps(i64 *pf, i64 from, i64 to, i64 y0, i64 nr, i64 w, const
 SIMD_FN static int decode_group16(i64 *pf, i64 y0, i64 w, const int32_t *u, const model_t *m, u64 *xs, i64 *pos,
                                   const i64 *pmin, i64 *epos, const i64 *eend)
 {
-    const i64 S8 = 3 * 7 + 1, S16 = 3 * 15 + 1, yb = y0 + 8;
+    /* S8, S16: the first steady column step of 8 and 16 staggered lanes; LAG: B's column step behind A's */
+    const i64 S8 = 3 * 7 + 1, S16 = 3 * 15 + 1, LAG = 3 * 8, yb = y0 + 8;
     return general_steps(pf, 0, S8, y0, 8, w, u, m, xs, pos, pmin, epos, eend)
         && steady8(pf, y0, w, u, m, xs, pos, pmin, epos, eend, S8, S16 - 1)
-        && general_steps(pf, 0, S8, yb, 8, w, u, m, xs + 8, pos + 8, pmin + 8, epos + 8, eend + 8)
+        && general_steps(pf, 0, S16 - LAG, yb, 8, w, u, m, xs + 8, pos + 8, pmin + 8, epos + 8, eend + 8)
         && steady16(pf, y0, w, u, m, xs, pos, pmin, epos, eend, S16, w - 2)
         && general_steps(pf, w - 1, w - 1 + S8, y0, 8, w, u, m, xs, pos, pmin, epos, eend)
-        && steady8(pf, yb, w, u, m, xs + 8, pos + 8, pmin + 8, epos + 8, eend + 8, w - 1 - 24, w - 2)
+        && steady8(pf, yb, w, u, m, xs + 8, pos + 8, pmin + 8, epos + 8, eend + 8, w - 1 - LAG, w - 2)
         && general_steps(pf, w - 1, w - 1 + S8, yb, 8, w, u, m, xs + 8, pos + 8, pmin + 8, epos + 8, eend + 8);
 }
 #endif
@@ -636,7 +634,7 @@ static int decode_group(i64 *pf, i64 y0, i64 nr, i64 nl, i64 w, const int32_t *u
 {
     const i64 XS0 = 3 * (nl - 1) + 1;
 #if METRAW_X86
-    if (nl == 16 && nr == 16 && w >= 48) return decode_group16(pf, y0, w, u, m, xs, pos, pmin, epos, eend);
+    if (nl == 16 && nr == 16 && w >= XS0 + 2) return decode_group16(pf, y0, w, u, m, xs, pos, pmin, epos, eend);
     if (nl == 8 && nr == 8 && w >= XS0 + 2)
         return general_steps(pf, 0, XS0, y0, nr, w, u, m, xs, pos, pmin, epos, eend)
             && steady8(pf, y0, w, u, m, xs, pos, pmin, epos, eend, XS0, w - 2)

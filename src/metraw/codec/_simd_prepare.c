@@ -8,17 +8,42 @@
  * 24 bits -> [-1/2, 1/2). Forward: k = rint(2 sqrt(min(max((y - black) / K + c, 0), xmax)) / q + u), one IEEE
  * operation at a time as numba does (no fused multiply-add: -ffp-contract=off and separate intrinsics). */
 #if METRAW_X86
-/* the 24-bit dither hash (lowbias32 keyed by K1, K2) of 16 pixel indices (mod 2^32) */
-SIMD_FN INLINE __m512i dither24(__m512i x, __m512i K1, __m512i K2)
+/* the dither hash's keys and the index offsets of 16 pixels col_step apart */
+typedef struct { __m512i K1, K2, lane; } dither_t;
+
+SIMD_FN INLINE dither_t dither_consts(u64 k1, u64 k2, i64 col_step)
 {
-    x = _mm512_add_epi32(_mm512_mullo_epi32(x, _mm512_set1_epi32((int)0x9E3779B9u)), K1);
+    dither_t d = {_mm512_set1_epi32((int)(uint32_t)k1), _mm512_set1_epi32((int)(uint32_t)k2),
+                  _mm512_mullo_epi32(_mm512_set_epi32(15, 14, 13, 12, 11, 10, 9, 8, 7, 6, 5, 4, 3, 2, 1, 0),
+                                     _mm512_set1_epi32((int)col_step))};
+    return d;
+}
+
+/* the 24-bit dither hash (lowbias32 keyed by k1, k2) of the 16 pixels index, index + col_step, ... (mod 2^32) */
+SIMD_FN INLINE __m512i dither24(const dither_t *d, i64 index)
+{
+    __m512i x = _mm512_add_epi32(_mm512_set1_epi32((int)(uint32_t)index), d->lane);
+    x = _mm512_add_epi32(_mm512_mullo_epi32(x, _mm512_set1_epi32((int)0x9E3779B9u)), d->K1);
     x = _mm512_xor_si512(x, _mm512_srli_epi32(x, 16));
     x = _mm512_mullo_epi32(x, _mm512_set1_epi32(0x7FEB352D));
     x = _mm512_xor_si512(x, _mm512_srli_epi32(x, 15));
     x = _mm512_mullo_epi32(x, _mm512_set1_epi32((int)0x846CA68Bu));
-    x = _mm512_xor_si512(x, K2);
+    x = _mm512_xor_si512(x, d->K2);
     x = _mm512_xor_si512(x, _mm512_srli_epi32(x, 16));
     return _mm512_srli_epi32(x, 8);   /* 24 bits: exact as int32 and as double */
+}
+
+/* half hlf (0: pixels 0-7, 1: 8-15) of 16 int32 */
+SIMD_FN INLINE __m256i half8(__m512i v, int hlf)
+{
+    return hlf ? _mm512_extracti64x4_epi64(v, 1) : _mm512_castsi512_si256(v);
+}
+
+/* the dither u = x 2^-24 - 1/2 in [-1/2, 1/2) of half hlf of 16 hashes x (exact in float64) */
+SIMD_FN INLINE __m512d dither_value8(__m512i x, int hlf)
+{
+    return _mm512_sub_pd(_mm512_mul_pd(_mm512_cvtepi32_pd(half8(x, hlf)), _mm512_set1_pd(1.0 / 16777216.0)),
+                         _mm512_set1_pd(0.5));
 }
 
 /* the forward transform's constants: black, 1 / K, c, xmax, 1 / q */
@@ -45,21 +70,15 @@ SIMD_FN INLINE __m512i forward8(__m512d y, __m512d u, const fwd_t *f)
 SIMD_FN static void dither_grid_avx512(u64 k1, u64 k2, i64 start, i64 rows, i64 cols, i64 row_step, i64 col_step,
                                        double *out)
 {
-    const __m512i K1 = _mm512_set1_epi32((int)(uint32_t)k1), K2 = _mm512_set1_epi32((int)(uint32_t)k2);
-    const __m512i lane = _mm512_mullo_epi32(_mm512_set_epi32(15, 14, 13, 12, 11, 10, 9, 8, 7, 6, 5, 4, 3, 2, 1, 0),
-                                            _mm512_set1_epi32((int)col_step));
-    const __m512d scale = _mm512_set1_pd(1.0 / 16777216.0), half = _mm512_set1_pd(0.5);
+    const dither_t dh = dither_consts(k1, k2, col_step);
     for (i64 i = 0; i < rows; i++) {
         const i64 base = start + i * row_step;
         double *o = out + i * cols;
         for (i64 j = 0; j < cols; j += 16) {
             const __mmask16 mk = cols - j >= 16 ? 0xFFFF : (__mmask16)((1u << (cols - j)) - 1);
-            const __m512i x = dither24(_mm512_add_epi32(_mm512_set1_epi32((int)(uint32_t)(base + j * col_step)), lane),
-                                       K1, K2);
-            __m512d lo = _mm512_sub_pd(_mm512_mul_pd(_mm512_cvtepi32_pd(_mm512_castsi512_si256(x)), scale), half);
-            __m512d hi = _mm512_sub_pd(_mm512_mul_pd(_mm512_cvtepi32_pd(_mm512_extracti64x4_epi64(x, 1)), scale), half);
-            _mm512_mask_storeu_pd(o + j, (__mmask8)(mk & 0xFF), lo);
-            _mm512_mask_storeu_pd(o + j + 8, (__mmask8)(mk >> 8), hi);
+            const __m512i x = dither24(&dh, base + j * col_step);
+            _mm512_mask_storeu_pd(o + j, (__mmask8)(mk & 0xFF), dither_value8(x, 0));
+            _mm512_mask_storeu_pd(o + j + 8, (__mmask8)(mk >> 8), dither_value8(x, 1));
         }
     }
 }
@@ -102,10 +121,8 @@ SIMD_FN static i64 plane_buffer_avx512(const uint16_t *data, i64 rows, i64 cols,
                                        double inv_k, double c, double xmax, double inv_step, i64 *p)
 {
     const fwd_t f = fwd_consts(black, inv_k, c, xmax, inv_step);
-    const __m512i K1 = _mm512_set1_epi32((int)(uint32_t)k1), K2 = _mm512_set1_epi32((int)(uint32_t)k2);
-    const __m512i lane = _mm512_mullo_epi32(_mm512_set_epi32(15, 14, 13, 12, 11, 10, 9, 8, 7, 6, 5, 4, 3, 2, 1, 0),
-                                            _mm512_set1_epi32((int)col_step));
-    const __m512d scale = _mm512_set1_pd(1.0 / 16777216.0), half = _mm512_set1_pd(0.5), fix = _mm512_set1_pd(65536.0);
+    const dither_t dh = dither_consts(k1, k2, col_step);
+    const __m512d fix = _mm512_set1_pd(65536.0);
     const i64 ws = cols + 4;
     __m512i sum = _mm512_setzero_si512();
     for (i64 i = 0; i < rows; i++) {
@@ -127,15 +144,12 @@ SIMD_FN static i64 plane_buffer_avx512(const uint16_t *data, i64 rows, i64 cols,
                 for (i64 k = 0; k < n; k++) tmp[k] = d[(j + k) * col_stride];
                 v = _mm512_loadu_si512(tmp);
             }
-            const __m512i x = dither24(_mm512_add_epi32(_mm512_set1_epi32((int)(uint32_t)(base + j * col_step)), lane),
-                                       K1, K2);
+            const __m512i x = dither24(&dh, base + j * col_step);
             for (int hlf = 0; hlf < 2; hlf++) {
                 const __mmask8 m8 = (__mmask8)(mk >> (8 * hlf));
                 if (!m8) break;
-                const __m256i xh = hlf ? _mm512_extracti64x4_epi64(x, 1) : _mm512_castsi512_si256(x);
-                const __m256i vh = hlf ? _mm512_extracti64x4_epi64(v, 1) : _mm512_castsi512_si256(v);
-                const __m512d u = _mm512_sub_pd(_mm512_mul_pd(_mm512_cvtepi32_pd(xh), scale), half);
-                const __m512i s = forward8(_mm512_cvtepi32_pd(vh), u, &f);
+                const __m512d u = dither_value8(x, hlf);
+                const __m512i s = forward8(_mm512_cvtepi32_pd(half8(v, hlf)), u, &f);
                 const __m512i s32 = _mm512_cvtepi32_epi64(_mm512_cvtepi64_epi32(s));   /* int32 symbols, as stored */
                 sum = _mm512_mask_add_epi64(sum, m8, sum, s32);
                 const __m512i fu = _mm512_cvtpd_epi64(_mm512_roundscale_pd(_mm512_mul_pd(u, fix),
@@ -153,16 +167,13 @@ SIMD_FN static i64 plane_buffer_avx512(const uint16_t *data, i64 rows, i64 cols,
 SIMD_FN static void dither_fixed_avx512(u64 k1, u64 k2, i64 start, i64 rows, i64 cols, i64 row_step, i64 col_step,
                                         int32_t *out)
 {
-    const __m512i K1 = _mm512_set1_epi32((int)(uint32_t)k1), K2 = _mm512_set1_epi32((int)(uint32_t)k2);
-    const __m512i lane = _mm512_mullo_epi32(_mm512_set_epi32(15, 14, 13, 12, 11, 10, 9, 8, 7, 6, 5, 4, 3, 2, 1, 0),
-                                            _mm512_set1_epi32((int)col_step));
+    const dither_t dh = dither_consts(k1, k2, col_step);
     const __m512i half = _mm512_set1_epi32(1 << 15);
     for (i64 i = 0; i < rows; i++) {
         const i64 base = start + i * row_step;
         for (i64 j = 0; j < cols; j += 16) {
             const __mmask16 mk = cols - j >= 16 ? 0xFFFF : (__mmask16)((1u << (cols - j)) - 1);
-            const __m512i x = dither24(_mm512_add_epi32(_mm512_set1_epi32((int)(uint32_t)(base + j * col_step)), lane),
-                                       K1, K2);
+            const __m512i x = dither24(&dh, base + j * col_step);
             _mm512_mask_storeu_epi32(out + i * cols + j, mk, _mm512_sub_epi32(_mm512_srli_epi32(x, 8), half));
         }
     }
@@ -177,10 +188,7 @@ SIMD_FN static void inverse_dn_avx512(const int32_t *sym, i64 rows, i64 cols, u6
                                       i64 col_step, double half_step, double k, double offset, uint16_t *out,
                                       i64 out_row_stride, i64 out_col_stride)
 {
-    const __m512i K1 = _mm512_set1_epi32((int)(uint32_t)k1), K2 = _mm512_set1_epi32((int)(uint32_t)k2);
-    const __m512i lane = _mm512_mullo_epi32(_mm512_set_epi32(15, 14, 13, 12, 11, 10, 9, 8, 7, 6, 5, 4, 3, 2, 1, 0),
-                                            _mm512_set1_epi32((int)col_step));
-    const __m512d scale = _mm512_set1_pd(1.0 / 16777216.0), half = _mm512_set1_pd(0.5);
+    const dither_t dh = dither_consts(k1, k2, col_step);
     const __m512d HS = _mm512_set1_pd(half_step), K = _mm512_set1_pd(k), OFF = _mm512_set1_pd(offset);
     const __m512d lo = _mm512_setzero_pd(), hi = _mm512_set1_pd(65535.0);
     for (i64 i = 0; i < rows; i++) {
@@ -190,15 +198,12 @@ SIMD_FN static void inverse_dn_avx512(const int32_t *sym, i64 rows, i64 cols, u6
         for (i64 j = 0; j < cols; j += 16) {
             const i64 n = cols - j < 16 ? cols - j : 16;
             const __mmask16 mk = (__mmask16)((1u << n) - 1);
-            const __m512i x = dither24(_mm512_add_epi32(_mm512_set1_epi32((int)(uint32_t)(base + j * col_step)), lane),
-                                       K1, K2);
+            const __m512i x = dither24(&dh, base + j * col_step);
             const __m512i s = _mm512_maskz_loadu_epi32(mk, si + j);
             __m512i dn[2];
             for (int hlf = 0; hlf < 2; hlf++) {
-                const __m256i xh = hlf ? _mm512_extracti64x4_epi64(x, 1) : _mm512_castsi512_si256(x);
-                const __m256i sh = hlf ? _mm512_extracti64x4_epi64(s, 1) : _mm512_castsi512_si256(s);
-                const __m512d u = _mm512_sub_pd(_mm512_mul_pd(_mm512_cvtepi32_pd(xh), scale), half);
-                const __m512d zh = _mm512_mul_pd(_mm512_sub_pd(_mm512_cvtepi32_pd(sh), u), HS);
+                const __m512d u = dither_value8(x, hlf);
+                const __m512d zh = _mm512_mul_pd(_mm512_sub_pd(_mm512_cvtepi32_pd(half8(s, hlf)), u), HS);
                 __m512d v = _mm512_add_pd(_mm512_mul_pd(K, _mm512_mul_pd(zh, zh)), OFF);
                 v = _mm512_roundscale_pd(v, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
                 dn[hlf] = _mm512_cvtpd_epi64(_mm512_min_pd(_mm512_max_pd(v, lo), hi));
