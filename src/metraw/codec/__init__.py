@@ -265,7 +265,7 @@ def _tile_buffers(data: np.ndarray, r0: int, r1: int, profile: CalibrationProfil
 def _buffer_symbols(front: np.ndarray) -> np.ndarray:
     """The symbols of the central 256 x 256 crop of a plane from its causal buffer (front = s 2^16 - floor(u 2^16),
     floor(u 2^16) in [-2^15, 2^15)): all that ``_noise_sigma_of_planes`` reads of a plane (``_hh_values``)."""
-    ph, pw = front.shape[0] - 2, front.shape[1] - 4
+    ph, pw = predictive.buffer_shape(front)
     y0, x0 = max(0, ph // 2 - 128), max(0, pw // 2 - 128)
     crop = front[2 + y0:2 + y0 + min(256, ph - y0), 2 + x0:2 + x0 + min(256, pw - x0)]
     return (crop + 32767) >> 16

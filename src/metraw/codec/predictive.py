@@ -351,6 +351,12 @@ def _plane_symbol_bits(idx, tab, freq, bounds, esc_i):
     return out
 
 
+def buffer_shape(front: np.ndarray) -> tuple[int, int]:
+    """The plane's (rows, columns) of its causal buffer ``front`` ((h + 2) x (w + 4): two rows above, two columns each
+    side)."""
+    return front.shape[0] - 2, front.shape[1] - 4
+
+
 def _causal_buffer(s, u):
     """(front, c0) of ``_front_c0``: the buffer in C where ``metraw.codec.native`` is built and the plane is
     contiguous int32 symbols with a float64 dither, else in numba."""
@@ -466,7 +472,7 @@ def encode_buffers(buffers: list[tuple[np.ndarray, int]], account: list | None =
     8 len(section): the plane's ideal code length (``_plane_symbol_bits``), plus its group's side
     information (predictor, thresholds, tables; split by pixels where planes share a model), plus
     a share of the common overhead (plane header, rANS flush) proportional to its code length."""
-    sizes = [(f.shape[0] - 2) * (f.shape[1] - 4) for f, _ in buffers]
+    sizes = [h * w for h, w in (buffer_shape(f) for f, _ in buffers)]
     if sum(sizes) >= SHARED_BELOW:
         return _encode_planes(buffers, False, model.n_activity_contexts(min(sizes)), 0, account)
     best, best_acc = None, None
@@ -490,7 +496,7 @@ def _shared_model(buffers, nact: int, memo: dict):
     fronts = [f for f, _ in buffers]
     c0s = [int(c0) for _, c0 in buffers]
     if "acts" not in memo:
-        stride = model.ls_stride(sum((f.shape[0] - 2) * (f.shape[1] - 4) for f in fronts))
+        stride = model.ls_stride(sum(h * w for h, w in map(buffer_shape, fronts)))
         memo["acts"] = stride, np.concatenate([model.activity_samples(f, 2 * stride) for f in fronts])
     stride, acts = memo["acts"]
     if nact not in memo:
@@ -510,7 +516,7 @@ def _encode_planes(buffers, shared: bool, nact: int, pshift: int, account: list 
     The numerical work runs in a few compiled calls that release the GIL (per plane ``model.model_of_front`` and the
     residual pass, then ``_code_section``), so row tiles coded in parallel threads seldom wait for each other."""
     npl = len(buffers)
-    shapes = [(f.shape[0] - 2, f.shape[1] - 4) for f, _ in buffers]
+    shapes = [buffer_shape(f) for f, _ in buffers]
     sizes = [h * w for h, w in shapes]
     total = sum(sizes)
     nph = NPH >> pshift
