@@ -16,8 +16,10 @@ the scored variants (the CSV: the runs below, scored by ``metraw evaluate``).
 
 Measured 2026-11-27 (README, "GPUs"): on one H100 (``benchmarks/gpu_scale.sh``, 2304 scenes, 5760 steps) batch 8 /
 32 / 64 scored 0.220 / 0.247 / 0.259 at the nominal and 0.280 / 0.301 / 0.315 at D 0.5 m, +0.012 to +0.014 per
-doubling of the draws; on the 2-core CPU (default data, ``--device cpu --variants b8e20w0,b32e80w0,b32e20w0``, then
-fine-tuned) 4x the draws in the same steps +0.023 at both points, the same draws in a quarter of the steps -0.013.
+doubling of the draws; on one H200 (2026-11-28) batch 128 for 5040 steps (645 k draws) 0.253 / 0.317, under
+that line (fine-tuned on the CPU: 0.241 / 0.323); on the 2-core CPU (default data, ``--device cpu --variants
+b8e20w0,b32e80w0,b32e20w0``, then fine-tuned) 4x the draws in the same steps +0.023 at both points, the same draws
+in a quarter of the steps -0.013.
 """
 
 from __future__ import annotations
@@ -54,10 +56,13 @@ def parse_variants(text: str) -> list[Variant]:
     return out
 
 
+MARKERS = {"H100": "o", "H200": "D"}  # GPU rows; CPU rows are squares
+
+
 def plot(csv_path: str, png_path: str) -> None:
     """IoU against the draws a pretraining saw (log scale), per point, from a CSV of scored variants
-    (``docs/figures/pretrain_scale.csv``), with the H100 points' least-squares line in log2(draws) carried to
-    issue #15's targets."""
+    (``docs/figures/pretrain_scale.csv``), with the least-squares line in log2(draws) of the H100 points (batch 8 to 64)
+    carried to issue #15's targets; points of other devices (the H200's batch 128) are drawn against that line."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -66,23 +71,23 @@ def plot(csv_path: str, png_path: str) -> None:
 
     df = pd.read_csv(csv_path)
     targets = {"nominal": 0.30, "diameter_m-0.5": 0.35}
-    fig, axes = plt.subplots(1, len(targets), figsize=(10, 4), sharey=True)
+    fig, axes = plt.subplots(1, len(targets), figsize=(10, 5.2), sharey=True)
     for ax, (point, target) in zip(axes, targets.items()):
         for (device, model), g in df[df.point == point].groupby(["device", "model"]):
             g = g.sort_values("draws")
-            ax.errorbar(g.draws, g.iou, yerr=g.iou_se, marker="o" if device == "H100" else "s", capsize=3, ls="none",
+            ax.errorbar(g.draws, g.iou, yerr=g.iou_se, marker=MARKERS.get(device, "s"), capsize=3, ls="none",
                         label=f"{device}, {model}")
             for _, r in g.iterrows():
                 ax.annotate(f"b{r.batch_size}", (r.draws, r.iou), textcoords="offset points", xytext=(4, -10), fontsize=7)
         gpu = df[(df.point == point) & (df.device == "H100")]
         slope, icept = np.polyfit(np.log2(gpu.draws), gpu.iou, 1)
         x = np.geomspace(gpu.draws.min(), 2 ** ((target - icept) / slope), 50)
-        ax.plot(x, icept + slope * np.log2(x), "k:", lw=1, label=f"H100 fit: {slope:+.3f} per doubling")
+        ax.plot(x, icept + slope * np.log2(x), "k:", lw=1, label=f"H100 fit (batch 8-64): {slope:+.3f} per doubling")
         ax.axhline(target, color="r", lw=0.8, ls="--", label=f"issue #15 target {target}")
         ax.set_xscale("log", base=2)
         ax.set_xlabel("draws seen in pretraining")
         ax.set_title(point)
-        ax.legend(fontsize=7, loc="upper left")
+        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2)
     axes[0].set_ylabel("IoU (96 test scenes)")
     fig.tight_layout()
     fig.savefig(png_path, dpi=110)
