@@ -174,6 +174,15 @@ micasense 4.89 / 3.89 and 5.01 / 3.99, spacenet_pan 3.99 / 3.53 and 3.96 / 3.57;
 (132-252 ms of CPU over three runs of 7 rounds, against 163-174 at step 1); alone, 1 thread, alternating steps in one
 process: 158-162 ms at step 2 and 163-166 at step 1, so the spread is the benchmark's (its rounds interleave JPEG-LS's
 20 MP calls), not the coder's.
+The same code (534ba2b) on an Intel Xeon with AVX-512 (the H200 device machine's CPU, 16 cores, gcc 13, Python 3.12;
+the extension built there with pyproject's flags; 2026-11-28; each command under ``taskset -c 0,1``, two cores, load
+0.1-1.2): decoding a 16-lane group as two 8-row halves against two vectors side by side, 1 thread, 15 alternating
+rounds: 0.906 / 0.915 / 0.863 of the two-vector time (canon_dng / micasense / spacenet_pan), so ``native.TWO_VECTORS``
+stays off on Intel. ``--native``: encode 51.6 -> 31.3 ms (1.65x), 28.1 -> 15.0 (1.87x), 8.6 -> 5.9 (1.47x); decode
+53.7 -> 28.0 (1.92x), 33.8 -> 17.1 (1.98x), 9.4 -> 5.7 (1.64x). ``--speed`` (JPEG-LS / metraw 2-thread wall, encode /
+decode, steps 1 and 2): canon_dng 3.76 / 4.71 and 3.81 / 4.74, micasense 5.32 / 4.70 and 5.38 / 4.74, spacenet_pan 3.38
+/ 3.58 and 3.19 / 3.58; 1-thread CPU / JPEG-LS 0.33-0.51 (JPEG-LS 88 / 80 ms on canon_dng there); bpp as on AMD; 20 MP
+frame 207.6 / 172.1 ms at step 1 (4.17 / 4.32x JPEG-LS). So issue #18's bounds hold on both vendors.
 
 A vectorised pass can only take taps whose coefficients do not depend on the activity context (which needs W).
 ``benchmarks/codec_predictors.py`` (2026-11-26; empirical H(r | context, phase) in float arithmetic, no side
