@@ -452,6 +452,23 @@ def test_cli_pretrain_over_the_params_box_then_fine_tune(stores, tmp_path, capsy
                  "--out", str(tmp_path / "m"), "--params", str(PARAMS), "--draw-workers", "2"]) == 0
     fine_tuned = json.loads((tmp_path / "m" / "train.json").read_text())
     assert fine_tuned["init"] == str(out) and fine_tuned["config"]["batch_size"] == load_config(PARAMS).batch_size != 3
+    # --learning-rate overrides the profile's peak rate (training.pretrain.finetune_learning_rate in the workflow)
+    rate = load_config(PARAMS).learning_rate / 8
+    assert main(["train", str(tgt), "--source", str(src), "--init", str(out), "--epochs", "1", "--replicates", "1",
+                 "--out", str(tmp_path / "m_lr"), "--params", str(PARAMS), "--learning-rate", str(rate)]) == 0
+    gentle = json.loads((tmp_path / "m_lr" / "train.json").read_text())
+    assert gentle["config"]["learning_rate"] == rate != fine_tuned["config"]["learning_rate"]
+    assert gentle["config"] == {**fine_tuned["config"], "learning_rate": rate}
+    import torch
+    states = [torch.load(tmp_path / m / "model.pt", map_location="cpu", weights_only=False)["state_dict"]
+              for m in ("m", "m_lr")]
+    assert states[0].keys() == states[1].keys()
+    assert any(not torch.equal(states[0][k], states[1][k]) for k in states[0])  # the rate reached the optimiser
+    for bad in ("0", "-1e-3", "nan"):
+        assert main(["train", str(tgt), "--source", str(src), "--init", str(out), "--epochs", "1", "--replicates",
+                     "1", "--out", str(tmp_path / "m_bad"), "--params", str(PARAMS), f"--learning-rate={bad}"]) == 2
+        assert "--learning-rate must be > 0" in capsys.readouterr().err
+    assert not (tmp_path / "m_bad").exists()
     for bad, message in ((["--epochs", "0"], "--epochs must be >= 1"),
                          (["--points-per-scene", "0"], "--points-per-scene must be >= 1"),
                          (["--batch-size", "0"], "--batch-size must be >= 1"),

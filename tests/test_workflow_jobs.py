@@ -200,6 +200,26 @@ def point_stages(parameter: str, value: str) -> set[str]:
 
 @needs_tools
 @pytest.mark.workflow
+def test_finetune_learning_rate_reaches_the_fine_tunings(tmp_path):
+    """training.pretrain.finetune_learning_rate goes to every fine-tuning's `metraw train --learning-rate`; absent,
+    the fine-tunings keep the training profile's rate (no option)."""
+    for rate in (None, 2.0e-3):
+        params = tiny_params()
+        if rate is not None:
+            params["training"]["pretrain"]["finetune_learning_rate"] = rate
+        root = make_workspace(tmp_path / str(rate), params)
+        proc = _run(["snakemake", "--cores", "2", "--dry-run", "--printshellcmds", "--",
+                     "results/points/nominal/model", "results/points/diameter_m-0.35/model"], root)
+        commands = [line for line in proc.stdout.splitlines() if line.startswith("Shell command: metraw train ")]
+        assert len(commands) == 2 and all("--init results/pretrained/model --epochs 1" in c for c in commands), commands
+        if rate is None:
+            assert not any("--learning-rate" in c for c in commands), commands
+        else:
+            assert all("--learning-rate 0.002 " in c for c in commands), commands
+
+
+@needs_tools
+@pytest.mark.workflow
 def test_changing_one_sweep_value_reruns_only_that_point(tmp_path):
     root = make_workspace(tmp_path, tiny_params())
     targets = ("results/spec.yaml", "results/aggregate.json")

@@ -15,7 +15,11 @@ def train_inputs(wildcards):
 
 
 def finetune_args(wildcards, input):
-    return f"--init {input.init} --epochs {PRETRAIN['finetune_epochs']}" if "init" in input.keys() else ""
+    """`metraw train`'s fine-tuning options for a point that starts from the pretrained networks (else none)."""
+    if "init" not in input.keys():
+        return ""
+    rate = PRETRAIN["finetune_learning_rate"]
+    return f"--init {input.init} --epochs {PRETRAIN['finetune_epochs']}" + (f" --learning-rate {rate}" if rate else "")
 
 
 def profile_threads(name):

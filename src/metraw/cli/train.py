@@ -22,6 +22,9 @@ def register(subparsers) -> None:
     p.add_argument("--profile", default=None, help="training profile name (default: training.profile in params)")
     p.add_argument("--device", default=None, help="torch device (default: cuda when present, else cpu)")
     p.add_argument("--epochs", type=int, default=None, help="override the profile's number of epochs")
+    p.add_argument("--learning-rate", type=float, default=None,
+                   help="override the profile's peak learning rate (of the one-cycle schedule), e.g. a gentler one "
+                        "to fine-tune a strong pretraining (training.pretrain.finetune_learning_rate)")
     p.add_argument("--source", default=None,
                    help="train on the fly: fresh target draws (sampling phase, flip, photon noise) of this source "
                         "store's training scenes every epoch, at the target STORE was emulated for; STORE's test "
@@ -54,6 +57,10 @@ def run(args) -> int:
         if args.epochs < 1:
             raise MetrawError(f"--epochs must be >= 1, got {args.epochs}")
         config.epochs = args.epochs
+    if args.learning_rate is not None:
+        if not args.learning_rate > 0:  # also refuses nan
+            raise MetrawError(f"--learning-rate must be > 0, got {args.learning_rate}")
+        config.learning_rate = args.learning_rate
     if args.replicates is not None:
         if args.replicates < 1:
             raise MetrawError(f"--replicates must be >= 1, got {args.replicates}")

@@ -32,9 +32,10 @@ from metraw.sensor import rng_from_seed
 from metraw.target import TargetSystem
 
 #: ``training.pretrain`` of params.yaml, where it leaves a key out (measured settings: README, issue #15).
-#: ``batch_size`` None: the training profile's (the fine-tunings always keep the profile's).
+#: ``batch_size`` None: the training profile's (the fine-tunings always keep the profile's). ``finetune_learning_rate``
+#: None: the fine-tunings' peak learning rate is the training profile's.
 PRETRAIN_DEFAULTS = {"enabled": False, "box": {}, "epochs": 20, "points_per_scene": 4, "finetune_epochs": 5,
-                     "extra_scenes": 0, "batches": "payload", "batch_size": None}
+                     "finetune_learning_rate": None, "extra_scenes": 0, "batches": "payload", "batch_size": None}
 #: ``training.pretrain.batches``: "payload" = each batch one box parameter at neighbouring values (``payload_keys``,
 #: ``onthefly.payload_batches``); "mixed" = draws of any payload in a batch.
 BATCHES = ("payload", "mixed")
