@@ -3,6 +3,12 @@
 # from src/), the helpers log / left / point, and gpu_data, which makes the default data of a run: NS source scenes
 # (seed 0) and NX pretraining scenes (seed 1) of SIZE px, quantised at the codec's step 1 and stored decoded, and the
 # nominal and D 0.5 m test stores ($D/nominal.zarr, $D/d05.zarr).
+# The H200 image (Python 3.12, torch 2.11, numba, scipy, pandas there) lacked eight packages on 2026-11-28; made here
+# (ignored by .git/info/exclude: /.whl/) and carried (`carry: [".whl"]`, 9.8 MB):
+#   python3 -m pip download --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
+#     --platform manylinux_2_28_x86_64 --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64 -d .whl \
+#     zarr==3.1.6 numcodecs==0.16.6 donfig==0.8.1.post1 google-crc32c==1.9.0 jsonschema==4.26.0 \
+#     jsonschema-specifications==2025.9.1 referencing==0.37.0 rpds-py==2026.9.1
 T0=$(date +%s); DEADLINE=$((T0 + BUDGET))
 : "${OUT:?set OUT to a directory for the results}"
 NS=${NS:-480}; NX=${NX:-960}; SIZE=${SIZE:-1024}; DEV=${DEV:-cuda}
