@@ -6,7 +6,8 @@ import re
 from snakemake.exceptions import WorkflowError
 
 from metraw.points import parameter_points, target_params
-from metraw.segment.pretrain import draws_extra_scenes, fine_tuned_points, pretrain_settings
+from metraw.segment.pretrain import (draws_extra_scenes, fine_tuned_points, point_patterns, pretrain_settings,
+                                     pretrained_patterns)
 
 POINTS = list(parameter_points(config))
 SOURCE_STORE = "data/source.zarr"
@@ -19,13 +20,15 @@ SOURCE_STORE = "data/source.zarr"
 # reader, since ancient spares only readers of an existing file.)
 SOURCE_DECODED = "data/source.decoded.zarr"
 
-# Pretraining across the box (params.yaml training.pretrain; workflow/rules/segment.smk): the points of the
-# nominal's CFA family fine-tune one pretrained network per replicate; the others train from scratch.
+# Pretraining across the box (params.yaml training.pretrain; workflow/rules/segment.smk): one pretraining per CFA
+# pattern among the points (one network per replicate each); every point fine-tunes its pattern's.
 PRETRAIN = pretrain_settings(config)
-PRETRAINED_MODEL = "results/pretrained/model"
+PRETRAINED_MODEL = "results/pretrained/{cfa_pattern}/model"
+PRETRAINED_PATTERNS = pretrained_patterns(config)
 PRETRAIN_SCENES = "data/pretrain_scenes.zarr"
 PRETRAIN_EXTRA = [PRETRAIN_SCENES] if draws_extra_scenes(config) else []
 PRETRAINED_POINTS = set(fine_tuned_points(config))
+POINT_PATTERNS = point_patterns(config)
 
 # Sim-to-real benchmark (workflow/rules/sim_to_real.smk, when SIM_TO_REAL): the real photos as a store, emulated
 # per point, scored by each point's model; the drone-resolution model scored on the un-emulated store.

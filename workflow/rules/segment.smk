@@ -10,7 +10,7 @@ def train_inputs(wildcards):
     inputs = {"store": f"results/points/{wildcards.point}/target.zarr", "source": SOURCE_STORE,
               "source_decoded": ancient(SOURCE_DECODED)}  # the copy is what the command reads (common.smk)
     if wildcards.point in PRETRAINED_POINTS:
-        inputs["init"] = PRETRAINED_MODEL
+        inputs["init"] = PRETRAINED_MODEL.format(cfa_pattern=POINT_PATTERNS[wildcards.point])
     return inputs
 
 
@@ -75,9 +75,16 @@ if PRETRAIN["enabled"]:
                 " --size {params.synthetic[size_px]} --camera {PARAMS_FILE} --out {output} --workers {threads}"
                 " --codec-step {params.codec[step]} --codec-seed {params.codec[seed]} --codec-decoded 2> {log}"
 
+    def pretrain_priority(wildcards):
+        """The nominal's pattern: 1000, every fine-tuned point but a few waits for it (it runs before the emulations,
+        priority <= ~600, rule emulate). Another pattern's (mono): 20, after the points' emulations (>= 25), which
+        the nominal's fine-tunings need sooner, and before the jobs of priority 0."""
+        return 1000 if wildcards.cfa_pattern == PRETRAINED_PATTERNS[0] else 20
+
     rule pretrain:
-        """One network per replicate on draws across training.pretrain.box (metraw.segment.pretrain); it does not
-        depend on the sweeps, so a changed sweep value reruns only its point."""
+        """One network per replicate on draws across training.pretrain.box (metraw.segment.pretrain) with the CFA
+        pattern of the points that fine-tune it; it does not depend on the sweeps, so a changed sweep value reruns
+        only its point."""
         input:
             source=SOURCE_STORE,
             decoded=ancient(SOURCE_DECODED),  # what the command reads (common.smk)
@@ -94,16 +101,17 @@ if PRETRAIN["enabled"]:
         # draws' thread: on 2 cores the job starts beside others as soon as pretrain_scenes ends, instead of waiting
         # for both cores to be free at once (the default run of 2026-11-26 left it waiting from 335 to 1202 s)
         threads: lambda wildcards: max(1, workflow.cores - 1)  # callable: --report and dry runs need no --cores
-        # every fine-tuned point waits for it: it runs before the emulations (priority <= ~600, rule emulate)
-        priority: 1000
+        priority: pretrain_priority
+        wildcard_constraints:
+            cfa_pattern="|".join(re.escape(p) for p in PRETRAINED_PATTERNS),
         resources:
             mem_mb=4000,  # the box's fields: ~0.3 MB per scene and point
             runtime=60,  # minutes
         log:
-            "logs/pretrain.log",
+            "logs/pretrain/{cfa_pattern}.log",
         shell:
             "metraw pretrain {input.decoded} {params.extra} --codec-step {params.codec[step]} --out {output}"
-            " --params {PARAMS_FILE} --workers {threads} 2> {log}"
+            " --cfa-pattern {wildcards.cfa_pattern} --params {PARAMS_FILE} --workers {threads} 2> {log}"
 
 
 rule train:

@@ -22,6 +22,9 @@ def register(subparsers) -> None:
     p.add_argument("--params", default="params.yaml", help="params file (nominal target, training profile and "
                    "training.pretrain; default: params.yaml)")
     p.add_argument("--profile", default=None, help="training profile name (default: training.profile in params)")
+    p.add_argument("--cfa-pattern", default=None,
+                   help="the sensor's colour filter array for every draw (default: the nominal's); the points of that "
+                        "pattern fine-tune these networks")
     p.add_argument("--device", default=None, help="torch device (default: cuda when present, else cpu)")
     p.add_argument("--epochs", type=int, default=None, help="override training.pretrain.epochs")
     p.add_argument("--batch-size", type=int, default=None,
@@ -44,6 +47,7 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
+    from metraw.cfa import validate_pattern
     from metraw.errors import MetrawError
     from metraw.points import load_params, target_at
     from metraw.segment.pretrain import pretrain_settings, pretrain_stores
@@ -66,14 +70,18 @@ def run(args) -> int:
         if args.replicates < 1:
             raise MetrawError(f"--replicates must be >= 1, got {args.replicates}")
         config.replicates = args.replicates
-    record = pretrain_stores(args.source, lambda overrides: TargetSystem.from_dict(target_at(params, overrides)),
+    pattern = validate_pattern(args.cfa_pattern or params["target"]["nominal"]["cfa_pattern"])
+    record = pretrain_stores(args.source, lambda overrides: TargetSystem.from_dict(
+                                 target_at(params, {**overrides, "cfa_pattern": pattern})),
                              settings["box"], args.out, config, k, args.extra, device=args.device,
                              progress=True if args.progress else None, overwrite=args.overwrite,
                              codec_step=args.codec_step, workers=args.workers, batches=args.batches or settings["batches"],
                              draw_workers=args.draw_workers)
     times = record.get("replicate_training_time_s", [record["training_time_s"]])
-    print(f"metraw pretrain: {record['n_train']} scenes x {k} points of the box ({', '.join(settings['box'])}), "
+    print(f"metraw pretrain: {record['n_train']} scenes x {k} points of the box ({', '.join(settings['box'])}; "
+          f"{pattern} sensor), "
           f"{record['epochs']} epoch(s) in batches of {config.batch_size}, {len(times)} replicate(s) in {sum(times):.2f} s "
           f"(fields {record['preprocess_time_s']:.2f} s)", file=sys.stderr)
-    print(json.dumps({key: record[key] for key in ("epochs", "n_train", "points_per_scene", "batches", "box", "device")}))
+    print(json.dumps({**{key: record[key] for key in ("epochs", "n_train", "points_per_scene", "batches", "box", "device")},
+                      "cfa_pattern": pattern}))
     return 0

@@ -6,9 +6,11 @@ point sees. Here one network per replicate learns once from fresh draws of many 
 of target parameters (``training.pretrain.box``: parameter -> [low, high]): each scene gets
 ``points_per_scene`` points, each the nominal payload with one box parameter drawn log-uniform in its
 range (the study's one-at-a-time structure, without its grid of values), and each of its draws picks one
-of them (``onthefly.draw_prepared``). Each point of the nominal's CFA family then fine-tunes its replicate r
-from pretrained replicate r for a few epochs (``onthefly.train_store_on_the_fly(init_dir=...)``), so
-replicates stay independent trainings. The box is declared on its own, not taken from the sweeps, so
+of them (``onthefly.draw_prepared``). Every CFA pattern among the points gets its own pretraining (the box's
+targets carry that pattern: a mono network's input differs from a Bayer one's), and each point then fine-tunes
+its replicate r from replicate r of its pattern's pretraining for a few epochs
+(``onthefly.train_store_on_the_fly(init_dir=...)``), so replicates stay independent trainings and points of
+different sensors are trained alike. The box is declared on its own, not taken from the sweeps, so
 changing a sweep value reruns only that point (the pretrained networks do not depend on it).
 
 Scenes come from the source store's training split (its test split is every point's test set and is
@@ -47,14 +49,29 @@ def pretrain_settings(params: dict[str, Any]) -> dict[str, Any]:
 
 
 def fine_tuned_points(params: dict[str, Any]) -> list[str]:
-    """The parameter points whose training fine-tunes the pretrained networks: with pretraining on, those of the
-    nominal's CFA family (a mono network's input differs). The workflow's rules and dvc.yaml both ask here."""
-    from metraw.points import NOMINAL, parameter_points, target_params
+    """The parameter points whose training fine-tunes a pretraining: with pretraining on, every point (each from the
+    pretraining of its own CFA pattern, ``point_patterns``), else none. The workflow's rules and dvc.yaml ask here."""
+    from metraw.points import parameter_points
+
+    return list(parameter_points(params)) if pretrain_settings(params)["enabled"] else []
+
+
+def point_patterns(params: dict[str, Any]) -> dict[str, str]:
+    """Point name -> its CFA pattern, the pretraining it fine-tunes (``pretrained_patterns``)."""
+    from metraw.points import parameter_points, target_params
+
+    return {p: target_params(params, p)["cfa_pattern"] for p in parameter_points(params)}
+
+
+def pretrained_patterns(params: dict[str, Any]) -> list[str]:
+    """The CFA patterns pretrained (one pretraining each; the nominal's first): those of the points, with pretraining
+    on; none without."""
+    from metraw.points import NOMINAL
 
     if not pretrain_settings(params)["enabled"]:
         return []
-    nominal = cfa_family(target_params(params, NOMINAL)["cfa_pattern"])
-    return [p for p in parameter_points(params) if cfa_family(target_params(params, p)["cfa_pattern"]) == nominal]
+    patterns = point_patterns(params)
+    return list(dict.fromkeys([patterns[NOMINAL], *patterns.values()]))
 
 
 def draws_extra_scenes(params: dict[str, Any]) -> bool:
