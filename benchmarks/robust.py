@@ -2,8 +2,8 @@
 
     python benchmarks/robust.py [--results results] [--params params.yaml] [--margin 0.02]
 
-Scores ``results/pretrained/model`` (every replicate: the box model alone, no fine-tuning) on the test split of
-each fine-tuned point's store (``results/points/P/target.zarr``, the images the point's own models were scored
+Scores ``results/pretrained/<pattern>/model`` (every replicate: the box model of the point's CFA pattern alone, no
+fine-tuning) on the test split of each fine-tuned point's store (``results/points/P/target.zarr``, the images the point's own models were scored
 on) with ``metraw.segment.evaluate.evaluate_store``, and prints per point the IoU of both (mean over replicates),
 their difference, the standard error of the difference paired by replicate (pretrained replicate r against the
 point's replicate r, fine-tuned from it: the test images are the same, so the test-image error cancels largely),
@@ -43,15 +43,19 @@ def main(argv=None) -> int:
 
     from metraw.points import load_params
     from metraw.segment.evaluate import evaluate_store
-    from metraw.segment.pretrain import fine_tuned_points
+    from metraw.segment.pretrain import fine_tuned_points, point_patterns
 
     results = Path(args.results)
-    model = results / "pretrained" / "model"
-    points = fine_tuned_points(load_params(args.params))
-    missing = [p for p in points if not (results / "points" / p / "metrics.json").is_file()]
-    if not model.is_dir() or missing or not points:
-        print(f"robust.py: needs a finished run with pretraining: {model} and every fine-tuned point's metrics.json "
-              f"(missing: {', '.join(missing) or 'none'}; fine-tuned points: {len(points)})", file=sys.stderr)
+    params = load_params(args.params)
+    points = fine_tuned_points(params)
+    models = {p: results / "pretrained" / pattern / "model" for p, pattern in point_patterns(params).items()}
+    missing = [str(results / "points" / p / "metrics.json") for p in points
+               if not (results / "points" / p / "metrics.json").is_file()]
+    missing += sorted({str(models[p]) for p in points if not models[p].is_dir()})
+    if missing or not points:
+        print(f"robust.py: needs a finished run with pretraining: every fine-tuned point's metrics.json and its "
+              f"pattern's pretrained model (missing: {', '.join(missing) or 'none'}; fine-tuned points: {len(points)})",
+              file=sys.stderr)
         return 2
     print(f"| point | robust (pretrained alone) | per-point (fine-tuned) | robust - per-point | paired SE | within "
           f"{args.margin} |\n|---|---|---|---|---|---|")
@@ -59,7 +63,8 @@ def main(argv=None) -> int:
     totals = {True: 0, False: 0}
     for point in points:
         own = json.loads((results / "points" / point / "metrics.json").read_text())
-        robust = evaluate_store(results / "points" / point / "target.zarr", model, "cpu", progress=False, split="test")
+        robust = evaluate_store(results / "points" / point / "target.zarr", models[point], "cpu", progress=False,
+                                split="test")
         a, b = replicate_ious(robust), replicate_ious(own)
         diffs = [x - y for x, y in zip(a, b)]
         mean = sum(diffs) / len(diffs)

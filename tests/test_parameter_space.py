@@ -135,19 +135,26 @@ def test_dvc_yaml_has_categorical_foreach_and_explicit_grid_stages():
     assert "results/points/cfa_pattern-${target.sweeps.cfa_pattern[0]}/metrics.json" in deps
     plots = [next(iter(p)) for p in mod.build(params)["plots"]]
     assert not any("cfa_pattern" in p for p in plots) and "results/plots/iou_pixel_pitch_m.csv" in plots
-    # the points of the nominal's CFA family fine-tune the pretrained networks; the mono ones train from scratch
-    pre = "results/pretrained/model"
+    # every point fine-tunes the pretraining of its own CFA pattern: the nominal's Bayer one, the mono point a mono one
+    pre, mono = "results/pretrained/RGGB/model", "results/pretrained/mono/model"
     assert pre in stages["train_nominal"]["deps"] and pre in stages["train_grid_0"]["deps"]
-    assert pre in stages["train_focal_length_m"]["do"]["deps"] and pre not in stages["train_cfa_pattern"]["do"]["deps"]
-    assert "target.sweeps" not in str(stages["pretrain"]["params"]) and stages["pretrain"]["outs"] == [pre]
-    from metraw.segment.pretrain import draws_extra_scenes, fine_tuned_points
+    assert pre in stages["train_focal_length_m"]["do"]["deps"]
+    cfa_deps = stages["train_cfa_pattern"]["do"]["deps"]
+    assert "results/pretrained/${item}/model" in cfa_deps and pre not in cfa_deps
+    for pattern, model in (("RGGB", pre), ("mono", mono)):
+        stage = stages[f"pretrain_{pattern}"]
+        assert "target.sweeps" not in str(stage["params"]) and stage["outs"] == [model]
+        assert stage["cmd"].endswith(f"--allowed-rules pretrain decode_store -- {model}")
+    from metraw.segment.pretrain import draws_extra_scenes, fine_tuned_points, pretrained_patterns
 
-    assert set(fine_tuned_points(params)) == set(parameter_points(params)) - {"cfa_pattern-mono"}
+    assert set(fine_tuned_points(params)) == set(parameter_points(params))
+    assert pretrained_patterns(params) == ["RGGB", "mono"]
     assert draws_extra_scenes(params) and "pretrain_scenes" in stages
     params["training"]["pretrain"]["enabled"] = False
-    assert fine_tuned_points(params) == [] and not draws_extra_scenes(params)
+    assert fine_tuned_points(params) == [] and pretrained_patterns(params) == [] and not draws_extra_scenes(params)
     stages = mod.build(params)["stages"]
-    assert "pretrain" not in stages and pre not in stages["train_nominal"]["deps"]
+    assert not [k for k in stages if k.startswith("pretrain")] and pre not in stages["train_nominal"]["deps"]
+    assert not any("pretrained" in d for d in stages["train_cfa_pattern"]["do"]["deps"])
 
 
 # --------------------------------------------------------------------------- categorical choice, 2-D grid GP

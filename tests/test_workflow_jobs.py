@@ -211,7 +211,7 @@ def test_finetune_learning_rate_reaches_the_fine_tunings(tmp_path):
         proc = _run(["snakemake", "--cores", "2", "--dry-run", "--printshellcmds", "--",
                      "results/points/nominal/model", "results/points/diameter_m-0.35/model"], root)
         commands = [line for line in proc.stdout.splitlines() if line.startswith("Shell command: metraw train ")]
-        assert len(commands) == 2 and all("--init results/pretrained/model --epochs 1" in c for c in commands), commands
+        assert len(commands) == 2 and all("--init results/pretrained/RGGB/model --epochs 1" in c for c in commands), commands
         if rate is None:
             assert not any("--learning-rate" in c for c in commands), commands
         else:
@@ -305,7 +305,8 @@ def test_changing_one_sweep_value_reruns_only_that_point(tmp_path):
     assert dvc_changed(root, "aggregate", "--with-deps") == []
 
     # 6. a categorical sweep (cfa_pattern: mono) and a 2 x 2 focal length x diameter grid, whose only point off the
-    #    lines is 1.2 x 0.35: just those two points' jobs and the aggregate, under both tools (dvc.yaml is
+    #    lines is 1.2 x 0.35: just those two points' jobs, the mono point's own pretraining (its network takes 1
+    #    full-resolution plane; the Bayer pretraining stays) and the aggregate, under both tools (dvc.yaml is
     #    regenerated: its structure changed, and its aggregate stage says so until it is). DVC runs the grid point's
     #    stages (a grid stage's commands and outputs, executed), Snakemake then finds only the categorical point and
     #    the aggregate to do and runs them, DVC adopts them and then has nothing to do
@@ -314,20 +315,20 @@ def test_changing_one_sweep_value_reruns_only_that_point(tmp_path):
     params["target"]["grids"] = [{"focal_length_m": [1.2, 1.644], "diameter_m": [0.2, 0.35]}]
     (root / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
     grid_point = "focal_length_m-1.2+diameter_m-0.35"
-    new = {**point_jobs("cfa_pattern-mono"), **point_jobs(grid_point), "aggregate": 1}
+    new = {**point_jobs("cfa_pattern-mono"), **point_jobs(grid_point), "pretrain": 1, "aggregate": 1}
     assert snakemake_dry(root, *targets) == new
     stale = _run(["dvc", "repro", "aggregate"], root, check=False)
     assert stale.returncode != 0 and "regenerate it with" in stale.stdout + stale.stderr
     _run(["python", str(SCRIPT)], root)
     grid_stages = {f"{rule}_grid_0" for rule in PER_POINT_RULES}
-    changed = point_stages("cfa_pattern", "mono") | grid_stages | {"aggregate"}
+    changed = point_stages("cfa_pattern", "mono") | grid_stages | {"pretrain_mono", "aggregate"}
     assert set(dvc_changed(root, "aggregate", "--with-deps")) == changed
     t0 = time.perf_counter()
     rep = dvc_repro(root, "evaluate_grid_0", "compress_grid_0")
     timings["dvc_grid_point_s"] = time.perf_counter() - t0
     assert sorted(rep["ran"]) == sorted(grid_stages) and rep["restored"] == [], rep
     assert rep["jobs"] == point_jobs(grid_point), rep["jobs"]
-    left_for_snakemake = {**point_jobs("cfa_pattern-mono"), "aggregate": 1}
+    left_for_snakemake = {**point_jobs("cfa_pattern-mono"), "pretrain": 1, "aggregate": 1}
     assert snakemake_dry(root, *targets) == left_for_snakemake
     t0 = time.perf_counter()
     finished, executed, fetched, _ = snakemake_run(root, *targets)
