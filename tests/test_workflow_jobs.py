@@ -147,6 +147,17 @@ def test_committed_dvc_yaml_is_generated_from_params():
     assert proc.returncode == 0, proc.stderr
 
 
+def test_slurm_profile_sets_the_threads_of_every_rule():
+    """A SLURM run has no total core count, so a rule whose default threads derive from `workflow.cores` (pretrain:
+    all cores but one) fails there unless the profile sets them: the profile names every rule but `all`."""
+    import yaml
+
+    text = "\n".join(p.read_text() for p in [REPO / "Snakefile", *sorted((REPO / "workflow" / "rules").glob("*.smk"))])
+    rules = set(re.findall(r"^\s*(?:local)?rule (\w+):", text, flags=re.M)) - {"all"}
+    profile = yaml.safe_load((REPO / "workflow" / "profiles" / "slurm" / "config.yaml").read_text())
+    assert "pretrain" in rules and set(profile["set-threads"]) == rules, sorted(rules ^ set(profile["set-threads"]))
+
+
 def test_generator_refuses_a_sweep_value_equal_to_nominal():
     from metraw.errors import MetrawError
 
