@@ -162,7 +162,15 @@ def test_categorical_choice_allows_values_whose_lower_bound_meets_the_requiremen
     c = categorical_choice({"RGGB": (0.30, 0.01), "mono": (0.26, 0.02)}, "RGGB", 0.25)
     assert c["optimal"] == "RGGB" and c["allowed"] == ["RGGB"]  # mono: 0.26 - 2 x 0.02 = 0.22 < 0.25
     c = categorical_choice({"RGGB": (0.30, 0.01), "mono": (0.33, 0.01)}, "RGGB", 0.25)
-    assert c["optimal"] == "mono" and c["allowed"] == ["RGGB", "mono"]
+    # 0.03 above the nominal, 2 sd of the difference = 2 x 0.01 sqrt(2) = 0.0283: mono is better beyond the errors
+    assert c["optimal"] == c["highest"] == "mono" and c["allowed"] == ["RGGB", "mono"]
+    c = categorical_choice({"RGGB": (0.30, 0.01), "mono": (0.327, 0.01)}, "RGGB", 0.25)
+    assert c["optimal"] == "RGGB" and c["highest"] == "mono"  # 0.027 < 0.0283: a tie keeps the nominal
+    # the default run of 2026-11-28: mono 0.0004 above RGGB with sds 0.011 / 0.009
+    c = categorical_choice({"RGGB": (0.2091, 0.0090), "mono": (0.2095, 0.0111)}, "RGGB", 0.15)
+    assert c["optimal"] == "RGGB" and c["highest"] == "mono" and c["allowed"] == ["RGGB", "mono"]
+    c = categorical_choice({"RGGB": (0.20, 0.01), "mono": (0.25, 0.01)}, "mono", 0.15)  # a mono nominal
+    assert c["optimal"] == c["highest"] == "mono"
 
 
 def test_grid_region_recovers_a_known_boundary():

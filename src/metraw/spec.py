@@ -244,7 +244,7 @@ def build_spec(tolerances: Mapping[str, Any], nominal: Mapping[str, Any], requir
     optimum = {**nominal_f, **{k: v.optimal for k, v in params.items()}}
     for name, c in (choices or {}).items():
         params[name] = Choice(c["optimal"], list(c["allowed"]), "", {
-            "nominal": c["nominal"], "rule": c["rule"], "required_iou": required_iou,
+            "nominal": c["nominal"], "highest": c["highest"], "rule": c["rule"], "required_iou": required_iou,
             "allowed_families": sorted({cfa_family(v) for v in c["allowed"]}) if name == "cfa_pattern" else None,
             "measured": {v: {"iou": r["iou"], "iou_sd": r["iou_sd"]} for v, r in c["values"].items()}})
     props: dict[str, Limit] = {}
