@@ -39,6 +39,9 @@ rule aggregate:
     params:
         points=POINTS,
         spec=config["spec"],
+        # metraw's own code (metraw.provenance.code_digest): part of the cache key below, so a changed package
+        # recomputes the aggregate instead of taking the old code's outputs from the cache
+        code=METRAW_CODE,
         # extra aggregate arguments of the sim-to-real benchmark (a function: a params string would be formatted
         # with the job's wildcards, and {point} is the aggregate's own pattern)
         real=lambda wildcards: (" --real-metrics-pattern '" + REAL_POINT_METRICS + "' --source-real-metrics "
@@ -48,7 +51,7 @@ rule aggregate:
     # keyed by Snakemake's provenance hash (this command, these params, and the same hash of every upstream job,
     # down to the checksums of files no rule makes). A job whose key is in the cache is not run: its outputs are
     # symlinked from the cache, so reverting a sweep value restores the old aggregate instead of recomputing it.
-    # The key does not cover metraw's own code: after changing it, run with --workflow-profile none or clear the cache.
+    # The key covers metraw's own code through params.code (metraw.provenance).
     cache: True
     resources:
         mem_mb=1500,  # measured peak RSS with head room (README, SLURM: resources table)

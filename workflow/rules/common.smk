@@ -6,10 +6,12 @@ import re
 from snakemake.exceptions import WorkflowError
 
 from metraw.points import parameter_points, target_params
+from metraw.provenance import code_digest
 from metraw.segment.pretrain import (draws_extra_scenes, fine_tuned_points, point_patterns, pretrain_settings,
                                      pretrained_patterns)
 
 POINTS = list(parameter_points(config))
+METRAW_CODE = code_digest()  # the aggregate's cache key covers metraw's code (workflow/rules/aggregate.smk)
 SOURCE_STORE = "data/source.zarr"
 # The stores many jobs read (the source: every emulation, training and the pretraining; the real photos: every
 # point's emulate_real) are read from a decoded working copy, the raw array uncompressed (rule decode_store: ~12
