@@ -217,6 +217,23 @@ def _compression(path: Path, ratio: float, channels: tuple[str, ...]) -> None:
                                 "signal_e": {"median": 35.0, "p05": 17.0, "p95": 60.0}}))
 
 
+def test_aggregate_runs_its_linear_algebra_on_one_blas_thread(monkeypatch):
+    """`metraw aggregate` pins BLAS to one thread whatever its caller allows: with 2 threads the GP fits of the
+    default run's metrics gave a spec bound that differed in its 16th digit (2026-11-28), so the bytes depended on
+    the shell's thread settings."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    from metraw.cli import aggregate
+
+    seen = []
+    monkeypatch.setattr(aggregate, "_aggregate", lambda args: seen.append(
+        [pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas"]) or 0)
+    with threadpool_limits(limits=2, user_api="blas"):
+        outside = [pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas"]
+        assert aggregate.run(None) == 0
+    assert outside and max(outside) == 2 and seen == [[1] * len(outside)], (outside, seen)
+
+
 def test_aggregate_writes_categorical_grid_and_per_channel_results(tmp_path, capsys):
     from metraw.cli import main
 

@@ -219,6 +219,16 @@ def _write_text(path: Path, text: str) -> None:
 
 
 def run(args) -> int:
+    """The aggregate with BLAS on one thread: the GP fits' linear algebra sums in another order on more threads, and
+    the spec's last digits then depended on the shell's thread settings (the workflow's job ran on 1; by hand on 2
+    cores one bound differed in its 16th digit). Same inputs, same bytes, wherever it runs; the GPs are small."""
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1):
+        return _aggregate(args)
+
+
+def _aggregate(args) -> int:
     from metraw import figures
     from metraw.points import CATEGORICAL, NOMINAL, load_params, swept_parameters, target_params
     from metraw.spec import build_spec
