@@ -9,6 +9,7 @@ import importlib.util
 import io
 import json
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -217,21 +218,31 @@ def _compression(path: Path, ratio: float, channels: tuple[str, ...]) -> None:
                                 "signal_e": {"median": 35.0, "p05": 17.0, "p95": 60.0}}))
 
 
-def test_aggregate_runs_its_linear_algebra_on_one_blas_thread(monkeypatch):
-    """`metraw aggregate` pins BLAS to one thread whatever its caller allows: with 2 threads the GP fits of the
-    default run's metrics gave a spec bound that differed in its 16th digit (2026-11-28), so the bytes depended on
-    the shell's thread settings."""
-    from threadpoolctl import threadpool_info, threadpool_limits
+def test_aggregate_runs_its_linear_algebra_on_one_blas_thread():
+    """`metraw aggregate` pins every BLAS it uses to one thread whatever the shell allows: with 2 the GP fits of the
+    default run's metrics gave a spec bound that differed in its 16th digit (2026-11-28). threadpoolctl limits only
+    the libraries loaded when it starts, so scipy's own OpenBLAS (loaded with scikit-learn's GP) must be loaded
+    first. In a fresh process with 2 BLAS threads allowed: inside the command every BLAS pool runs 1 thread, and no
+    BLAS the GP needs is loaded only after it."""
+    import subprocess
+    import sys
 
-    from metraw.cli import aggregate
-
-    seen = []
-    monkeypatch.setattr(aggregate, "_aggregate", lambda args: seen.append(
-        [pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas"]) or 0)
-    with threadpool_limits(limits=2, user_api="blas"):
-        outside = [pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas"]
-        assert aggregate.run(None) == 0
-    assert outside and max(outside) == 2 and seen == [[1] * len(outside)], (outside, seen)
+    code = """
+import json
+from threadpoolctl import threadpool_info
+from metraw.cli import aggregate
+blas = lambda: [p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"]
+seen = []
+aggregate._aggregate = lambda args: seen.append(blas()) or 0
+assert aggregate.run(None) == 0
+import scipy.linalg, sklearn.gaussian_process
+print(json.dumps({"inside": seen[0], "after": blas()}))
+"""
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "2", "OMP_NUM_THREADS": "2", "MKL_NUM_THREADS": "2"}
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
+    got = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert len(got["inside"]) == len(got["after"]) >= 1 and set(got["inside"]) == {1}, got
+    assert max(got["after"]) == 2, got  # the limit ends with the command, and the shell's 2 threads were real
 
 
 def test_aggregate_writes_categorical_grid_and_per_channel_results(tmp_path, capsys):

@@ -221,7 +221,10 @@ def _write_text(path: Path, text: str) -> None:
 def run(args) -> int:
     """The aggregate with BLAS on one thread: the GP fits' linear algebra sums in another order on more threads, and
     the spec's last digits then depended on the shell's thread settings (the workflow's job ran on 1; by hand on 2
-    cores one bound differed in its 16th digit). Same inputs, same bytes, wherever it runs; the GPs are small."""
+    cores one bound differed in its 16th digit; pinned, the default run's spec.yaml and aggregate.json came out byte
+    for byte the workflow's). Same inputs, same bytes, wherever it runs; the GPs are small."""
+    import scipy.linalg  # noqa: F401  the libraries whose thread pools to limit: loaded first, since
+    import sklearn.gaussian_process  # noqa: F401  threadpoolctl limits only the ones loaded when it starts
     from threadpoolctl import threadpool_limits
 
     with threadpool_limits(limits=1):
