@@ -195,14 +195,10 @@ def build(params: dict[str, Any]) -> dict[str, Any]:
     for rule in [*PER_POINT, *(REAL_PER_POINT if real else ())]:
         stages[f"{rule}_{NOMINAL}"] = _point_stage(rule, NOMINAL, params, pretrained(NOMINAL))
         for parameter, values in sweeps.items():
-            # one template per sweep: its points all fine-tune (pretraining on) or none does
-            tuned = {point_name(parameter, v) in fine_tuned for v in values}
-            if len(tuned) > 1:
-                raise MetrawError(f"target.sweeps.{parameter} mixes points that fine-tune the pretrained model with "
-                                  "points that do not: one DVC foreach stage cannot hold both")
-            # the cfa_pattern sweep's points fine-tune the pretraining of their own pattern, the others the nominal's
+            # one template per sweep (every point fine-tunes when pretraining is on): the cfa_pattern sweep's points
+            # the pretraining of their own pattern, the others the nominal's
             pattern = "${item}" if parameter == "cfa_pattern" else patterns[NOMINAL]
-            model = PRETRAINED_MODEL.format(cfa_pattern=pattern) if tuned.pop() else None
+            model = PRETRAINED_MODEL.format(cfa_pattern=pattern) if fine_tuned else None
             stages[f"{rule}_{parameter}"] = {
                 "foreach": f"${{target.sweeps.{parameter}}}",
                 "do": _point_stage(rule, f"{parameter}-${{item}}", params, model),
