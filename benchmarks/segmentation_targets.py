@@ -27,14 +27,16 @@ from pathlib import Path
 
 import yaml
 
+from metraw.points import same_value
+
 NOMINAL_IOU, DIAMETER_05_IOU, MAX_SD, REQUIRED_IOU, LOO_SHARE = 0.30, 0.35, 0.015, 0.25, 0.85
 FOCAL_RANGE_M = (0.8, 2.0)
 
 
 def line(points: list[dict], nominal: dict, name: str) -> list[dict]:
-    """The one-at-a-time line of ``name`` through the nominal (the nominal included), sorted by its value."""
-    others = [k for k in nominal if k != name]
-    on_line = [p for p in points if all(p[k] == nominal[k] for k in others)]
+    """The one-at-a-time line of ``name`` through the nominal (the nominal included), sorted by its value: every
+    other parameter nominal (``metraw.points.same_value``, as the aggregate's own lines)."""
+    on_line = [p for p in points if all(same_value(p[k], nominal[k]) for k in nominal if k != name)]
     return sorted(on_line, key=lambda p: p[name])
 
 
@@ -53,7 +55,7 @@ def rows(aggregate: dict, spec: dict) -> list[tuple[str, str, str, bool, str]]:
     by_name = {p["point"]: p for p in points}
     nominal_iou = by_name["nominal"]["iou"]
     d_line = line(points, nominal, "diameter_m")
-    d05 = [p for p in d_line if math.isclose(p["diameter_m"], 0.5)]
+    d05 = [p for p in d_line if same_value(p["diameter_m"], 0.5)]
     f_line = [p for p in line(points, nominal, "focal_length_m")
               if FOCAL_RANGE_M[0] <= p["focal_length_m"] <= FOCAL_RANGE_M[1]]
     sd_max = max(points, key=lambda p: p["iou_sd"])
