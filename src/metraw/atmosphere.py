@@ -1,6 +1,6 @@
 """The atmosphere between the ground and a payload: transmission of the scene and path radiance.
 
-One-way nadir path (DESIGN.md sections 2-3):
+One-way nadir path (docs/noise-model.md, docs/emulation.md):
 
 - **Transmission** ``T`` (0..1) multiplies the scene's radiance. For photons it is binomial thinning
   with probability ``T`` (exact); the emulator folds it into its thinning ratio alpha.

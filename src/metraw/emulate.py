@@ -1,6 +1,6 @@
 """End-to-end emulation: the raw image a target system would record of a source raw's scene.
 
-DESIGN.md section 3. Per source colour c the light is thinned with p_c = alpha_c / phi_c,
+docs/emulation.md. Per source colour c the light is thinned with p_c = alpha_c / phi_c,
 
     alpha_c = [A_t / h_t^2 * t_t * tau_t * eta_t,c * T_atm] / [A_s / h_s^2 * t_s * tau_s * eta_s,c]
 

@@ -1,7 +1,7 @@
 """Parameter points of the study, derived from params.yaml in one place.
 
 The nominal target point, one-at-a-time sweeps (numbers, or words for the categorical CFA pattern) and
-cross grids (``target.grids``, e.g. focal length x diameter; DESIGN.md section 6). Snakemake rules,
+cross grids (``target.grids``, e.g. focal length x diameter; docs/workflow.md). Snakemake rules,
 DVC stages and the aggregate all take the point list from here, never from a glob of
 existing outputs, so stale results are never picked up.
 """

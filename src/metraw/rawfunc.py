@@ -1,5 +1,5 @@
 """Raw functions: RawImage -> RawImage steps that keep pixel errors independent, of known
-distribution and unbiased (DESIGN.md section 1-2), or report the deviation they introduce.
+distribution and unbiased (docs/noise-model.md), or report the deviation they introduce.
 
 Each function appends a provenance entry through `RawImage.derive`; where a step is not exact
 its ``params["deviation"]`` says what differs from the ideal model and by how much.

@@ -12,7 +12,7 @@ from metraw.cli._rawcodec import StoreCodec, add_arguments as add_codec_argument
 def register(subparsers) -> None:
     p = subparsers.add_parser("emulate", help="emulate the raws a target system (satellite) would record",
                               description="Photon-exact / expected-value emulation of a target system from a "
-                              "source RawStore (DESIGN.md section 3). The target is target.nominal of the "
+                              "source RawStore (docs/emulation.md). The target is target.nominal of the "
                               "parameter file, updated by --point.")
     p.add_argument("source", help="source RawStore (zarr)")
     p.add_argument("output", help="output RawStore (zarr), written atomically")

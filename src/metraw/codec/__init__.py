@@ -1,4 +1,4 @@
-"""Noise-preserving raw codec (DESIGN.md section 4).
+"""Noise-preserving raw codec (docs/codec.md).
 
 ``encode(image, step, seed) -> bytes`` and ``decode(blob) -> RawImage``. Preparation
 (``metraw.codec.prepare``): generalised Anscombe transform from the image's profile,

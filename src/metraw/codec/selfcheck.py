@@ -1,4 +1,4 @@
-"""Self-check of a decoded image against its original (DESIGN.md section 4).
+"""Self-check of a decoded image against its original (docs/codec.md).
 
 All statistics are in units of the codec's sigma, sigma_T = K sqrt(x + 3/8 + s^2) [DN]
 (``prepare.sigma_t_dn``, evaluated at the original value), over non-escaped pixels.

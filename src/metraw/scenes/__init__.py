@@ -25,7 +25,7 @@ __all__ = ["KINDS", "RenderSettings", "default_camera", "generate", "generate_on
 
 
 def default_camera() -> CalibrationProfile:
-    """The source camera of DESIGN.md section 3 (same numbers as ``source.camera`` in params.yaml).
+    """The source camera of docs/emulation.md (same numbers as ``source.camera`` in params.yaml).
 
     Hasselblad L1D-20c: 1" sensor, 2.41 um pitch, f = 10.26 mm at f/2.8 (D = 3.664 mm), 250 m
     altitude; 12-bit ADC, K = 0.25 DN/e-, black 256 DN, read noise 3 e-, full well 15000 e-;
