@@ -22,9 +22,12 @@ DVC_CHECK = {key: str(config.pop(key)) for key in ("dvc_point", "dvc_points", "d
 from metraw.errors import MetrawError
 from metraw.points import validate_params, write_effective_params
 from metraw.sim_to_real import resolve_enabled
+from metraw.sources import source_files
 
 try:
     validate_params(config, "params.yaml (with --config overrides)")
+    # The files of a raws or photos source (metraw.sources): a missing or empty folder is one line here
+    SOURCE_FILES = source_files(config, "params.yaml (with --config overrides)")
     # Sim-to-real benchmark (workflow/rules/sim_to_real.smk): on when params.yaml sim_to_real.enabled is true
     # (its real image folder then required) or auto and the folder exists; off when false or absent.
     SIM_TO_REAL = resolve_enabled(config, "params.yaml (with --config overrides)")
@@ -65,6 +68,7 @@ if SIM_TO_REAL:
 rule all:
     input:
         "results/source/calibration.json",
+        [SOURCE_CAMERA] if config["source"]["dataset"] == "raws" else [],
         "results/source/metrics.json",
         "results/spec.yaml",
         "results/aggregate.json",

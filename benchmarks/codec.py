@@ -1,6 +1,6 @@
 """Codec benchmark: metraw at steps 0.5/1/2 vs lossless and near-lossless peers on real frames.
 
-Real data: ../shared/data/real (canon_dng, micasense, spacenet_pan; see each SOURCE.txt).
+Real data: data/real of the repository (canon_dng, micasense, spacenet_pan; see its README.md).
 Profiles: calibrated from each frame (metraw.calibrate.from_image). Timings side by side in one
 run (2 threads for metraw). Writes docs/figures/codec_rd.png.  Run: nice -n 5 python benchmarks/codec.py
 Speed only (real frames, steps 1 and 2: 2-thread wall and 1-thread CPU ratios against JPEG-LS):
@@ -226,7 +226,7 @@ from metraw.io import read_raw
 from metraw.profile import CalibrationProfile
 from metraw.sensor import expose, rng_from_seed
 
-REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
+REAL = Path(__file__).resolve().parents[1] / "data" / "real"
 REAL_NAMES = ("canon_dng", "micasense", "spacenet_pan")
 
 

@@ -2,7 +2,7 @@
 
     nice -n 5 python benchmarks/scene_stats.py [--n 30] [--seed 0] [--store data/source.zarr]
 
-KIT AIS: ../shared/data/real/kit_ais (see its SOURCE.txt; CC-BY 3.0 KIT AIS data set, crops of
+KIT AIS: data/real/kit_ais of the repository (see its SOURCE.txt; CC-BY 3.0 KIT AIS data set, crops of
 nadir aerial photos of Munich, ~12.5 cm GSD), converted to approximate raws by metraw.io.read_raw.
 """
 
@@ -14,7 +14,7 @@ from pathlib import Path
 from metraw.scenes import generate
 from metraw.scenes.stats import F_BAND_PER_M, format_table, summarise
 
-KIT = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real" / "kit_ais"
+KIT = Path(__file__).resolve().parents[1] / "data" / "real" / "kit_ais"
 
 
 def main() -> None:

@@ -4,8 +4,9 @@ synthetic-only / real-only / mixed training table at drone resolution and at the
     nice -n 5 python benchmarks/sim_to_real.py [--work benchmarks/work/sim_to_real] [--n-synthetic 480]
                                               [--epochs 20] [--real-weight N] [--json out.json]
 
-Real data: ../shared/data/real/kit_ais (SOURCE.txt: crops of nadir aerial photos of Munich from the KIT AIS
-data set, CC-BY 3.0, via github.com/jekhor/aerial-cars-dataset; 65 images, YOLO car boxes), ingested as
+Real data: data/real/kit_ais of the repository (15 of the set's 65 images; ``--kit DIR`` for the whole set;
+SOURCE.txt: crops of nadir aerial photos of Munich from the KIT AIS data set, CC-BY 3.0, via
+github.com/jekhor/aerial-cars-dataset; YOLO car boxes), ingested as
 approximate raws of the source camera (``metraw ingest --labels yolo --gsd-m 0.135``). Its labels are
 axis-aligned boxes: the scores on it are *box-approximate* (a car at 45 degrees fills half its box, so even a
 perfect segmenter scores well below 1 there).
@@ -42,7 +43,7 @@ import numpy as np
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
-KIT = ROOT.parent / "shared" / "data" / "real" / "kit_ais"
+KIT = ROOT / "data" / "real" / "kit_ais"
 
 
 def run(cmd: list[str]) -> None:
@@ -204,7 +205,7 @@ def main() -> None:
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
     if not args.kit.is_dir():
-        sys.exit(f"sim_to_real: no real data at {args.kit} (see ../shared/data/real/kit_ais/SOURCE.txt)")
+        sys.exit(f"sim_to_real: no real data at {args.kit} (see data/real/README.md)")
 
     from metraw.scenes.stats import format_table, summarise
     from metraw.segment.train import TrainConfig, load_config

@@ -61,15 +61,14 @@ def pytest_collection_modifyitems(config, items):
     items.sort(key=rank)  # stable: the collection order within each rank
 
 
-#: Real (read-only, third-party) data next to the repository; see each folder's SOURCE.txt.
-REAL_DATA_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
+#: Real third-party files committed with the repository (data/real; licenses and sources in its README.md).
+REAL_DATA_DIR = Path(__file__).resolve().parents[1] / "data" / "real"
 
 
 @pytest.fixture(scope="session")
 def real_data_dir() -> Path:
-    """../shared/data/real; tests using it are skipped when it is absent."""
-    if not REAL_DATA_DIR.is_dir():
-        pytest.skip(f"real data not available at {REAL_DATA_DIR}")
+    """data/real of the repository: always present, never skipped."""
+    assert REAL_DATA_DIR.is_dir(), f"{REAL_DATA_DIR} is part of the repository"
     return REAL_DATA_DIR
 
 

@@ -198,7 +198,7 @@ def test_camera_fills_unknown_noise_terms(tmp_path):
     assert img.meta["filled_from_camera"]["camera"] == "test cam"
 
 
-# ------------------------------------------------------------------------------ real data (../shared/data/real)
+# ------------------------------------------------------------------------------ real data (data/real)
 def test_real_canon_dng(real_data_dir):
     # canon_dng/SOURCE.txt: Canon 550D DNG, RGGB, BlackLevel 2056, WhiteLevel 15000
     img = read_raw(real_data_dir / "canon_dng" / "colorchart.dng")

@@ -211,8 +211,6 @@ def test_car_geometry_is_realistic():
 
 def test_default_camera_matches_params_yaml():
     params = ROOT / "params.yaml"
-    if not params.is_file():
-        pytest.skip("params.yaml not present")
     import yaml
 
     src = yaml.safe_load(params.read_text())["source"]["camera"]

@@ -36,10 +36,13 @@ def test_no_section_is_off(tmp_path):
     assert resolve_enabled({}, base=tmp_path) is False
 
 
-def test_repository_params_default_to_auto_on_the_kit_folder():
+def test_repository_params_require_the_committed_kit_folder():
+    # the real photos are part of the repository: the default run is the same on every machine (no silent "auto")
     params = yaml.safe_load((REPO / "params.yaml").read_text())
-    assert params["sim_to_real"]["enabled"] == "auto"
-    assert params["sim_to_real"]["path"].endswith("kit_ais")
+    assert params["sim_to_real"]["enabled"] is True
+    assert params["sim_to_real"]["path"] == "data/real/kit_ais"
+    assert resolve_enabled(params, "params.yaml", REPO) is True
+    assert len(list((REPO / "data" / "real" / "kit_ais").glob("*.png"))) == 15
 
 
 # ----------------------------------------------------------------------------- aggregate's real columns

@@ -1,4 +1,4 @@
-"""The sim-to-real benchmark in the workflow, without ../shared: a fake real folder made in the test
+"""The sim-to-real benchmark in the workflow, without the repository's data/real: a fake real folder made in the test
 (small 8-bit PNGs with YOLO boxes and an aerial.names, `fake_real_folder`) stands in for KIT AIS.
 
 Dry runs (seconds): with the folder the job list holds real_store, emulate_real and evaluate_real per point

@@ -561,3 +561,34 @@ def from_image(image: RawImage | np.ndarray, *, black_level_dn: float | None = N
         channels[colour] = _fit_channel(mu, v, rad.black_dn, n, colour, notes, black_u)
     prof = _build_profile(base, rad, channels, None)
     return CalibrationResult(prof, "single_frame_poisson_gaussian", channels, rad.shift, notes)
+
+
+# ------------------------------------------------------------------------------ several single frames
+
+
+def combine_images(results: Sequence[CalibrationResult]) -> CalibrationResult:
+    """Single-frame fits of several images of one camera -> one result: per channel and for the profile, the
+    inverse-variance weighted mean of gain, read noise and black level, its uncertainty inflated by the Birge
+    ratio when the images scatter more than their stated uncertainties (``_weighted_mean``). The first result's
+    profile carries the geometry."""
+    if not results:
+        raise MetrawError("combine_images needs at least one single-frame result")
+    if len(results) == 1:
+        return results[0]
+    channels = {}
+    for c in results[0].channels:
+        per = [r.channels[c] for r in results]
+        k, k_u, chi2 = _weighted_mean([p.gain_dn_per_e for p in per], [p.gain_dn_per_e_u for p in per])
+        rn, rn_u, _ = _weighted_mean([p.read_noise_e for p in per], [p.read_noise_e_u for p in per])
+        bl, bl_u, _ = _weighted_mean([p.black_level_dn for p in per], [max(p.black_level_dn_u, 1e-12) for p in per])
+        span = (min(p.signal_range_dn[0] for p in per), max(p.signal_range_dn[1] for p in per))
+        channels[c] = ChannelCalibration(c, k, k_u, rn, rn_u, bl, bl_u, sum(p.n_points for p in per), span, chi2)
+    names = list(channels)
+    k, k_u, _ = _weighted_mean([channels[c].gain_dn_per_e for c in names], [channels[c].gain_dn_per_e_u for c in names])
+    rn, rn_u, _ = _weighted_mean([channels[c].read_noise_e for c in names], [channels[c].read_noise_e_u for c in names])
+    first = results[0].profile
+    unc = {**first.uncertainty, "gain_dn_per_e": k_u, "read_noise_e": rn_u}
+    profile = first.replace(gain_dn_per_e=k, read_noise_e=rn, uncertainty=unc)
+    notes = [f"{len(results)} images fitted one by one, combined by inverse-variance weights (Birge-inflated)"]
+    notes += sorted({n for r in results for n in r.notes if "unused low bits" in n})
+    return CalibrationResult(profile, "single_frame_poisson_gaussian", channels, results[0].unused_low_bits, notes)

@@ -7,10 +7,12 @@ from snakemake.exceptions import WorkflowError
 
 from metraw.points import parameter_points, target_params
 from metraw.provenance import code_digest
+from metraw.sources import calibration_method
 from metraw.segment.pretrain import (draws_extra_scenes, fine_tuned_points, point_patterns, pretrain_settings,
                                      pretrained_patterns)
 
 POINTS = list(parameter_points(config))
+SOURCE_CAMERA = "results/source/camera.json"  # the raws source's calibrated camera (rule source_camera)
 METRAW_CODE = code_digest()  # the aggregate's cache key covers metraw's code (workflow/rules/aggregate.smk)
 SOURCE_STORE = "data/source.zarr"
 # The stores many jobs read (the source: every emulation, training and the pretraining; the real photos: every

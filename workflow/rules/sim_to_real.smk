@@ -1,5 +1,5 @@
 # Sim-to-real benchmark (issue #16; included by the Snakefile when params.yaml sim_to_real is on): the real
-# photos of sim_to_real.path (KIT AIS, YOLO car boxes) ingested as approximate raws like the kit_ais source,
+# photos of sim_to_real.path (KIT AIS, YOLO car boxes) ingested as approximate raws like a photos source,
 # emulated through every parameter point exactly as the synthetic source (rule emulate's flags and helpers),
 # and scored by that point's synthetic-trained model on all its images; the drone-resolution model is scored on
 # the un-emulated store (metraw evaluate resamples it to the model's training GSD).
@@ -14,13 +14,14 @@ rule real_store:
         codec=config["codec"],
         white_fraction=config["sim_to_real"].get("white_fraction", 1.0),
         seed=config["sim_to_real"].get("seed", 0),
+        labels=config["sim_to_real"].get("labels", "yolo"),
     resources:
         mem_mb=2000,  # measured peak RSS with head room (README, SLURM: resources table)
         runtime=20,  # minutes, a generous bound on the measured wall time
     log:
         "logs/real_store.log",
     shell:
-        "metraw ingest {params.real[path]} --labels yolo --camera {PARAMS_FILE} --gsd-m {params.real[gsd_m]}"
+        "metraw ingest {params.real[path]} --labels {params.labels} --camera {PARAMS_FILE} --gsd-m {params.real[gsd_m]}"
         " --white-fraction {params.white_fraction} --seed {params.seed} --out {output}"
         " --codec-step {params.codec[step]} --codec-seed {params.codec[seed]} 2> {log}"
 

@@ -1,6 +1,6 @@
-# Source data: the embedded synthetic drone scenes or the real KIT aerial path
-# (params.yaml source.dataset), raw array stored with the noise-preserving codec (params.yaml codec),
-# then a calibration check of the stored profiles.
+# Source data (params.yaml source.dataset, metraw.sources): the embedded synthetic drone scenes, a team's own
+# calibrated camera raws with car masks, or processed photos with boxes or masks; raw array stored with the
+# noise-preserving codec (params.yaml codec), then a calibration check of the stored profiles.
 
 if config["source"]["dataset"] == "synthetic":
 
@@ -26,24 +26,90 @@ if config["source"]["dataset"] == "synthetic":
             " --size {params.synthetic[size_px]} --camera {PARAMS_FILE} --out {output} --workers {threads}"
             " --codec-step {params.codec[step]} --codec-seed {params.codec[seed]} 2> {log}"
 
-else:
+elif config["source"]["dataset"] == "raws":
+    # A team's own camera raws (metraw.sources): the camera calibrated first (photon transfer from flats and
+    # darks, a given profile, or the single-frame fit of the raws), then the raws ingested with that camera's
+    # noise model and geometry and their car masks.
+    RAWS = config["source"]["raws"]
+    RAWS_CALIBRATION = RAWS.get("calibration") or {}
+    RAWS_METHOD = calibration_method(RAWS)
+
+    def _calibrate_command(wildcards, input):
+        """The `metraw calibrate` arguments of the source's calibration method (metraw.sources)."""
+        if RAWS_METHOD == "photon_transfer":
+            return (f"--flats {RAWS_CALIBRATION['flats']} --darks {RAWS_CALIBRATION['darks']}"
+                    f" --frames-per-level {RAWS_CALIBRATION.get('frames_per_level', 2)}")
+        if RAWS_METHOD == "profile":
+            return f"--profile {input.profile[0]}"
+        return RAWS["path"]  # the single-frame fit of the raws themselves
+
+    rule source_camera:
+        """The source camera's calibrated profile (results/source/camera.json: params' camera with the measured
+        gain, read noise and black level and their uncertainties) and the whole fit (camera_calibration.json)."""
+        input:
+            images=SOURCE_FILES["images"],
+            flats=SOURCE_FILES.get("flats", []),
+            darks=SOURCE_FILES.get("darks", []),
+            profile=SOURCE_FILES.get("profile", []),
+        output:
+            profile=SOURCE_CAMERA,
+            report="results/source/camera_calibration.json",
+        params:
+            camera=config["source"]["camera"],
+            method=RAWS_METHOD,
+            gsd=f" --gsd-m {RAWS['gsd_m']}" if RAWS.get("gsd_m") else "",
+            command=_calibrate_command,
+        resources:
+            mem_mb=2000,
+            runtime=20,  # minutes
+        log:
+            "logs/source_camera.log",
+        shell:
+            "metraw calibrate {params.command} --camera {PARAMS_FILE} --out {output.profile}"
+            " --report {output.report}{params.gsd} > {log} 2>&1"
 
     rule source_store:
+        input:
+            images=SOURCE_FILES["images"],
+            camera=SOURCE_CAMERA,
         output:
             directory(SOURCE_STORE),
         params:
-            kit=config["source"]["kit_ais"],
-            camera=config["source"]["camera"],
+            path=RAWS["path"],
+            labels=RAWS.get("labels", "mask"),
             codec=config["codec"],
-        priority: 1000  # every job waits for it: before the sim-to-real emulations (priority <= ~600), as pretrain_scenes
+        priority: 1000  # every job waits for it
         resources:
-            mem_mb=2000,  # as real_store (the same ingest of the KIT photos)
+            mem_mb=2000,
             runtime=20,  # minutes
         log:
             "logs/source_store.log",
         shell:
-            "metraw ingest {params.kit[path]} --labels yolo --camera {PARAMS_FILE} --gsd-m {params.kit[gsd_m]}"
-            " --white-fraction {params.kit[white_fraction]} --seed {params.kit[seed]} --out {output}"
+            "metraw ingest {params.path} --labels {params.labels} --camera {input.camera} --out {output}"
+            " --codec-step {params.codec[step]} --codec-seed {params.codec[seed]} 2> {log}"
+
+else:
+
+    rule source_store:
+        input:
+            SOURCE_FILES["images"],
+        output:
+            directory(SOURCE_STORE),
+        params:
+            photos=config["source"]["photos"],
+            labels=config["source"]["photos"].get("labels", "yolo"),
+            camera=config["source"]["camera"],
+            codec=config["codec"],
+        priority: 1000  # every job waits for it: before the sim-to-real emulations (priority <= ~600), as pretrain_scenes
+        resources:
+            mem_mb=2000,  # as real_store (the same ingest of photos)
+            runtime=20,  # minutes
+        log:
+            "logs/source_store.log",
+        shell:
+            "metraw ingest {params.photos[path]} --labels {params.labels} --camera {PARAMS_FILE}"
+            " --gsd-m {params.photos[gsd_m]} --white-fraction {params.photos[white_fraction]}"
+            " --seed {params.photos[seed]} --out {output}"
             " --codec-step {params.codec[step]} --codec-seed {params.codec[seed]} 2> {log}"
 
 

@@ -72,6 +72,7 @@ SNAKEMAKE = "snakemake --workflow-profile none --cores all"
 READS_DECODED = {"emulate", "emulate_real", "train", "train_source", "evaluate_source", "pretrain"}
 POINT_DIR = "results/points/{point}"
 SOURCE_STORE = "data/source.zarr"
+SOURCE_CAMERA = "results/source/camera.json"
 REAL_STORE = "data/real.zarr"
 PRETRAINED_MODEL = "results/pretrained/{cfa_pattern}/model"
 PRETRAIN_SCENES = "data/pretrain_scenes.zarr"
@@ -115,6 +116,16 @@ def _params_for(rule: str, params: dict[str, Any]) -> list[str]:
     return keys
 
 
+def _source_folders(params: dict[str, Any]) -> list[str]:
+    """The folders a raws or photos source reads (DVC hashes them): images, flats, darks, a profile file."""
+    kind = params["source"]["dataset"]
+    if kind == "synthetic":
+        return []
+    section = params["source"][kind]
+    cal = (section.get("calibration") or {}) if kind == "raws" else {}
+    return [section["path"]] + [cal[k] for k in ("flats", "darks", "profile") if cal.get(k)]
+
+
 def sim_to_real_stages(params: dict[str, Any]) -> bool:
     """Whether dvc.yaml holds the sim-to-real stages: ``sim_to_real.enabled`` given and not false."""
     return (params.get("sim_to_real") or {}).get("enabled", False) is not False
@@ -155,7 +166,7 @@ def build(params: dict[str, Any]) -> dict[str, Any]:
 
     stages: dict[str, Any] = {
         "source_store": {"cmd": _cmd("source_store", [SOURCE_STORE]), "params": ["source", "codec"],
-                         "deps": ["workflow/rules/source.smk"], "outs": [SOURCE_STORE]},
+                         "deps": [*_source_folders(params), "workflow/rules/source.smk"], "outs": [SOURCE_STORE]},
         "calibrate_source": {"cmd": _cmd("calibrate_source", ["results/source/calibration.json"]),
                              "deps": [SOURCE_STORE, "workflow/scripts/calibrate_store.py"],
                              "outs": ["results/source/calibration.json"]},
@@ -165,6 +176,13 @@ def build(params: dict[str, Any]) -> dict[str, Any]:
                             "deps": [SOURCE_STORE, "results/source/model", "workflow/rules/segment.smk"],
                             "outs": ["results/source/metrics.json"]},
     }
+    if params["source"]["dataset"] == "raws":
+        folders = _source_folders(params)
+        stages["source_store"]["deps"].insert(0, SOURCE_CAMERA)
+        stages = {"source_camera": {"cmd": _cmd("source_camera", [SOURCE_CAMERA]), "params": ["source", "codec"],
+                                    "deps": [*folders, "workflow/rules/source.smk"],
+                                    "outs": [SOURCE_CAMERA, "results/source/camera_calibration.json"]},
+                  **stages}
     if pretrain_settings(params)["enabled"]:
         rules = "workflow/rules/segment.smk"
         extra = [PRETRAIN_SCENES] if draws_extra_scenes(params) else []
@@ -180,7 +198,8 @@ def build(params: dict[str, Any]) -> dict[str, Any]:
     if real:
         rules = "workflow/rules/sim_to_real.smk"
         stages["real_store"] = {"cmd": _cmd("real_store", [REAL_STORE], "dvc_real=1"),
-                                "params": ["sim_to_real", "source.camera", "codec"], "deps": [rules],
+                                "params": ["sim_to_real", "source.camera", "codec"],
+                                "deps": [params["sim_to_real"]["path"], rules],
                                 "outs": [REAL_STORE]}
         stages["evaluate_source_real"] = {
             "cmd": _cmd("evaluate_source_real", ["results/source/real_metrics.json"], "dvc_real=1"),

@@ -42,6 +42,20 @@ def parse_meta(items: list[str]) -> dict[str, str]:
     return out
 
 
+def check_same_sensor(path: Path, profile, first: tuple[Path, str, int]) -> None:
+    """One store holds one sensor: an image whose CFA pattern or ADC bit depth differs from the first image's
+    is refused, naming both files (``MetrawError``)."""
+    from metraw.errors import MetrawError
+
+    name, pattern, bits = first
+    if profile.cfa_pattern != pattern:
+        raise MetrawError(f"{path}: CFA pattern {profile.cfa_pattern} differs from {pattern} of {name.name}; "
+                          "one folder holds the raws of one sensor")
+    if profile.adc_bits != bits:
+        raise MetrawError(f"{path}: {profile.adc_bits}-bit data differ from the {bits} bits of {name.name}; "
+                          "one folder holds the raws of one sensor")
+
+
 def run(args) -> int:
     import sys
 
@@ -59,11 +73,14 @@ def run(args) -> int:
     camera = load_camera(args.camera) if args.camera else None
     meta = parse_meta(args.meta)
     shapes, approx, car_boxes = set(), 0, 0
+    first: tuple[Path, str, int] | None = None
     with RawStore.create(out, overwrite=args.overwrite, **codec.create_kwargs()) as store:
         for f in progress_bar(files, total=len(files), desc="ingest"):
             kwargs = dict(meta) if f.suffix.lower() in (".raw", ".bin") else {}
             image = read_raw(f, camera=camera, labels=args.labels, seed=args.seed, gsd_m=args.gsd_m,
                              white_fraction=args.white_fraction, **kwargs)
+            first = first or (f, image.profile.cfa_pattern, image.profile.adc_bits)
+            check_same_sensor(f, image.profile, first)
             store.append(codec.mark(image))
             shapes.add(image.shape)
             approx += image.profile.approximate
@@ -71,6 +88,7 @@ def run(args) -> int:
         store.set_attrs(ingest={"inputs": [str(i) for i in args.inputs], "files": [f.name for f in files],
                                 "labels": args.labels, "seed": args.seed, "gsd_m": args.gsd_m,
                                 "camera": camera.camera if camera else "default (params.yaml source.camera)"},
+                        **({"camera_profile": camera.to_dict()} if camera is not None else {}),
                         **codec.attrs())
     dt = time.perf_counter() - t0
     print(f"ingested {len(files)} images ({approx} approximate, {car_boxes} car boxes) into {out} "

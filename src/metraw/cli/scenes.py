@@ -10,8 +10,8 @@ from metraw.cli._rawcodec import StoreCodec, add_arguments as add_codec_argument
 from metraw.errors import MetrawError
 
 
-def _real_dir() -> Path:
-    return Path(__file__).resolve().parents[3].parent / "shared" / "data" / "real" / "kit_ais"
+#: The real photos of the contact sheet's last row, relative to the working directory (the repository's own).
+DEFAULT_REAL_DIR = Path("data") / "real" / "kit_ais"
 
 
 def register(subparsers) -> None:
@@ -26,9 +26,9 @@ def register(subparsers) -> None:
     p.add_argument("--workers", type=int, default=2, help="worker processes (bytes do not depend on it)")
     p.add_argument("--contact-sheet", dest="contact_sheet", default=None, help="also write a contact sheet PNG")
     p.add_argument("--real-dir", default=None, help="KIT AIS folder for the real row of the contact sheet "
-                   "(default ../shared/data/real/kit_ais when present)")
+                   "(default data/real/kit_ais of the working directory, when present)")
     p.add_argument("--camera", default=None, help="source camera profile (JSON, or a params.yaml with "
-                   "source.camera); default: the Hasselblad L1D-20c of DESIGN.md section 3")
+                   "source.camera); default: the Hasselblad L1D-20c of docs/emulation.md")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output")
     add_codec_arguments(p)
     p.set_defaults(func=run)
@@ -68,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
     if args.contact_sheet:
         from metraw.scenes.contact_sheet import scenes_contact_sheet
 
-        real = Path(args.real_dir) if args.real_dir else _real_dir()
+        real = Path(args.real_dir) if args.real_dir else DEFAULT_REAL_DIR
         scenes_contact_sheet(RawStore.open(args.out), args.contact_sheet, real_dir=real if real.is_dir() else None)
         print(f"metraw scenes: contact sheet {args.contact_sheet}")
     return 0

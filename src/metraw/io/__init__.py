@@ -47,8 +47,8 @@ def read_raw(path: str | os.PathLike, *, camera: CalibrationProfile | None = Non
     ``camera``: for processed images, the camera whose photoelectrons and sensor model the
     approximate raw gets (default: ``default_camera()``, the source camera of params.yaml); for
     real raws, it fills gain / read noise / geometry the file does not state (``uncertainty``
-    then comes from the camera profile). ``labels``: "auto", "yolo", "mask" or "none" (processed
-    images). ``seed``: makes the approximate raw's noise reproducible. ``gsd_m``: ground sample
+    then comes from the camera profile). ``labels``: "auto", "yolo", "mask" or "none": the car mask from
+    ``STEM_mask.png`` (exact) or YOLO boxes in ``STEM.txt`` (box-approximate), for any format. ``seed``: makes the approximate raw's noise reproducible. ``gsd_m``: ground sample
     distance of a processed photo [m]. ``metadata``: headerless raw fields (width, height, ...).
     """
     path = Path(path)
@@ -58,7 +58,7 @@ def read_raw(path: str | os.PathLike, *, camera: CalibrationProfile | None = Non
         raise MetrawError(f"{path}: is a directory, not an image file")
     suffix = path.suffix.lower()
     if suffix in HEADERLESS_SUFFIXES:
-        return _with_camera(read_headerless(path, **metadata), camera)
+        return _labelled(_with_camera(read_headerless(path, **metadata), camera), path, labels)
     if metadata:
         raise MetrawError(f"{path}: metadata {sorted(metadata)} is only used for headerless .raw files")
     if path.stat().st_size == 0:
@@ -66,19 +66,29 @@ def read_raw(path: str | os.PathLike, *, camera: CalibrationProfile | None = Non
     with open(path, "rb") as fh:
         head = fh.read(16)
     if head[:4] == b"MRAW":
-        return _with_camera(read_mraw(path), camera)
+        return _labelled(_with_camera(read_mraw(path), camera), path, labels)
     if is_tiff(head):
         kind = "cfa" if suffix in RAW_SUFFIXES else tiff_kind(path)
         if kind == "cfa":
-            return _with_camera(read_camera_raw(path), camera)
+            return _labelled(_with_camera(read_camera_raw(path), camera), path, labels)
         if kind != "rgb8":
-            return _with_camera(read_tiff(path), camera)
+            return _labelled(_with_camera(read_tiff(path), camera), path, labels)
     elif not (head[:8] == b"\x89PNG\r\n\x1a\n" or head[:3] == b"\xff\xd8\xff"):
         if suffix in PROCESSED_SUFFIXES | {".tif", ".tiff"}:
             raise MetrawError(f"{path}: corrupt file (content does not match its {suffix} suffix)")
-        return _with_camera(read_camera_raw(path), camera)  # LibRaw sniffs; refuses unknown formats
+        return _labelled(_with_camera(read_camera_raw(path), camera), path, labels)  # LibRaw sniffs the format
     return read_processed(path, camera if camera is not None else default_camera(), labels=labels, seed=seed,
                           white_fraction=white_fraction, gsd_m=gsd_m)
+
+
+def _labelled(image: RawImage, path: Path, labels: str) -> RawImage:
+    """A raw image with the car mask of its label file (``metraw.io.labels.attach_labels``); a raw that carries
+    a mask already (a .mraw) keeps it unless a label file is asked for."""
+    if labels == "none" or (labels == "auto" and image.mask is not None):
+        return image
+    from metraw.io.labels import attach_labels
+
+    return attach_labels(image, path, labels)
 
 
 def read_mraw(path: str | os.PathLike) -> RawImage:

@@ -11,7 +11,7 @@ and a finite uncertainty. The conventions are:
 - for unknown black level (processed products): ``black_level_dn = 0``.
 
 No camera table is shipped: no published gain / read-noise values could be verified for the
-cameras in ../shared/data/real (Canon 550D via Magic Lantern without ISO, MicaSense RedEdge,
+cameras in data/real (Canon 550D via Magic Lantern without ISO, MicaSense RedEdge,
 WorldView pan products), so they are all reported as unknown.
 """
 

@@ -69,10 +69,13 @@ def read_camera_raw(path: Path) -> RawImage:
         meta["note"] = "black level differs per channel; profile holds their mean, spread in uncertainty"
         uncertainty["black_level_dn"] = float(np.std(blacks))
     camera = _camera_name(path)
+    tagged = _exif_geometry(path)
+    if tagged:
+        meta["from_tags"] = sorted(tagged)
     profile = CalibrationProfile(
         gain_dn_per_e=UNKNOWN_GAIN_DN_PER_E, black_level_dn=black, read_noise_e=UNKNOWN_READ_NOISE_E,
         white_level_dn=white, adc_bits=bits_needed(white), cfa_pattern=pattern, camera=camera,
-        uncertainty=uncertainty)
+        uncertainty=uncertainty, **tagged)
     return RawImage(data=data, profile=profile, provenance=[{"function": "io.read_camera_raw",
                     "params": {"path": str(path), "crop": "visible area"}}], meta=meta)
 
@@ -111,6 +114,35 @@ def _check_tiff_cfa(path: Path) -> None:
     if dims != (2, 2) or set(letters) - set("RGB"):
         raise MetrawError(f"{path}: CFA pattern {letters!r} ({dims[0]} x {dims[1]} cell, from the file's CFAPattern "
                           f"tag) is not supported (need a 2 x 2 Bayer cell: {', '.join(BAYER_PATTERNS)})")
+
+
+#: EXIF tags of a TIFF-based raw (DNG) that state the profile's geometry: tag name -> profile field [SI].
+_EXIF_FIELDS = {"ExposureTime": "exposure_s", "FocalLength": "focal_length_m"}
+_EXIF_SCALE = {"ExposureTime": 1.0, "FocalLength": 1e-3}  # EXIF: seconds; millimetres
+
+
+def _exif_geometry(path: Path) -> dict[str, float]:
+    """Exposure time [s] and focal length [m] from a TIFF-based raw's EXIF tags, where it states them
+    (positive rationals); {} for other raws or absent tags."""
+    try:
+        import tifffile
+
+        with tifffile.TiffFile(str(path)) as tif:
+            page = tif.pages[0]
+            exif = dict(page.tags["ExifTag"].value) if "ExifTag" in page.tags else {}
+            for name in _EXIF_FIELDS:
+                if name in page.tags:
+                    exif.setdefault(name, page.tags[name].value)
+    except Exception:  # not a TIFF, or unreadable EXIF: the geometry stays unknown (params may give it)
+        return {}
+    out = {}
+    for name, fieldname in _EXIF_FIELDS.items():
+        value = exif.get(name)
+        if isinstance(value, (tuple, list)) and len(value) == 2:
+            value = value[0] / value[1] if value[1] else None
+        if isinstance(value, (int, float)) and value > 0:
+            out[fieldname] = float(value) * _EXIF_SCALE[name]
+    return out
 
 
 def _camera_name(path: Path) -> str:

@@ -129,3 +129,48 @@ def mask_file_for(image_path: Path) -> Path | None:
 
 def is_label_file(path: Path) -> bool:
     return any(path.name.endswith(s) for s in MASK_SUFFIXES)
+
+
+def attach_labels(image, path: Path, labels: str = "auto", class_names: list[str] | None = None):
+    """``image`` (a RawImage read from ``path``) with its car mask from the label file beside it.
+
+    ``labels``: "mask" (``STEM_mask.png``, exact), "yolo" (``STEM.txt`` boxes: box-approximate, said so in
+    ``meta['mask_kind']``), "auto" (whichever exists, else none) or "none". A required label file that is
+    missing, or a mask of another size than the image, is a ``MetrawError`` naming the file.
+    """
+    from metraw.image import RawImage
+
+    shape = image.shape
+    yolo = path.with_suffix(".txt")
+    mask_path = mask_file_for(path)
+    kind, mask = labels, None
+    if labels == "auto":
+        kind = "yolo" if yolo.is_file() else "mask" if mask_path else "none"
+    if kind == "yolo":
+        if not yolo.is_file():
+            raise MetrawError(f"{path}: no YOLO label file {yolo.name}")
+        names = class_names if class_names is not None else find_class_names(path.parent)
+        if names is None:
+            raise MetrawError(f"{path}: YOLO labels need class names (a *.names or classes.txt file next to it)")
+        boxes = read_yolo(yolo)
+        bad = sorted({int(c) for c in boxes[:, 0] if int(c) >= len(names)})
+        if bad:
+            raise MetrawError(f"{yolo}: class ids {bad} not in the {len(names)} class names")
+        cars = car_class_ids(names)
+        is_car = np.isin(boxes[:, 0].astype(int), sorted(cars))
+        mask = box_area_fraction(boxes_to_pixels(boxes[is_car], shape), shape)
+        counts = {names[c]: int(np.sum(boxes[:, 0] == c)) for c in range(len(names))}
+        image.meta.update({"labels": "yolo", "label_file": str(yolo), "mask_kind": "box-approximate: union of "
+                           "axis-aligned YOLO boxes, area fraction per pixel", "boxes_per_class": counts,
+                           "car_classes": [names[c] for c in sorted(cars)], "car_boxes": int(is_car.sum())})
+    elif kind == "mask":
+        if mask_path is None:
+            raise MetrawError(f"{path}: no mask image {path.stem}{MASK_SUFFIXES[0]}")
+        mask = read_mask_image(mask_path, shape)
+        image.meta.update({"labels": "mask", "label_file": str(mask_path), "mask_kind": "mask image"})
+    elif kind != "none":
+        raise MetrawError(f"unknown label kind {labels!r} (use yolo, mask, none or auto)")
+    if mask is None:
+        return image
+    return RawImage(data=image.data, profile=image.profile, mask=mask, flags=image.flags, provenance=image.provenance,
+                    meta=image.meta)

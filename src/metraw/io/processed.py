@@ -121,40 +121,10 @@ def read_processed(path: Path, camera: CalibrationProfile, *, labels: str = "aut
                    white_fraction: float = 1.0, gsd_m: float | None = None,
                    class_names: list[str] | None = None) -> RawImage:
     """Read a processed RGB image (+ labels) as an approximate raw (see module docstring)."""
-    from metraw.io import labels as lab
+    from metraw.io.labels import attach_labels
 
     rgb = decode_image(path)
     image = approximate_raw(rgb, camera, seed_for(path, seed), white_fraction=white_fraction, gsd_m=gsd_m,
                             source=str(path))
     image.provenance[0]["params"]["seed"] = int(seed)
-    shape = image.shape
-    yolo = path.with_suffix(".txt")
-    mask_path = lab.mask_file_for(path)
-    kind, mask = labels, None
-    if labels == "auto":
-        kind = "yolo" if yolo.is_file() else "mask" if mask_path else "none"
-    if kind == "yolo":
-        if not yolo.is_file():
-            raise MetrawError(f"{path}: no YOLO label file {yolo.name}")
-        names = class_names if class_names is not None else lab.find_class_names(path.parent)
-        if names is None:
-            raise MetrawError(f"{path}: YOLO labels need class names (a *.names or classes.txt file next to it)")
-        boxes = lab.read_yolo(yolo)
-        bad = sorted({int(c) for c in boxes[:, 0] if int(c) >= len(names)})
-        if bad:
-            raise MetrawError(f"{yolo}: class ids {bad} not in the {len(names)} class names")
-        cars = lab.car_class_ids(names)
-        is_car = np.isin(boxes[:, 0].astype(int), sorted(cars))
-        mask = lab.box_area_fraction(lab.boxes_to_pixels(boxes[is_car], shape), shape)
-        counts = {names[c]: int(np.sum(boxes[:, 0] == c)) for c in range(len(names))}
-        image.meta.update({"labels": "yolo", "label_file": str(yolo), "mask_kind": "box-approximate: union of "
-                           "axis-aligned YOLO boxes, area fraction per pixel", "boxes_per_class": counts,
-                           "car_classes": [names[c] for c in sorted(cars)], "car_boxes": int(is_car.sum())})
-    elif kind == "mask":
-        if mask_path is None:
-            raise MetrawError(f"{path}: no mask image {path.stem}{lab.MASK_SUFFIXES[0]}")
-        mask = lab.read_mask_image(mask_path, shape)
-        image.meta.update({"labels": "mask", "label_file": str(mask_path), "mask_kind": "mask image"})
-    elif kind != "none":
-        raise MetrawError(f"unknown label kind {labels!r} (use yolo, mask, none or auto)")
-    return RawImage(data=image.data, profile=image.profile, mask=mask, provenance=image.provenance, meta=image.meta)
+    return attach_labels(image, path, labels, class_names=class_names)

@@ -124,7 +124,7 @@ def contact_sheet(rows: Sequence[tuple[str, Sequence[RawImage]]], out_png: str |
 
 
 def real_kit_images(real_dir: str | os.PathLike, count: int, camera=None) -> list[RawImage]:
-    """Up to ``count`` KIT AIS aerial photos (../shared/data/real/kit_ais, see its SOURCE.txt)
+    """Up to ``count`` KIT AIS aerial photos (data/real/kit_ais of the repository, see its SOURCE.txt)
     converted to approximate raws with their YOLO boxes as masks by ``metraw.io.read_raw``
     (GSD 0.125 m). Empty list when the data or the reader is missing."""
     from pathlib import Path
