@@ -175,6 +175,58 @@ def test_from_image_bad_input(kwargs, bad, match, scene_image):
         calibrate.from_image(scene_image if bad is None else bad, **kwargs)
 
 
+# ------------------------------------------------------------------------------ embedded drone scenes
+@pytest.fixture(scope="module")
+def embedded_scenes():
+    """Embedded synthetic drone scenes: pixel-scale texture several times the noise variance nearly
+    everywhere; the profile each carries is the exact truth (K 0.25 DN/e-, read noise 3 e-). 1024 px:
+    at 384-512 px fewer than one scene in ten can be fitted honestly (benchmarks/noise_fit.py)."""
+    from metraw.scenes import generate_one
+
+    return [generate_one(i, 0, 1024) for i in range(8)]
+
+
+def test_from_image_embedded_scenes_honest_or_refused(embedded_scenes):
+    fitted, refused = [], 0
+    for img in embedded_scenes:
+        try:
+            res = calibrate.from_image(img)
+        except MetrawError as exc:
+            assert "channel" in str(exc)  # says which channel failed and why
+            refused += 1
+            continue
+        p, truth = res.profile, img.profile
+        uk, ur = p.uncertainty["gain_dn_per_e"], p.uncertainty["read_noise_e"]
+        assert 0 < uk < calibrate.MAX_RELATIVE_GAIN_UNCERTAINTY * p.gain_dn_per_e
+        fitted.append(((p.gain_dn_per_e - truth.gain_dn_per_e) / uk, (p.read_noise_e - truth.read_noise_e) / ur,
+                       (p.gain_dn_per_e - 2 * truth.gain_dn_per_e) / uk))
+    assert len(fitted) >= 2, f"only {len(fitted)} of {len(embedded_scenes)} scenes fitted"  # refusing all is no answer
+    z = np.abs(np.array(fitted))
+    # Honest: |z| <= 2 for ~95 % of fits; with a handful, allow one miss in five (at least one).
+    allowed = max(1, len(fitted) // 5)
+    assert np.sum(z[:, 0] > 2) <= allowed and np.sum(z[:, 1] > 2) <= allowed, z
+    # Still useful: a profile claiming twice the gain is disfavoured against the truth by most fits and
+    # contradicted (|z| > 3, the limit of `metraw check`) by at least half of them. (Not by all: a fit
+    # whose honest uncertainty is 30-40 % cannot tell K from 2 K.)
+    assert np.sum(z[:, 2] > z[:, 0]) > len(fitted) / 2, z
+    assert np.sum(z[:, 2] > 3) >= len(fitted) / 2, z
+
+
+def test_noise_consistency_accepts_true_and_rejects_doubled_gain(embedded_scenes):
+    from metraw.spec import noise_consistency
+
+    measured = contradicted = 0
+    for img in embedded_scenes[:5]:
+        true_claim = noise_consistency(img)
+        if not true_claim["measured"]:
+            continue
+        measured += 1
+        assert true_claim["consistent"], true_claim["checks"]  # the clean source image is not rejected
+        wrong = noise_consistency(RawImage(img.data, img.profile.replace(gain_dn_per_e=2 * img.profile.gain_dn_per_e)))
+        contradicted += bool(wrong["checks"]["gain_dn_per_e"]["contradicts"])
+    assert measured >= 1 and contradicted >= 1
+
+
 # ------------------------------------------------------------------------------ real data
 def test_real_canon_dng_channels_agree():
     rawpy = pytest.importorskip("rawpy")

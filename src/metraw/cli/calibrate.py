@@ -107,6 +107,17 @@ def check_series(flat_files: list[Path], flats: list, dark_files: list[Path], da
                                   "have the flats' exposure time (EMVA 1288)")
 
 
+def _finite(value):
+    """``value`` with every non-finite float (a refused channel's NaN +- inf) as None: strict JSON."""
+    import math
+
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(v) for v in value]
+    return None if isinstance(value, float) and not math.isfinite(value) else value
+
+
 def _at_gsd(profile, gsd_m: float | None):
     """``profile`` with the altitude at which its pixel pitch and focal length sample the ground at ``gsd_m``."""
     if gsd_m is None:
@@ -220,7 +231,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"  wrote {args.out}")
     if args.report is not None:
         with atomic_path(args.report, overwrite=args.overwrite) as tmp:
-            tmp.write_text(json.dumps({**result.to_dict(), "profile": prof.to_dict(), "files": used}, indent=2)
-                           + "\n")
+            tmp.write_text(json.dumps(_finite({**result.to_dict(), "profile": prof.to_dict(), "files": used}),
+                                      indent=2) + "\n")
         print(f"  wrote {args.report}")
     return 0
