@@ -55,9 +55,11 @@ NOISE_REL_LIMIT = 0.10
 
 UNITS = {"focal_length_m": "m", "diameter_m": "m", "exposure_s": "s", "pixel_pitch_m": "m",
          "altitude_m": "m", "gsd_m": "m", "diffraction_m": "m", "smear_m": "m", "signal_e": "e-", "haze_e": "e-",
+         "haze_fraction": "",
          "path_radiance_w_m2_sr_m": "W m-2 sr-1 m-1", "atmospheric_transmission": ""}
 #: Which direction is "better" for an image property.
-BETTER = {"gsd_m": "lower", "diffraction_m": "lower", "smear_m": "lower", "signal_e": "higher", "haze_e": "lower"}
+BETTER = {"gsd_m": "lower", "diffraction_m": "lower", "smear_m": "lower", "signal_e": "higher", "haze_e": "lower",
+          "haze_fraction": "lower"}
 
 
 @dataclass
@@ -121,12 +123,18 @@ class Specification:
     parameters: dict[str, Limit | Choice]
     properties: dict[str, Limit]
     context: dict[str, Any] = field(default_factory=dict)
+    #: IoU over the image properties, fitted on every point of the run (`metraw.property_model`); the runtime
+    #: decision uses it when present, else the per-property limits.
+    property_model: Any = None
 
     def to_dict(self) -> dict[str, Any]:
-        return {"spec_version": SPEC_VERSION, "required_iou": float(self.required_iou),
-                "parameters": {k: v.to_dict() for k, v in self.parameters.items()},
-                "image_properties": {k: v.to_dict() for k, v in self.properties.items()},
-                "context": _plain(self.context)}
+        out = {"spec_version": SPEC_VERSION, "required_iou": float(self.required_iou),
+               "parameters": {k: v.to_dict() for k, v in self.parameters.items()},
+               "image_properties": {k: v.to_dict() for k, v in self.properties.items()},
+               "context": _plain(self.context)}
+        if self.property_model is not None:
+            out["property_model"] = _plain(self.property_model.to_dict())
+        return out
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "Specification":
@@ -154,7 +162,18 @@ class Specification:
                               f"(known: {', '.join(BETTER)})")
         if not isinstance(d.get("context") or {}, Mapping):
             raise MetrawError("spec context must be a mapping")
-        return cls(float(iou), sections["parameters"], sections["image_properties"], dict(d.get("context") or {}))
+        model = None
+        if d.get("property_model") is not None:
+            from metraw.property_model import PropertyModel
+
+            if not isinstance(d["property_model"], Mapping):
+                raise MetrawError("spec property_model must be a mapping")
+            try:
+                model = PropertyModel.from_dict(d["property_model"])
+            except MetrawError as exc:
+                raise MetrawError(f"spec property_model: {exc}") from None
+        return cls(float(iou), sections["parameters"], sections["image_properties"], dict(d.get("context") or {}),
+                   model)
 
     def save(self, path: str | Path, overwrite: bool = True) -> None:
         with atomic_path(path, overwrite=overwrite) as tmp:
@@ -222,7 +241,8 @@ def image_properties_of(values: Mapping[str, float]) -> dict[str, float]:
 
 def build_spec(tolerances: Mapping[str, Any], nominal: Mapping[str, Any], required_iou: float,
                signal_reference_e: Mapping[str, float] | None = None, context: Mapping[str, Any] | None = None,
-               choices: Mapping[str, Mapping[str, Any]] | None = None) -> Specification:
+               choices: Mapping[str, Mapping[str, Any]] | None = None, property_model: Any = None,
+               model_at: Mapping[str, float] | None = None) -> Specification:
     """The specification from `metraw.tolerance.Tolerance` objects (keyed by parameter name).
 
     ``nominal``: full nominal target parameters (altitude_m, pixel_pitch_m, ...).
@@ -230,6 +250,9 @@ def build_spec(tolerances: Mapping[str, Any], nominal: Mapping[str, Any], requir
     photoelectrons per pixel over the nominal point's images (scene spread); without it the
     spec has no ``signal_e`` line. ``choices``: categorical parameters
     (`metraw.tolerance.categorical_choice`), written as `Choice` lines (allowed values, optimal one).
+    ``property_model``: IoU fitted over the image properties (`metraw.property_model.PropertyModel`); with it the
+    image_properties lines are the fit's (optimal: argmax along the property with the others at ``model_at``,
+    the nominal point's properties; min / max: the sampled range) and the runtime check uses the model.
     """
     params: dict[str, Limit | Choice] = {}
     for name, t in tolerances.items():
@@ -285,12 +308,19 @@ def build_spec(tolerances: Mapping[str, Any], nominal: Mapping[str, Any], requir
              "nominal_scene_median_e": signal_reference_e["median"],
              "nominal_scene_p05_e": signal_reference_e["p05"], "nominal_scene_p95_e": signal_reference_e["p95"],
              "optimum_system_median_e": joint, "light_scale": optimal / joint})
+    if property_model is not None:
+        from metraw.property_model import property_lines
+
+        props = {name: Limit(line["optimal"], line["min"], line["max"], line["unit"], {
+            "iou_at_optimal": line["iou_at_optimal"], "from": "property model (every point of the run), others at "
+            "the nominal point's properties; min / max: the sampled range"})
+            for name, line in property_lines(property_model, model_at).items()}
     ctx = {"wavelength_ref_m": WAVELENGTH_REF_M, "altitude_m": nominal.get("altitude_m"),
            "pixel_pitch_m": nominal.get("pixel_pitch_m"), "ground_speed_m_per_s": nominal.get("ground_speed_m_per_s"),
            "cfa_pattern": nominal.get("cfa_pattern"), "optimum": optimum,
            "property_box": "one-at-a-time limits, others at nominal (see aggregate.json joint region)"}
     ctx.update(context or {})
-    return Specification(float(required_iou), params, props, ctx)
+    return Specification(float(required_iou), params, props, ctx, property_model)
 
 
 # ---------------------------------------------------------------------- measuring an image
@@ -399,23 +429,12 @@ def _fmt(v: float | None, unit: str) -> str:
 
 
 def check(image: RawImage, spec: Specification, measure_noise: bool = True) -> Decision:
-    """PASS / NORMALISE / REJECT for one image (see module docstring)."""
+    """PASS / NORMALISE / REJECT for one image (see module docstring; with a property model in the spec,
+    `metraw.property_model.decide` judges the properties)."""
     reasons: list[str] = []
     reject: list[str] = []
     found: dict[str, dict[str, Any]] = {}
-    values: dict[str, float | None] = dict(profile_properties(image))
-    bin_factor = None
-    if "gsd_m" in spec.properties and values["gsd_m"] is not None:
-        bin_factor = binning_factor(values["gsd_m"], spec.properties["gsd_m"])
     noise = noise_consistency(image) if measure_noise else None
-    signal_source = "pixels"
-    if "signal_e" in spec.properties:
-        values["signal_e"], signal_source = _signal_with_known_gain(image, noise)
-        if bin_factor and values["signal_e"] is not None:
-            # Binning to the spec's GSD sums m^2 pixels: judge the light at the GSD the image will have.
-            values["signal_e"] *= bin_factor**2
-            reasons.append(f"signal_e judged after the planned {bin_factor} x {bin_factor} binning "
-                           f"(x{bin_factor**2} per pixel)")
     have = image.profile.cfa_pattern
     choice = spec.parameters.get("cfa_pattern")
     if isinstance(choice, Choice):
@@ -426,6 +445,25 @@ def check(image: RawImage, spec: Specification, measure_noise: bool = True) -> D
         reject.append(f"CFA pattern {have} ({cfa_family(have)}) is not among the spec's allowed "
                       f"{', '.join(families) or '(none meets the required IoU)'}: no raw function turns one "
                       "filter array into another")
+    if spec.property_model is not None:
+        from metraw.property_model import decide
+
+        signal, signal_source = _signal_with_known_gain(image, noise)
+        more_reject, more_reasons, found, model_chain = decide(image, spec.property_model, spec.required_iou,
+                                                               signal, signal_source)
+        return _verdict(image, noise, reject + more_reject, reasons + more_reasons, found, model_chain)
+    values: dict[str, float | None] = dict(profile_properties(image))
+    bin_factor = None
+    if "gsd_m" in spec.properties and values["gsd_m"] is not None:
+        bin_factor = binning_factor(values["gsd_m"], spec.properties["gsd_m"])
+    signal_source = "pixels"
+    if "signal_e" in spec.properties:
+        values["signal_e"], signal_source = _signal_with_known_gain(image, noise)
+        if bin_factor and values["signal_e"] is not None:
+            # Binning to the spec's GSD sums m^2 pixels: judge the light at the GSD the image will have.
+            values["signal_e"] *= bin_factor**2
+            reasons.append(f"signal_e judged after the planned {bin_factor} x {bin_factor} binning "
+                           f"(x{bin_factor**2} per pixel)")
     if "haze_e" in spec.properties:
         values["haze_e"] = stated_haze_e(image)
         if bin_factor and values["haze_e"] is not None:
@@ -456,6 +494,16 @@ def check(image: RawImage, spec: Specification, measure_noise: bool = True) -> D
                                f"{_fmt(lim.optimal, lim.unit)}")
         found[prop] = {"value": v, "min": lim.min, "max": lim.max, "optimal": lim.optimal, "unit": lim.unit,
                        "status": status, "source": {"signal_e": signal_source, "haze_e": "provenance"}.get(prop, "profile")}
+    chain: list[dict[str, Any]] = []
+    if not reject and better_side:
+        chain, problems = plan_normalisation(image, spec, values)
+        reject.extend(problems)
+    return _verdict(image, noise, reject, reasons, found, chain)
+
+
+def _verdict(image: RawImage, noise: Mapping[str, Any] | None, reject: list[str], reasons: list[str],
+             found: dict[str, dict[str, Any]], chain: list[dict[str, Any]]) -> Decision:
+    """The decision from what `check` found: the noise profile's word added, REJECT before NORMALISE before PASS."""
     if noise and noise.get("consistent") is False:
         for name, c in noise["checks"].items():
             if c["contradicts"]:
@@ -466,10 +514,6 @@ def check(image: RawImage, spec: Specification, measure_noise: bool = True) -> D
         reasons.append(noise["note"] + " (profile taken as claimed)")
     if image.profile.approximate:
         reasons.append(f"profile is approximate: {image.profile.approximate_reason or 'no reason given'}")
-    chain: list[dict[str, Any]] = []
-    if not reject and better_side:
-        chain, problems = plan_normalisation(image, spec, values)
-        reject.extend(problems)
     if reject:
         return Decision("REJECT", reject + reasons, found, [], noise)
     if chain:

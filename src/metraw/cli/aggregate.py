@@ -268,8 +268,10 @@ def _aggregate(args) -> int:
     grids = [_grid_summary(params, grid, rows, nominal, all_names, required, args.seed)
              for grid in params["target"].get("grids") or []]
     nominal_row = next(r for r in rows if r["point"] == NOMINAL)
+    prop_model = _property_model(args, rows) if args.stores_pattern else None
     spec = build_spec(tols, nominal, required, nominal_row.get("_signal"), choices=choices,
-                      context={"params_file": str(args.params), "loo_share_inside_2sigma": iou_loo["share_inside"]})
+                      context={"params_file": str(args.params), "loo_share_inside_2sigma": iou_loo["share_inside"]},
+                      property_model=prop_model, model_at=nominal_row.get("properties"))
 
     for r, rec in zip(gp_rows, iou_loo["points"]):
         r["iou_loo_pred"], r["iou_loo_sd"], r["iou_loo_inside"] = rec["predicted"], rec["sd"], rec["inside"]
@@ -302,6 +304,9 @@ def _aggregate(args) -> int:
         "joint_region": joint,
         "categorical": choices,
         "grids": [g for _, g in grids],
+        "property_model": None if prop_model is None else {
+            "properties": prop_model.names, "kernel": prop_model.gp.kernel_description(),
+            "white_sd": math.sqrt(prop_model.gp.white_variance), "leave_one_out": prop_model.gp.leave_one_out()},
     }
     if real is not None:
         summary["sim_to_real"] = real
@@ -377,6 +382,10 @@ def _aggregate(args) -> int:
         else:
             print(f"  {n}: lower 2-sigma bound {t.lower_at_optimal:.3f} < required {required} even at the optimum")
     print(f"  joint region: share of the tolerance box meeting the requirement = {joint.get('share_of_box_ok')}")
+    if prop_model is not None:
+        loo = summary["property_model"]["leave_one_out"]
+        print(f"  property model: IoU over {', '.join(prop_model.names)} from {len(prop_model.points)} points; "
+              f"LOO share inside 2 sigma {loo['share_inside']:.2f}")
     for c, choice in choices.items():
         print(f"  {c}: allowed {choice['allowed'] or 'none'}; " + ", ".join(
             f"{v} IoU {r['iou']:.3f} +- {r['iou_sd']:.3f}" for v, r in choice["values"].items()))
@@ -386,6 +395,21 @@ def _aggregate(args) -> int:
               f"{100 * g['share_of_grid_ok']:.0f} % of the grid box")
     print(f"wrote {out / 'spec.yaml'}, {out / 'aggregate.json'}, {figdir}/, {plotdir}/")
     return 0
+
+
+def _property_model(args, rows: list[dict[str, Any]]):
+    """Each point's image properties (medians over its store's images, ``row["properties"]``) and the IoU fit
+    over them (`metraw.property_model`), from every point: lines, grids and categorical points."""
+    from metraw.property_model import PropertyModel, store_properties
+    from metraw.store import RawStore
+
+    for r in rows:
+        spath = Path(args.stores_pattern.format(point=r["point"], results=args.results))
+        if not spath.exists():
+            raise MetrawError(f"store {spath} of point {r['point']} is missing (needed for its image properties)")
+        r["properties"] = store_properties(RawStore.open(spath))
+    points = [{"point": r["point"], "iou": r["iou"], "iou_sd": r["iou_sd"], **r["properties"]} for r in rows]
+    return PropertyModel.from_points(points, seed=args.seed)
 
 
 def _on_line(row: dict[str, Any], name: str, nominal: dict[str, Any], names: list[str]) -> bool:

@@ -85,8 +85,14 @@ def format_decision(decision) -> str:
     lines += [f"  reason: {r}" for r in decision.reasons]
     for name, f in decision.properties.items():
         v = "unknown" if f["value"] is None else f"{f['value']:.4g}"
-        lines.append(f"  {name}: {v} {f['unit']} ({f['source']}), spec [{f['min']:.4g}, {f['max']:.4g}], "
-                     f"optimal {f['optimal']:.4g}: {f['status']}")
+        if name == "predicted_iou":  # the spec's property model (metraw.property_model)
+            lines.append(f"  predicted IoU: {v} +- {f['sd']:.3f} (required {f['required']:g})")
+        elif "sampled_min" in f:
+            lines.append(f"  {name}: {v} {f['unit']} ({f['source']}), sampled [{f['sampled_min']:.4g}, "
+                         f"{f['sampled_max']:.4g}]: {f['status']}")
+        else:
+            lines.append(f"  {name}: {v} {f['unit']} ({f['source']}), spec [{f['min']:.4g}, {f['max']:.4g}], "
+                         f"optimal {f['optimal']:.4g}: {f['status']}")
     if decision.noise and decision.noise.get("measured"):
         for name, c in decision.noise["checks"].items():
             claimed = (f"{c['claimed']:.4g} +- {c['claimed_u']:.2g}" if math.isfinite(c["claimed_u"])

@@ -1,0 +1,325 @@
+"""IoU as a function of image properties, fitted on every point of a run (lines, grids and categorical points).
+
+An incoming image carries no "focal length" or "aperture": it carries properties that can be established from
+its profile and pixels. Each is chosen so that it moves with the collected light only where the task does:
+
+- ``gsd_m``: ground sample distance, pitch x altitude / focal length (profile);
+- ``diffraction_m``: diffraction blur on the ground, 550 nm x altitude / aperture diameter (profile);
+- ``smear_m``: motion smear on the ground, ground speed x exposure (profile);
+- ``signal_e``: median photoelectrons per pixel (pixels and gain): the light itself, which the task does
+  depend on (shot noise against the read noise);
+- ``haze_fraction``: the share of the image's photoelectrons that is path radiance (the air's own light, stated by
+  the emulation's provenance) over the image's mean photoelectrons per pixel. Both scale alike with aperture
+  area, pixel area, exposure, optics transmission and QE, so the same air gives the same fraction behind any
+  payload; it grows with path radiance and with a lower transmission of the scene's light, i.e. with the loss
+  of contrast the segmenter sees. (A count of path-radiance electrons would call the same air "worse" behind a
+  bigger mirror.)
+
+``PropertyModel`` holds the run's points (the median of each property over the point's test images, the point's
+measured IoU and its standard error) and fits a `metraw.tolerance.ResponseGP` over the property axes (log axes
+for the scale properties). It is stored in spec.yaml and refitted, deterministically, when a spec is loaded.
+The runtime decision it supports (`metraw.spec.check`): PASS when the predicted IoU at the image's own
+properties meets the requirement, REJECT when it does not; NORMALISE only toward what the fit says helps.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from metraw.cfa import channel_names, color_index
+from metraw.errors import MetrawError
+from metraw.image import RawImage
+
+#: The properties in the order of the model's axes.
+PROPERTIES = ("gsd_m", "diffraction_m", "smear_m", "signal_e", "haze_fraction")
+#: Working axis of each property (`metraw.tolerance.Axis`): log for scale quantities.
+AXIS_KINDS = {"gsd_m": "log", "diffraction_m": "log", "smear_m": "linear", "signal_e": "log",
+              "haze_fraction": "linear"}
+UNITS = {"gsd_m": "m", "diffraction_m": "m", "smear_m": "m", "signal_e": "e-", "haze_fraction": ""}
+#: The direction a raw function can move a property without adding noise it does not state: coarser GSD
+#: (binning), more blur and smear (photon redistribution), less light (binomial thinning), more haze (Poisson).
+DEGRADES = {"gsd_m": "up", "diffraction_m": "up", "smear_m": "up", "signal_e": "down", "haze_fraction": "up"}
+#: A move toward the fit's optimum is planned only when it raises the predicted IoU by more than this many
+#: predictive standard deviations (of the image's own prediction): normalise never degrades on noise.
+HELPS_SIGMA = 2.0
+#: Reference wavelength of the diffraction scale [m] (as metraw.spec).
+WAVELENGTH_REF_M = 550e-9
+
+
+def stated_haze_per_pixel_e(image: RawImage) -> float | None:
+    """Mean path-radiance photoelectrons per pixel the image's provenance states (the last emulation's
+    per-channel haze, weighted by the channels' share of the mosaic; later `atmosphere` / haze `add_poisson`
+    / binning steps applied in order); None when no step states it."""
+    total = None
+    shares = _channel_shares(image)
+    for step in image.provenance:
+        par = step.get("params") or {}
+        fn = step.get("function")
+        if fn in ("emulate", "atmosphere") and "haze_e" in par:
+            h = par["haze_e"]
+            if isinstance(h, Mapping):
+                mean = sum(shares.get(c, 0.0) * float(v) for c, v in h.items()) / max(
+                    sum(shares.get(c, 0.0) for c in h), 1e-300)
+            else:
+                mean = float(h)
+            total = mean if fn == "emulate" else (total or 0.0) * float(par.get("transmission", 1.0)) + mean
+        elif fn == "add_poisson" and par.get("label") == "haze" and total is not None:
+            total += float(par.get("mean_e", 0.0))
+        elif fn == "bin_same_colour" and total is not None:
+            total *= int(par.get("factor", 1)) ** 2
+    return total
+
+
+def _channel_shares(image: RawImage) -> dict[str, float]:
+    names = channel_names(image.profile.cfa_pattern)
+    counts = np.bincount(color_index(image.profile.cfa_pattern, image.shape).ravel(), minlength=len(names))
+    return {c: float(n) / image.data.size for c, n in zip(names, counts)}
+
+
+def mean_signal_e(image: RawImage) -> float:
+    """Mean photoelectrons per pixel, (DN - black) / K over unsaturated pixels."""
+    e = image.electrons()
+    ok = ~image.saturated()
+    if not ok.any():
+        raise MetrawError("every pixel is saturated: no signal level can be measured")
+    return float(np.mean(e[ok]))
+
+
+def haze_fraction(image: RawImage) -> float | None:
+    """Path-radiance share of the image's mean photoelectrons per pixel (see module docstring); None when the
+    provenance states no haze."""
+    haze = stated_haze_per_pixel_e(image)
+    if haze is None:
+        return None
+    mean = mean_signal_e(image)
+    return float(min(max(haze / mean, 0.0), 1.0)) if mean > 0 else None
+
+
+def geometry_properties(profile) -> dict[str, float | None]:
+    """gsd_m, diffraction_m, smear_m from a profile (None where its geometry is missing)."""
+    h = profile.altitude_m
+    return {"gsd_m": profile.gsd_m,
+            "diffraction_m": None if h is None or not profile.aperture_diameter_m
+            else WAVELENGTH_REF_M * h / profile.aperture_diameter_m,
+            "smear_m": None if profile.exposure_s is None else profile.ground_speed_m_per_s * profile.exposure_s}
+
+
+def image_properties(image: RawImage, signal_e: float | None = None) -> dict[str, float | None]:
+    """Every property of ``image`` (``signal_e`` given when the caller established it another way, e.g. with a
+    gain measured from the noise; else the median photoelectrons per pixel with the profile's gain)."""
+    from metraw.spec import median_signal_e
+
+    out = geometry_properties(image.profile)
+    out["signal_e"] = median_signal_e(image) if signal_e is None else signal_e
+    out["haze_fraction"] = haze_fraction(image)
+    return out
+
+
+@dataclass
+class PropertyModel:
+    """The run's points in property space and the GP of IoU over them (see module docstring).
+
+    ``names``: the properties used (those that every point states and that vary); ``points``: one record per
+    point, ``{"point", "iou", "iou_sd", <property>: median value, ...}``; ``seed``: the GP's restarts.
+    """
+
+    names: list[str]
+    points: list[dict[str, Any]]
+    seed: int = 0
+    _gp: Any = field(default=None, repr=False, compare=False)
+
+    @classmethod
+    def from_points(cls, points: Sequence[Mapping[str, Any]], seed: int = 0) -> "PropertyModel":
+        """Keep the properties every point states and that vary between points."""
+        names = [p for p in PROPERTIES if all(r.get(p) is not None for r in points)
+                 and len({round(float(r[p]), 12) for r in points}) > 1]
+        if not names:
+            raise MetrawError("no image property varies between the points: nothing to fit IoU against")
+        return cls(names, [dict(r) for r in points], seed)
+
+    @property
+    def gp(self):
+        if self._gp is None:
+            from metraw.tolerance import Axis, ResponseGP
+
+            X = np.array([[float(r[n]) for n in self.names] for r in self.points])
+            axes = [Axis(n, AXIS_KINDS[n], float(X[:, j].min()), float(X[:, j].max()))
+                    for j, n in enumerate(self.names)]
+            self._gp = ResponseGP(self.names, X, [r["iou"] for r in self.points],
+                                  [r["iou_sd"] ** 2 for r in self.points], axes=axes, seed=self.seed)
+        return self._gp
+
+    def predict(self, props: Mapping[str, float]) -> tuple[float, float]:
+        """(mean, predictive sd) of IoU at ``props``."""
+        p = self.gp.predict(np.array([[float(props[n]) for n in self.names]]))
+        return float(p.mean[0]), float(p.sd[0])
+
+    def reference(self, name: str) -> float:
+        """The nominal point's value of ``name`` (the points' median when no point is called nominal)."""
+        for r in self.points:
+            if r.get("point") == "nominal":
+                return float(r[name])
+        return float(np.median([float(r[name]) for r in self.points]))
+
+    def sampled_range(self, name: str) -> tuple[float, float]:
+        values = [float(r[name]) for r in self.points]
+        return min(values), max(values)
+
+    def best_move(self, name: str, props: Mapping[str, float], n_grid: int = 201) -> dict[str, Any] | None:
+        """The value of ``name`` in its degrade-only direction (from the image's own value to the end of the
+        sampled range), others held at the image's values, that maximises the predicted IoU, when it beats the
+        image's own prediction by more than ``HELPS_SIGMA`` predictive sd; else None."""
+        from metraw.tolerance import Axis
+
+        have = float(props[name])
+        lo, hi = self.sampled_range(name)
+        end = hi if DEGRADES[name] == "up" else lo
+        if (DEGRADES[name] == "up" and end <= have) or (DEGRADES[name] == "down" and end >= have):
+            return None
+        ax = Axis(name, AXIS_KINDS[name], min(have, end), max(have, end))
+        grid = ax.from_unit(np.linspace(0.0, 1.0, n_grid))
+        j = self.names.index(name)
+        X = np.tile([float(props[n]) for n in self.names], (n_grid, 1))
+        X[:, j] = grid
+        p = self.gp.predict(X)
+        i = int(np.argmax(p.mean))
+        here = self.predict(props)
+        gain = float(p.mean[i]) - here[0]
+        if gain <= HELPS_SIGMA * here[1]:
+            return None
+        return {"property": name, "from": have, "to": float(grid[i]), "predicted_iou": float(p.mean[i]),
+                "predicted_iou_here": here[0], "gain": gain}
+
+    def optimum_line(self, name: str, at: Mapping[str, float], n_grid: int = 201) -> dict[str, float]:
+        """Argmax of the predicted IoU along ``name`` over its sampled range, the others at ``at``."""
+        from metraw.tolerance import Axis
+
+        lo, hi = self.sampled_range(name)
+        grid = Axis(name, AXIS_KINDS[name], lo, hi).from_unit(np.linspace(0.0, 1.0, n_grid))
+        j = self.names.index(name)
+        X = np.tile([float(at[n]) for n in self.names], (n_grid, 1))
+        X[:, j] = grid
+        p = self.gp.predict(X)
+        i = int(np.argmax(p.mean))
+        return {"optimal": float(grid[i]), "iou_at_optimal": float(p.mean[i]), "min": lo, "max": hi}
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"properties": list(self.names), "units": {n: UNITS[n] for n in self.names},
+                "axes": {n: AXIS_KINDS[n] for n in self.names}, "seed": self.seed,
+                "points": [{k: (float(v) if isinstance(v, (int, float, np.floating)) and not isinstance(v, bool)
+                                else v) for k, v in r.items()} for r in self.points]}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "PropertyModel":
+        try:
+            names = [str(n) for n in d["properties"]]
+            points = [dict(r) for r in d["points"]]
+            unknown = sorted(set(names) - set(PROPERTIES))
+            if unknown:
+                raise MetrawError(f"unknown image properties {unknown} (known: {', '.join(PROPERTIES)})")
+            for r in points:
+                for key in (*names, "iou", "iou_sd"):
+                    if not isinstance(r.get(key), (int, float)) or not math.isfinite(float(r[key])):
+                        raise MetrawError(f"point {r.get('point', '?')}: {key} must be a finite number")
+        except (KeyError, TypeError) as exc:
+            raise MetrawError(f"property_model needs properties and points ({exc})") from None
+        return cls(names, points, int(d.get("seed", 0)))
+
+
+def plan_moves(image: RawImage, model: PropertyModel, props: Mapping[str, float]) -> list[dict[str, Any]]:
+    """The raw-function chain of the moves the fit says help (``PropertyModel.best_move``), each toward the fit's
+    argmax in its degrade-only direction, others at the image's values; [] when no move helps."""
+    from metraw.cfa import cell_size
+
+    chain: list[dict[str, Any]] = []
+    step = cell_size(image.profile.cfa_pattern)
+    gsd = props.get("gsd_m")
+    for name in model.names:
+        move = model.best_move(name, props)
+        if move is None:
+            continue
+        have, want = move["from"], move["to"]
+        effect = (f"{name} {have:.4g} -> {want:.4g} {UNITS[name]} (predicted IoU {move['predicted_iou_here']:.3f} "
+                  f"-> {move['predicted_iou']:.3f})")
+        if name == "gsd_m":
+            factor = max(2, int(round(want / have)))
+            chain.append({"function": "bin_same_colour", "params": {"factor": factor}, "effect": effect})
+        elif name == "diffraction_m" and gsd:
+            from metraw.spec import AIRY_SIGMA_PER_LAMBDA_D
+
+            sigma_m = AIRY_SIGMA_PER_LAMBDA_D * math.sqrt(want**2 - have**2)
+            chain.append({"function": "redistribute", "params": {"kernel": "gaussian",
+                                                                 "sigma_cells": sigma_m / (gsd * step)},
+                          "effect": effect})
+        elif name == "smear_m" and gsd:
+            extra = math.sqrt(max(want**2 - have**2, 0.0))  # box variances add: L^2 / 12
+            chain.append({"function": "redistribute", "params": {"kernel": "box_along_track",
+                                                                 "length_cells": extra / (gsd * step)},
+                          "effect": effect})
+        elif name == "signal_e":
+            chain.append({"function": "thin", "params": {"p": want / have}, "effect": effect})
+        elif name == "haze_fraction":
+            mean = mean_signal_e(image)
+            add = (want * mean - have * mean) / (1.0 - want)  # (h + a) / (m + a) = want
+            chain.append({"function": "add_poisson", "params": {"mean_e": add, "label": "haze"}, "effect": effect})
+    return chain
+
+
+def decide(image: RawImage, model: PropertyModel, required_iou: float, signal_e: float | None,
+           signal_source: str) -> tuple[list[str], list[str], dict[str, dict[str, Any]], list[dict[str, Any]]]:
+    """The property model's part of the runtime decision: (reject reasons, other reasons, per-property findings,
+    normalisation chain). REJECT when a property the model needs cannot be established, or when the predicted
+    IoU at the image's own properties is below ``required_iou``; else PASS, or NORMALISE with the moves that
+    the fit says raise the predicted IoU (``plan_moves``)."""
+    props = image_properties(image)
+    props["signal_e"] = signal_e  # as `metraw.spec.check` established it (None: it could not)
+    found, reject, reasons = {}, [], []
+    for name in model.names:
+        lo, hi = model.sampled_range(name)
+        v = props.get(name)
+        found[name] = {"value": v, "sampled_min": lo, "sampled_max": hi, "unit": UNITS[name],
+                       "status": "unknown" if v is None else "inside" if lo <= v <= hi else "outside sampled range",
+                       "source": {"signal_e": signal_source, "haze_fraction": "provenance and pixels"}.get(
+                           name, "profile")}
+        if v is None and name == "haze_fraction":
+            # the air of an image whose provenance does not state it (a real image): assumed as the nominal
+            # point's, and said so; the other properties are established or the image is rejected
+            props[name] = model.reference(name)
+            found[name].update(value=props[name], status="assumed", source="the nominal point's (not stated)")
+            reasons.append(f"haze_fraction not stated by the image's provenance: taken as the nominal point's "
+                           f"{props[name]:.3g} (assumed)")
+        elif v is None:
+            why = signal_source if name == "signal_e" else "the profile lacks the geometry"
+            reject.append(f"{name} cannot be determined ({why})")
+    if reject:
+        return reject, reasons, found, []
+    mean, sd = model.predict(props)
+    outside = [n for n in model.names if found[n]["status"] != "inside"]
+    where = ", ".join(f"{n} {props[n]:.4g}" for n in model.names)
+    line = (f"predicted IoU {mean:.3f} +- {sd:.3f} at the image's properties ({where})"
+            + (f"; extrapolated in {', '.join(outside)}" if outside else ""))
+    found["predicted_iou"] = {"value": mean, "sd": sd, "required": required_iou}
+    if mean < required_iou:
+        return [f"{line} is below the required IoU {required_iou:g}"], reasons, found, []
+    reasons.append(f"{line} meets the required IoU {required_iou:g}")
+    return reject, reasons, found, plan_moves(image, model, props)
+
+
+def store_properties(store) -> dict[str, float | None]:
+    """The median of each property over the images of a `metraw.store.RawStore` (a point's test images); None
+    for a property some image cannot state."""
+    per_image = [image_properties(store[i]) for i in range(len(store))]
+    if not per_image:
+        raise MetrawError("an empty store has no image properties")
+    return {name: (None if any(p[name] is None for p in per_image)
+                   else float(np.median([p[name] for p in per_image]))) for name in PROPERTIES}
+
+
+def property_lines(model: PropertyModel, at: Mapping[str, float]) -> dict[str, dict[str, Any]]:
+    """Per property: the fit's argmax along it over the sampled range, the others at ``at`` (the nominal point's
+    properties), with the sampled range; what spec.yaml's image_properties lines state under a property model."""
+    return {name: {**model.optimum_line(name, at), "unit": UNITS[name]} for name in model.names}
