@@ -46,22 +46,27 @@ DEGRADES = {"gsd_m": "up", "diffraction_m": "up", "smear_m": "up", "signal_e": "
 #: A move toward the fit's optimum is planned only when it raises the predicted IoU by more than this many
 #: predictive standard deviations (of the image's own prediction): normalise never degrades on noise.
 HELPS_SIGMA = 2.0
-#: Reference wavelength of the diffraction scale [m] (as metraw.spec).
+#: Reference wavelength of the diffraction scale [m].
 WAVELENGTH_REF_M = 550e-9
+#: Gaussian sigma of the Airy core in units of lambda/D (best-fit Gaussian to the Airy disc).
+AIRY_SIGMA_PER_LAMBDA_D = 0.42
 
 
-def stated_haze_per_pixel_e(image: RawImage) -> float | None:
+def stated_haze_per_pixel_e(image: RawImage, per_pixel: bool = True) -> float | None:
     """Mean path-radiance photoelectrons per pixel the image's provenance states (the last emulation's
-    per-channel haze, weighted by the channels' share of the mosaic; later `atmosphere` / haze `add_poisson`
-    / binning steps applied in order); None when no step states it."""
+    per-channel haze, weighted by the channels' share of the mosaic, or with ``per_pixel`` False the plain
+    mean over the channels, as older specs' ``haze_e``; later `atmosphere` / haze `add_poisson` / binning
+    steps applied in order); None when no step states it."""
     total = None
-    shares = _channel_shares(image)
+    shares = _channel_shares(image) if per_pixel else None
     for step in image.provenance:
         par = step.get("params") or {}
         fn = step.get("function")
         if fn in ("emulate", "atmosphere") and "haze_e" in par:
             h = par["haze_e"]
-            if isinstance(h, Mapping):
+            if isinstance(h, Mapping) and shares is None:
+                mean = float(np.mean([float(v) for v in h.values()]))
+            elif isinstance(h, Mapping):
                 mean = sum(shares.get(c, 0.0) * float(v) for c, v in h.items()) / max(
                     sum(shares.get(c, 0.0) for c in h), 1e-300)
             else:
@@ -80,13 +85,22 @@ def _channel_shares(image: RawImage) -> dict[str, float]:
     return {c: float(n) / image.data.size for c, n in zip(names, counts)}
 
 
-def mean_signal_e(image: RawImage) -> float:
-    """Mean photoelectrons per pixel, (DN - black) / K over unsaturated pixels."""
-    e = image.electrons()
+def _unsaturated_electrons(image: RawImage) -> np.ndarray:
+    """(DN - black) / K of the unsaturated pixels (a MetrawError when every pixel is saturated)."""
     ok = ~image.saturated()
     if not ok.any():
         raise MetrawError("every pixel is saturated: no signal level can be measured")
-    return float(np.mean(e[ok]))
+    return image.electrons()[ok]
+
+
+def mean_signal_e(image: RawImage) -> float:
+    """Mean photoelectrons per pixel, (DN - black) / K over unsaturated pixels."""
+    return float(np.mean(_unsaturated_electrons(image)))
+
+
+def median_signal_e(image: RawImage) -> float:
+    """Median photoelectrons per pixel, (DN - black) / K over unsaturated pixels."""
+    return float(np.median(_unsaturated_electrons(image)))
 
 
 def haze_fraction(image: RawImage) -> float | None:
@@ -111,8 +125,6 @@ def geometry_properties(profile) -> dict[str, float | None]:
 def image_properties(image: RawImage, signal_e: float | None = None) -> dict[str, float | None]:
     """Every property of ``image`` (``signal_e`` given when the caller established it another way, e.g. with a
     gain measured from the noise; else the median photoelectrons per pixel with the profile's gain)."""
-    from metraw.spec import median_signal_e
-
     out = geometry_properties(image.profile)
     out["signal_e"] = median_signal_e(image) if signal_e is None else signal_e
     out["haze_fraction"] = haze_fraction(image)
@@ -249,8 +261,6 @@ def plan_moves(image: RawImage, model: PropertyModel, props: Mapping[str, float]
             factor = max(2, int(round(want / have)))
             chain.append({"function": "bin_same_colour", "params": {"factor": factor}, "effect": effect})
         elif name == "diffraction_m" and gsd:
-            from metraw.spec import AIRY_SIGMA_PER_LAMBDA_D
-
             sigma_m = AIRY_SIGMA_PER_LAMBDA_D * math.sqrt(want**2 - have**2)
             chain.append({"function": "redistribute", "params": {"kernel": "gaussian",
                                                                  "sigma_cells": sigma_m / (gsd * step)},

@@ -42,12 +42,9 @@ from metraw.atomic import atomic_path
 from metraw.cfa import cfa_family
 from metraw.errors import MetrawError
 from metraw.image import RawImage
+from metraw.property_model import AIRY_SIGMA_PER_LAMBDA_D, WAVELENGTH_REF_M, geometry_properties, median_signal_e
 
 SPEC_VERSION = 1
-#: Reference wavelength of the diffraction scale [m].
-WAVELENGTH_REF_M = 550e-9
-#: Gaussian sigma of the Airy core in units of lambda/D (best-fit Gaussian to the Airy disc).
-AIRY_SIGMA_PER_LAMBDA_D = 0.42
 #: A profile contradicts its pixels when |measured - claimed| exceeds this many combined
 #: standard uncertainties *and* this relative difference (guards against tiny uncertainties).
 NOISE_Z_LIMIT = 3.0
@@ -324,22 +321,9 @@ def build_spec(tolerances: Mapping[str, Any], nominal: Mapping[str, Any], requir
 
 
 # ---------------------------------------------------------------------- measuring an image
-def median_signal_e(image: RawImage) -> float:
-    """Median photoelectrons per pixel, (DN - black) / K over unsaturated pixels."""
-    e = image.electrons()
-    ok = ~image.saturated()
-    if not ok.any():
-        raise MetrawError("every pixel is saturated: no signal level can be measured")
-    return float(np.median(e[ok]))
-
-
 def profile_properties(image: RawImage) -> dict[str, float | None]:
     """gsd_m, diffraction_m, smear_m from the profile (None where geometry is missing)."""
-    p = image.profile
-    h = p.altitude_m
-    return {"gsd_m": p.gsd_m,
-            "diffraction_m": None if h is None or not p.aperture_diameter_m else WAVELENGTH_REF_M * h / p.aperture_diameter_m,
-            "smear_m": None if p.exposure_s is None else p.ground_speed_m_per_s * p.exposure_s}
+    return geometry_properties(image.profile)
 
 
 def noise_consistency(image: RawImage) -> dict[str, Any]:
@@ -605,21 +589,11 @@ def plan_normalisation(image: RawImage, spec: Specification, values: Mapping[str
 
 
 def stated_haze_e(image: RawImage) -> float | None:
-    """Mean path-radiance photoelectrons per pixel the image's provenance states (the last emulation's
-    haze plus later `atmosphere` / haze `add_poisson` steps; None when no step states it)."""
-    total = None
-    for step in image.provenance:
-        par = step.get("params") or {}
-        fn = step.get("function")
-        if fn in ("emulate", "atmosphere") and "haze_e" in par:
-            h = par["haze_e"]
-            mean = float(np.mean(list(h.values()))) if isinstance(h, Mapping) else float(h)
-            total = mean if fn == "emulate" else (total or 0.0) * float(par.get("transmission", 1.0)) + mean
-        elif fn == "add_poisson" and par.get("label") == "haze" and total is not None:
-            total += float(par.get("mean_e", 0.0))
-        elif fn == "bin_same_colour" and total is not None:
-            total *= int(par.get("factor", 1)) ** 2
-    return total
+    """Mean path-radiance photoelectrons per pixel the image's provenance states, as the channels' plain mean
+    (the ``haze_e`` of specs without a property model; `metraw.property_model.stated_haze_per_pixel_e`)."""
+    from metraw.property_model import stated_haze_per_pixel_e
+
+    return stated_haze_per_pixel_e(image, per_pixel=False)
 
 
 def light_ratio(profile, optimum: Mapping[str, Any], bin_factor: int = 1) -> float | None:
