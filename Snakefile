@@ -68,7 +68,6 @@ if SIM_TO_REAL:
 rule all:
     input:
         "results/source/calibration.json",
-        [SOURCE_CAMERA] if config["source"]["dataset"] == "raws" else [],
         "results/source/metrics.json",
         "results/spec.yaml",
         "results/aggregate.json",

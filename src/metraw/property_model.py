@@ -181,10 +181,12 @@ class PropertyModel:
         values = [float(r[name]) for r in self.points]
         return min(values), max(values)
 
-    def best_move(self, name: str, props: Mapping[str, float], n_grid: int = 201) -> dict[str, Any] | None:
+    def best_move(self, name: str, props: Mapping[str, float], n_grid: int = 201,
+                  here: tuple[float, float] | None = None) -> dict[str, Any] | None:
         """The value of ``name`` in its degrade-only direction (from the image's own value to the end of the
         sampled range), others held at the image's values, that maximises the predicted IoU, when it beats the
-        image's own prediction by more than ``HELPS_SIGMA`` predictive sd; else None."""
+        image's own prediction (``here``: its (mean, sd), when the caller has it) by more than ``HELPS_SIGMA``
+        predictive sd; else None."""
         from metraw.tolerance import Axis
 
         have = float(props[name])
@@ -199,7 +201,7 @@ class PropertyModel:
         X[:, j] = grid
         p = self.gp.predict(X)
         i = int(np.argmax(p.mean))
-        here = self.predict(props)
+        here = here or self.predict(props)
         gain = float(p.mean[i]) - here[0]
         if gain <= HELPS_SIGMA * here[1]:
             return None
@@ -242,16 +244,19 @@ class PropertyModel:
         return cls(names, points, int(d.get("seed", 0)))
 
 
-def plan_moves(image: RawImage, model: PropertyModel, props: Mapping[str, float]) -> list[dict[str, Any]]:
+def plan_moves(image: RawImage, model: PropertyModel, props: Mapping[str, float],
+               here: tuple[float, float] | None = None) -> list[dict[str, Any]]:
     """The raw-function chain of the moves the fit says help (``PropertyModel.best_move``), each toward the fit's
-    argmax in its degrade-only direction, others at the image's values; [] when no move helps."""
+    argmax in its degrade-only direction, others at the image's values; [] when no move helps. ``here``: the
+    image's own predicted (mean, sd), when the caller has it."""
+    here = here or model.predict(props)
     from metraw.cfa import cell_size
 
     chain: list[dict[str, Any]] = []
     step = cell_size(image.profile.cfa_pattern)
     gsd = props.get("gsd_m")
     for name in model.names:
-        move = model.best_move(name, props)
+        move = model.best_move(name, props, here=here)
         if move is None:
             continue
         have, want = move["from"], move["to"]
@@ -316,7 +321,7 @@ def decide(image: RawImage, model: PropertyModel, required_iou: float, signal_e:
     if mean < required_iou:
         return [f"{line} is below the required IoU {required_iou:g}"], reasons, found, []
     reasons.append(f"{line} meets the required IoU {required_iou:g}")
-    return reject, reasons, found, plan_moves(image, model, props)
+    return reject, reasons, found, plan_moves(image, model, props, here=(mean, sd))
 
 
 def store_properties(store) -> dict[str, float | None]:

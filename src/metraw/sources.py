@@ -20,10 +20,6 @@ from typing import Any
 
 from metraw.errors import MetrawError
 
-#: Values of ``source.dataset``.
-KINDS = ("synthetic", "raws", "photos")
-
-
 def calibration_method(raws: dict[str, Any]) -> str:
     """``photon_transfer`` (flats and darks given), ``profile`` (a profile JSON given) or ``single_frame``."""
     cal = raws.get("calibration") or {}

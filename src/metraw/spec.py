@@ -42,7 +42,8 @@ from metraw.atomic import atomic_path
 from metraw.cfa import cfa_family
 from metraw.errors import MetrawError
 from metraw.image import RawImage
-from metraw.property_model import AIRY_SIGMA_PER_LAMBDA_D, WAVELENGTH_REF_M, geometry_properties, median_signal_e
+from metraw.property_model import (AIRY_SIGMA_PER_LAMBDA_D, WAVELENGTH_REF_M, PropertyModel, decide,
+                                   geometry_properties, median_signal_e, property_lines, stated_haze_per_pixel_e)
 
 SPEC_VERSION = 1
 #: A profile contradicts its pixels when |measured - claimed| exceeds this many combined
@@ -161,8 +162,6 @@ class Specification:
             raise MetrawError("spec context must be a mapping")
         model = None
         if d.get("property_model") is not None:
-            from metraw.property_model import PropertyModel
-
             if not isinstance(d["property_model"], Mapping):
                 raise MetrawError("spec property_model must be a mapping")
             try:
@@ -267,6 +266,26 @@ def build_spec(tolerances: Mapping[str, Any], nominal: Mapping[str, Any], requir
             "nominal": c["nominal"], "highest": c["highest"], "rule": c["rule"], "required_iou": required_iou,
             "allowed_families": sorted({cfa_family(v) for v in c["allowed"]}) if name == "cfa_pattern" else None,
             "measured": {v: {"iou": r["iou"], "iou_sd": r["iou_sd"]} for v, r in c["values"].items()}})
+    if property_model is not None:
+        props = {name: Limit(line["optimal"], line["min"], line["max"], line["unit"], {
+            "iou_at_optimal": line["iou_at_optimal"], "from": "property model (every point of the run), others at "
+            "the nominal point's properties; min / max: the sampled range"})
+            for name, line in property_lines(property_model, model_at).items()}
+    else:
+        props = _property_limits(params, nominal, nominal_f, optimum, signal_reference_e)
+    ctx = {"wavelength_ref_m": WAVELENGTH_REF_M, "altitude_m": nominal.get("altitude_m"),
+           "pixel_pitch_m": nominal.get("pixel_pitch_m"), "ground_speed_m_per_s": nominal.get("ground_speed_m_per_s"),
+           "cfa_pattern": nominal.get("cfa_pattern"), "optimum": optimum,
+           "property_box": "one-at-a-time limits, others at nominal (see aggregate.json joint region)"}
+    ctx.update(context or {})
+    return Specification(float(required_iou), params, props, ctx, property_model)
+
+
+def _property_limits(params: Mapping[str, Limit | Choice], nominal: Mapping[str, Any], nominal_f: Mapping[str, float],
+                     optimum: Mapping[str, float], signal_reference_e: Mapping[str, float] | None) -> dict[str, Limit]:
+    """The image-property limits of a spec without a property model: from the one-at-a-time parameter intervals
+    (GSD from focal length, diffraction from diameter, smear from exposure, haze from path radiance, signal from
+    the photon budget widened by the nominal scenes' spread)."""
     props: dict[str, Limit] = {}
     which = {"gsd_m": "focal_length_m", "diffraction_m": "diameter_m", "smear_m": "exposure_s"}
     for prop, par in which.items():
@@ -305,19 +324,7 @@ def build_spec(tolerances: Mapping[str, Any], nominal: Mapping[str, Any], requir
              "nominal_scene_median_e": signal_reference_e["median"],
              "nominal_scene_p05_e": signal_reference_e["p05"], "nominal_scene_p95_e": signal_reference_e["p95"],
              "optimum_system_median_e": joint, "light_scale": optimal / joint})
-    if property_model is not None:
-        from metraw.property_model import property_lines
-
-        props = {name: Limit(line["optimal"], line["min"], line["max"], line["unit"], {
-            "iou_at_optimal": line["iou_at_optimal"], "from": "property model (every point of the run), others at "
-            "the nominal point's properties; min / max: the sampled range"})
-            for name, line in property_lines(property_model, model_at).items()}
-    ctx = {"wavelength_ref_m": WAVELENGTH_REF_M, "altitude_m": nominal.get("altitude_m"),
-           "pixel_pitch_m": nominal.get("pixel_pitch_m"), "ground_speed_m_per_s": nominal.get("ground_speed_m_per_s"),
-           "cfa_pattern": nominal.get("cfa_pattern"), "optimum": optimum,
-           "property_box": "one-at-a-time limits, others at nominal (see aggregate.json joint region)"}
-    ctx.update(context or {})
-    return Specification(float(required_iou), params, props, ctx, property_model)
+    return props
 
 
 # ---------------------------------------------------------------------- measuring an image
@@ -430,8 +437,6 @@ def check(image: RawImage, spec: Specification, measure_noise: bool = True) -> D
                       f"{', '.join(families) or '(none meets the required IoU)'}: no raw function turns one "
                       "filter array into another")
     if spec.property_model is not None:
-        from metraw.property_model import decide
-
         signal, signal_source = _signal_with_known_gain(image, noise)
         more_reject, more_reasons, found, model_chain = decide(image, spec.property_model, spec.required_iou,
                                                                signal, signal_source)
@@ -591,8 +596,6 @@ def plan_normalisation(image: RawImage, spec: Specification, values: Mapping[str
 def stated_haze_e(image: RawImage) -> float | None:
     """Mean path-radiance photoelectrons per pixel the image's provenance states, as the channels' plain mean
     (the ``haze_e`` of specs without a property model; `metraw.property_model.stated_haze_per_pixel_e`)."""
-    from metraw.property_model import stated_haze_per_pixel_e
-
     return stated_haze_per_pixel_e(image, per_pixel=False)
 
 

@@ -69,7 +69,7 @@ def _files(items: list[str]) -> list[Path]:
     return image_files(items) if items else []
 
 
-def _with_camera(profile, camera):
+def _camera_with_radiometry_of(profile, camera):
     """``camera`` with the radiometry the frames state (CFA pattern, white level, ADC bits, black level)."""
     if camera is None:
         return profile
@@ -178,7 +178,7 @@ def run(args: argparse.Namespace) -> int:
         flats, darks = frames[: len(flat_files)], frames[len(flat_files):]
         check_series(flat_files, flats, dark_files, darks, n)
         base = read_raw(inputs[0]).profile if inputs else None
-        base = _with_camera(base or flats[0].profile, camera) if (base or camera) else None
+        base = _camera_with_radiometry_of(base or flats[0].profile, camera) if (base or camera) else None
         from metraw import calibrate  # scipy: imported once the inputs are read
 
         levels = [flats[i:i + n] for i in range(0, len(flats), n)]
@@ -199,7 +199,7 @@ def run(args: argparse.Namespace) -> int:
         for f in progress_bar(inputs, desc="fitting"):
             image = read_raw(f, labels="none")
             check_fittable(image, f)
-            profile = _with_camera(image.profile, camera)
+            profile = _camera_with_radiometry_of(image.profile, camera)
             try:
                 results.append(calibrate.from_image(image, profile=profile))
                 fitted.append(str(f))

@@ -48,8 +48,9 @@ def read_raw(path: str | os.PathLike, *, camera: CalibrationProfile | None = Non
     approximate raw gets (default: ``default_camera()``, the source camera of params.yaml); for
     real raws, it fills gain / read noise / geometry the file does not state (``uncertainty``
     then comes from the camera profile). ``labels``: "auto", "yolo", "mask" or "none": the car mask from
-    ``STEM_mask.png`` (exact) or YOLO boxes in ``STEM.txt`` (box-approximate), for any format. ``seed``: makes the approximate raw's noise reproducible. ``gsd_m``: ground sample
-    distance of a processed photo [m]. ``metadata``: headerless raw fields (width, height, ...).
+    ``STEM_mask.png`` (exact) or YOLO boxes in ``STEM.txt`` (box-approximate), for any format. ``seed``: makes
+    the approximate raw's noise reproducible. ``gsd_m``: ground sample distance of a processed photo [m].
+    ``metadata``: headerless raw fields (width, height, ...).
     """
     path = Path(path)
     if not path.exists():

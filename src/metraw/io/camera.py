@@ -68,8 +68,7 @@ def read_camera_raw(path: Path) -> RawImage:
         meta["black_level_per_channel_dn"] = blacks
         meta["note"] = "black level differs per channel; profile holds their mean, spread in uncertainty"
         uncertainty["black_level_dn"] = float(np.std(blacks))
-    camera = _camera_name(path)
-    tagged = _exif_geometry(path)
+    camera, tagged = _camera_tags(path)
     if tagged:
         meta["from_tags"] = sorted(tagged)
     profile = CalibrationProfile(
@@ -121,31 +120,10 @@ _EXIF_FIELDS = {"ExposureTime": "exposure_s", "FocalLength": "focal_length_m"}
 _EXIF_SCALE = {"ExposureTime": 1.0, "FocalLength": 1e-3}  # EXIF: seconds; millimetres
 
 
-def _exif_geometry(path: Path) -> dict[str, float]:
-    """Exposure time [s] and focal length [m] from a TIFF-based raw's EXIF tags, where it states them
-    (positive rationals); {} for other raws or absent tags."""
-    try:
-        import tifffile
-
-        with tifffile.TiffFile(str(path)) as tif:
-            page = tif.pages[0]
-            exif = dict(page.tags["ExifTag"].value) if "ExifTag" in page.tags else {}
-            for name in _EXIF_FIELDS:
-                if name in page.tags:
-                    exif.setdefault(name, page.tags[name].value)
-    except Exception:  # not a TIFF, or unreadable EXIF: the geometry stays unknown (params may give it)
-        return {}
-    out = {}
-    for name, fieldname in _EXIF_FIELDS.items():
-        value = exif.get(name)
-        if isinstance(value, (tuple, list)) and len(value) == 2:
-            value = value[0] / value[1] if value[1] else None
-        if isinstance(value, (int, float)) and value > 0:
-            out[fieldname] = float(value) * _EXIF_SCALE[name]
-    return out
-
-
-def _camera_name(path: Path) -> str:
+def _camera_tags(path: Path) -> tuple[str, dict[str, float]]:
+    """The camera's name (Make, Model) and the geometry a TIFF-based raw (DNG) states in its EXIF tags: exposure
+    time [s] and focal length [m] where given as positive numbers; ("unknown", {}) for other raws (the name is
+    descriptive only, and params may give the geometry)."""
     try:
         import tifffile
 
@@ -153,10 +131,22 @@ def _camera_name(path: Path) -> str:
             tags = tif.pages[0].tags
             make = str(tags["Make"].value).strip() if "Make" in tags else ""
             model = str(tags["Model"].value).strip() if "Model" in tags else ""
-            name = model if model.lower().startswith(make.lower()) else f"{make} {model}".strip()
-            return name or "unknown"
-    except Exception:  # non-TIFF camera raws: the name is descriptive only
-        return "unknown"
+            try:
+                exif = dict(tags["ExifTag"].value) if "ExifTag" in tags else {}
+                exif.update({n: tags[n].value for n in _EXIF_FIELDS if n in tags and n not in exif})
+            except Exception:  # unreadable EXIF: the geometry stays unknown, the name stands
+                exif = {}
+    except Exception:  # non-TIFF camera raws, or tags tifffile cannot read
+        return "unknown", {}
+    name = model if model.lower().startswith(make.lower()) else f"{make} {model}".strip()
+    geometry = {}
+    for tag, fieldname in _EXIF_FIELDS.items():
+        value = exif.get(tag)
+        if isinstance(value, (tuple, list)) and len(value) == 2:
+            value = value[0] / value[1] if value[1] else None
+        if isinstance(value, (int, float)) and value > 0:
+            geometry[fieldname] = float(value) * _EXIF_SCALE[tag]
+    return name or "unknown", geometry
 
 
 @contextlib.contextmanager
