@@ -80,3 +80,16 @@ def neutral_response(camera: CalibrationProfile, sun_elevation_deg: float = 45.0
         rates[c] = float(np.trapezoid(photons, lam)) * camera.qe_per_channel.get(c, 1.0)
     top = max(rates.values())
     return {c: v / top for c, v in rates.items()}
+
+
+def lambertian_photon_radiance(band_m: tuple[float, float], reflectance: float, sun_elevation_deg: float = 45.0,
+                               aerosol_depth_550: float = 0.12, samples: int = 61) -> float:
+    """Photon radiance [photons s^-1 m^-2 sr^-1] within ``band_m`` of a horizontal grey Lambertian surface of
+    ``reflectance`` lit by sun and sky: integral of reflectance (direct sin(e) + diffuse) / pi lambda / (h c)."""
+    lo, hi = (float(v) for v in band_m)
+    if not 0 < lo < hi:
+        raise MetrawError(f"band edges must satisfy 0 < lo < hi, got {band_m!r}")
+    lam = np.linspace(lo, hi, samples)
+    direct, diffuse = ground_irradiance_w_m2_m(lam, sun_elevation_deg, aerosol_depth_550)
+    radiance = reflectance * (direct * math.sin(math.radians(sun_elevation_deg)) + diffuse) / math.pi
+    return float(np.trapezoid(radiance * lam / (H_PLANCK_J_S * C_LIGHT_M_PER_S), lam))

@@ -1,19 +1,23 @@
 """IoU as a function of image properties, fitted on every point of a run (lines, grids and categorical points).
 
 An incoming image carries no "focal length" or "aperture": it carries properties that can be established from
-its profile and pixels. Each is chosen so that it moves with the collected light only where the task does:
+its profile and provenance. The IoU of a point is an average over the study's scenes, so each property describes
+the system and its air, not the one scene in front of it (a dark car park and a bright one seen by the same
+satellite are judged alike), and each moves with the collected light only where the task does:
 
 - ``gsd_m``: ground sample distance, pitch x altitude / focal length (profile);
 - ``diffraction_m``: diffraction blur on the ground, 550 nm x altitude / aperture diameter (profile);
 - ``smear_m``: motion smear on the ground, ground speed x exposure (profile);
-- ``signal_e``: median photoelectrons per pixel (pixels and gain): the light itself, which the task does
-  depend on (shot noise against the read noise);
-- ``haze_fraction``: the share of the image's photoelectrons that is path radiance (the air's own light, stated by
-  the emulation's provenance) over the image's mean photoelectrons per pixel. Both scale alike with aperture
-  area, pixel area, exposure, optics transmission and QE, so the same air gives the same fraction behind any
-  payload; it grows with path radiance and with a lower transmission of the scene's light, i.e. with the loss
-  of contrast the segmenter sees. (A count of path-radiance electrons would call the same air "worse" behind a
-  bigger mirror.)
+- ``reference_signal_e``: photoelectrons per pixel from the reference ground (`REFERENCE_SCENE`: grey, 20 %
+  reflectance, sun at 45 degrees) through the image's optics, exposure, pixel, QE and stated air: the light
+  itself, which the task does depend on (shot noise against the read noise), as the system delivers it;
+- ``haze_fraction``: path radiance's share of the light from that reference ground, haze / (haze + reference
+  signal), with the path-radiance photoelectrons the emulation's provenance states. Both terms are collected
+  through the same aperture, pixel, exposure, optics transmission and QE, so the same air gives the same
+  fraction behind any payload; it grows with path radiance and with a lower transmission of the ground's light,
+  i.e. with the loss of contrast the segmenter sees. (A count of path-radiance electrons would call the same
+  air "worse" behind a bigger mirror; a share of the image's own mean signal would call it worse over a darker
+  scene.)
 
 ``PropertyModel`` holds the run's points (the median of each property over the point's test images, the point's
 measured IoU and its standard error) and fits a `metraw.tolerance.ResponseGP` over the property axes (log axes
@@ -26,23 +30,26 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from metraw.atmosphere import pixel_etendue_m2_sr
 from metraw.cfa import channel_names, color_index
+from metraw.daylight import lambertian_photon_radiance
 from metraw.errors import MetrawError
 from metraw.image import RawImage
 
 #: The properties in the order of the model's axes.
-PROPERTIES = ("gsd_m", "diffraction_m", "smear_m", "signal_e", "haze_fraction")
+PROPERTIES = ("gsd_m", "diffraction_m", "smear_m", "reference_signal_e", "haze_fraction")
 #: Working axis of each property (`metraw.tolerance.Axis`): log for scale quantities.
-AXIS_KINDS = {"gsd_m": "log", "diffraction_m": "log", "smear_m": "linear", "signal_e": "log",
+AXIS_KINDS = {"gsd_m": "log", "diffraction_m": "log", "smear_m": "linear", "reference_signal_e": "log",
               "haze_fraction": "linear"}
-UNITS = {"gsd_m": "m", "diffraction_m": "m", "smear_m": "m", "signal_e": "e-", "haze_fraction": ""}
+UNITS = {"gsd_m": "m", "diffraction_m": "m", "smear_m": "m", "reference_signal_e": "e-", "haze_fraction": ""}
 #: The direction a raw function can move a property without adding noise it does not state: coarser GSD
 #: (binning), more blur and smear (photon redistribution), less light (binomial thinning), more haze (Poisson).
-DEGRADES = {"gsd_m": "up", "diffraction_m": "up", "smear_m": "up", "signal_e": "down", "haze_fraction": "up"}
+DEGRADES = {"gsd_m": "up", "diffraction_m": "up", "smear_m": "up", "reference_signal_e": "down", "haze_fraction": "up"}
 #: A move toward the fit's optimum is planned only when it raises the predicted IoU by more than this many
 #: predictive standard deviations (of the image's own prediction): normalise never degrades on noise.
 HELPS_SIGMA = 2.0
@@ -50,33 +57,66 @@ HELPS_SIGMA = 2.0
 WAVELENGTH_REF_M = 550e-9
 #: Gaussian sigma of the Airy core in units of lambda/D (best-fit Gaussian to the Airy disc).
 AIRY_SIGMA_PER_LAMBDA_D = 0.42
+#: The reference ground of ``reference_signal_e`` and ``haze_fraction``: a horizontal grey Lambertian surface of this
+#: reflectance under the sun at this elevation in clear air (`metraw.daylight.lambertian_photon_radiance`).
+REFERENCE_SCENE = {"reflectance": 0.2, "sun_elevation_deg": 45.0, "aerosol_depth_550": 0.12}
 
 
-def stated_haze_per_pixel_e(image: RawImage, per_pixel: bool = True) -> float | None:
-    """Mean path-radiance photoelectrons per pixel the image's provenance states (the last emulation's
-    per-channel haze, weighted by the channels' share of the mosaic, or with ``per_pixel`` False the plain
-    mean over the channels, as older specs' ``haze_e``; later `atmosphere` / haze `add_poisson` / binning
-    steps applied in order); None when no step states it."""
-    total = None
+@dataclass(frozen=True)
+class StatedAir:
+    """What an image's provenance states about the air and the light since its emulation: ``transmission`` (one
+    way, on the scene's light; None when no step states it), ``haze_e`` (mean path-radiance photoelectrons per
+    pixel; None when no step states it) and ``light_factor`` (binomial thinnings since, which the profile's
+    geometry does not show)."""
+
+    transmission: float | None
+    haze_e: float | None
+    light_factor: float = 1.0
+
+
+def stated_air(image: RawImage, per_pixel: bool = True) -> StatedAir:
+    """The provenance's `StatedAir`, steps applied in order: ``emulate`` (the target's atmospheric transmission
+    and per-channel haze, weighted by the channels' share of the mosaic, or with ``per_pixel`` False the plain
+    mean over the channels, as older specs' ``haze_e``), ``atmosphere`` (transmission and haze on top), haze
+    ``add_poisson``, ``bin_same_colour`` (haze x factor^2; the binned profile's pitch carries the signal's),
+    ``thin`` (haze and light x p, unless the thinning changed the profile's geometry, which then states it)."""
+    transmission = haze = None
+    light = 1.0
     shares = _channel_shares(image) if per_pixel else None
+
+    def mean(values) -> float:
+        if not isinstance(values, Mapping):
+            return float(values)
+        if shares is None:
+            return float(np.mean([float(v) for v in values.values()]))
+        return sum(shares.get(c, 0.0) * float(v) for c, v in values.items()) / max(
+            sum(shares.get(c, 0.0) for c in values), 1e-300)
+
     for step in image.provenance:
         par = step.get("params") or {}
         fn = step.get("function")
-        if fn in ("emulate", "atmosphere") and "haze_e" in par:
-            h = par["haze_e"]
-            if isinstance(h, Mapping) and shares is None:
-                mean = float(np.mean([float(v) for v in h.values()]))
-            elif isinstance(h, Mapping):
-                mean = sum(shares.get(c, 0.0) * float(v) for c, v in h.items()) / max(
-                    sum(shares.get(c, 0.0) for c in h), 1e-300)
-            else:
-                mean = float(h)
-            total = mean if fn == "emulate" else (total or 0.0) * float(par.get("transmission", 1.0)) + mean
-        elif fn == "add_poisson" and par.get("label") == "haze" and total is not None:
-            total += float(par.get("mean_e", 0.0))
-        elif fn == "bin_same_colour" and total is not None:
-            total *= int(par.get("factor", 1)) ** 2
-    return total
+        if fn == "emulate" and "haze_e" in par:
+            haze, light = mean(par["haze_e"]), 1.0
+            transmission = float((par.get("target") or {}).get("atmospheric_transmission", 1.0))
+        elif fn == "atmosphere" and "haze_e" in par:
+            t = float(par.get("transmission", 1.0))
+            haze = (haze or 0.0) * t + mean(par["haze_e"])
+            transmission = (1.0 if transmission is None else transmission) * t
+        elif fn == "add_poisson" and par.get("label") == "haze" and haze is not None:
+            haze += float(par.get("mean_e", 0.0))
+        elif fn == "bin_same_colour" and haze is not None:
+            haze *= int(par.get("factor", 1)) ** 2
+        elif fn == "thin" and "p" in par and not par.get("profile_changes"):
+            p = mean(par["p"])
+            light *= p
+            haze = None if haze is None else haze * p
+    return StatedAir(transmission, haze, light)
+
+
+def stated_haze_per_pixel_e(image: RawImage, per_pixel: bool = True) -> float | None:
+    """Mean path-radiance photoelectrons per pixel the image's provenance states (`stated_air`); None when no
+    step states it."""
+    return stated_air(image, per_pixel).haze_e
 
 
 def _channel_shares(image: RawImage) -> dict[str, float]:
@@ -93,24 +133,43 @@ def _unsaturated_electrons(image: RawImage) -> np.ndarray:
     return image.electrons()[ok]
 
 
-def mean_signal_e(image: RawImage) -> float:
-    """Mean photoelectrons per pixel, (DN - black) / K over unsaturated pixels."""
-    return float(np.mean(_unsaturated_electrons(image)))
-
-
 def median_signal_e(image: RawImage) -> float:
     """Median photoelectrons per pixel, (DN - black) / K over unsaturated pixels."""
     return float(np.median(_unsaturated_electrons(image)))
 
 
-def haze_fraction(image: RawImage) -> float | None:
-    """Path-radiance share of the image's mean photoelectrons per pixel (see module docstring); None when the
-    provenance states no haze."""
-    haze = stated_haze_per_pixel_e(image)
-    if haze is None:
+def reference_signal_e(image: RawImage) -> float | None:
+    """Photoelectrons per pixel the image's system records from the reference ground (`REFERENCE_SCENE`)
+    through its air: pixel etendue x exposure x optics transmission x QE_c x band photon radiance, averaged over
+    the mosaic's channels, times the air's transmission (as the provenance states it; 1 when it states none)
+    and the thinnings since the emulation. None when the profile lacks pitch, focal length,
+    aperture or exposure."""
+    prof = image.profile
+    if None in (prof.pixel_pitch_m, prof.focal_length_m, prof.aperture_diameter_m, prof.exposure_s) \
+            or not prof.aperture_diameter_m:
         return None
-    mean = mean_signal_e(image)
-    return float(min(max(haze / mean, 0.0), 1.0)) if mean > 0 else None
+    air = stated_air(image)
+    t_air = 1.0 if air.transmission is None else air.transmission
+    scale = pixel_etendue_m2_sr(prof) * prof.exposure_s * prof.optical_transmission * t_air * air.light_factor
+    shares = _channel_shares(image)
+    return float(sum(share * scale * prof.qe_per_channel.get(c, 1.0) * _reference_radiance(prof.band_edges_m[c])
+                     for c, share in shares.items()))
+
+
+@lru_cache(maxsize=64)
+def _reference_radiance(band_m: tuple[float, float]) -> float:
+    return lambertian_photon_radiance(tuple(band_m), **REFERENCE_SCENE)
+
+
+def haze_fraction(image: RawImage) -> float | None:
+    """Path radiance's share of the light from the reference ground, haze / (haze + reference signal), both in
+    photoelectrons per pixel through the same optics (see module docstring); None when the provenance states no
+    haze or the profile lacks the geometry."""
+    haze = stated_haze_per_pixel_e(image)
+    signal = reference_signal_e(image)
+    if haze is None or signal is None or haze + signal <= 0:
+        return None
+    return float(haze / (haze + signal))
 
 
 def geometry_properties(profile) -> dict[str, float | None]:
@@ -122,11 +181,10 @@ def geometry_properties(profile) -> dict[str, float | None]:
             "smear_m": None if profile.exposure_s is None else profile.ground_speed_m_per_s * profile.exposure_s}
 
 
-def image_properties(image: RawImage, signal_e: float | None = None) -> dict[str, float | None]:
-    """Every property of ``image`` (``signal_e`` given when the caller established it another way, e.g. with a
-    gain measured from the noise; else the median photoelectrons per pixel with the profile's gain)."""
+def image_properties(image: RawImage) -> dict[str, float | None]:
+    """Every property of ``image`` (see module docstring); None where the profile or provenance cannot state it."""
     out = geometry_properties(image.profile)
-    out["signal_e"] = median_signal_e(image) if signal_e is None else signal_e
+    out["reference_signal_e"] = reference_signal_e(image)
     out["haze_fraction"] = haze_fraction(image)
     return out
 
@@ -275,31 +333,35 @@ def plan_moves(image: RawImage, model: PropertyModel, props: Mapping[str, float]
             chain.append({"function": "redistribute", "params": {"kernel": "box_along_track",
                                                                  "length_cells": extra / (gsd * step)},
                           "effect": effect})
-        elif name == "signal_e":
+        elif name == "reference_signal_e":
             chain.append({"function": "thin", "params": {"p": want / have}, "effect": effect})
         elif name == "haze_fraction":
-            mean = mean_signal_e(image)
-            add = (want * mean - have * mean) / (1.0 - want)  # (h + a) / (m + a) = want
+            signal = props["reference_signal_e"] if "reference_signal_e" in props else reference_signal_e(image)
+            haze = have * signal / (1.0 - have)  # h / (h + s) = have
+            add = want * signal / (1.0 - want) - haze  # (h + a) / (h + a + s) = want
             chain.append({"function": "add_poisson", "params": {"mean_e": add, "label": "haze"}, "effect": effect})
     return chain
 
 
-def decide(image: RawImage, model: PropertyModel, required_iou: float, signal_e: float | None,
-           signal_source: str) -> tuple[list[str], list[str], dict[str, dict[str, Any]], list[dict[str, Any]]]:
+def decide(image: RawImage, model: PropertyModel,
+           required_iou: float) -> tuple[list[str], list[str], dict[str, dict[str, Any]], list[dict[str, Any]]]:
     """The property model's part of the runtime decision: (reject reasons, other reasons, per-property findings,
     normalisation chain). REJECT when a property the model needs cannot be established, or when the predicted
     IoU at the image's own properties is below ``required_iou``; else PASS, or NORMALISE with the moves that
     the fit says raise the predicted IoU (``plan_moves``)."""
     props = image_properties(image)
-    props["signal_e"] = signal_e  # as `metraw.spec.check` established it (None: it could not)
     found, reject, reasons = {}, [], []
+    if "reference_signal_e" in model.names and props["reference_signal_e"] is not None \
+            and stated_air(image).transmission is None:
+        reasons.append("atmospheric transmission not stated by the image's provenance: reference_signal_e taken "
+                       "through transmission 1 (assumed)")
     for name in model.names:
         lo, hi = model.sampled_range(name)
         v = props.get(name)
         found[name] = {"value": v, "sampled_min": lo, "sampled_max": hi, "unit": UNITS[name],
                        "status": "unknown" if v is None else "inside" if lo <= v <= hi else "outside sampled range",
-                       "source": {"signal_e": signal_source, "haze_fraction": "provenance and pixels"}.get(
-                           name, "profile")}
+                       "source": "profile and provenance" if name in ("reference_signal_e", "haze_fraction")
+                       else "profile"}
         if v is None and name == "haze_fraction":
             # the air of an image whose provenance does not state it (a real image): assumed as the nominal
             # point's, and said so; the other properties are established or the image is rejected
@@ -308,8 +370,7 @@ def decide(image: RawImage, model: PropertyModel, required_iou: float, signal_e:
             reasons.append(f"haze_fraction not stated by the image's provenance: taken as the nominal point's "
                            f"{props[name]:.3g} (assumed)")
         elif v is None:
-            why = signal_source if name == "signal_e" else "the profile lacks the geometry"
-            reject.append(f"{name} cannot be determined ({why})")
+            reject.append(f"{name} cannot be determined (the profile lacks the geometry)")
     if reject:
         return reject, reasons, found, []
     mean, sd = model.predict(props)

@@ -26,6 +26,12 @@ blur kernel, binomial thinning of light); if no such move reaches the spec -> RE
 that cannot be established (missing geometry) -> REJECT. Independently, the noise model claimed
 by the profile is checked against the pixels (single-frame fit, `metraw.calibrate.from_image`):
 a profile that contradicts the pixels -> REJECT with measured vs claimed numbers.
+
+That is the decision of specs without a property model (older runs). A spec with a ``property_model``
+(`metraw.property_model`: IoU fitted over the system's image properties, gsd_m, diffraction_m, smear_m,
+reference_signal_e and haze_fraction, on every point of the run) is judged by that fit instead: PASS when
+the predicted IoU at the image's own properties meets the requirement, NORMALISE only toward what the fit
+says helps, REJECT otherwise; the noise-profile check is the same.
 """
 
 from __future__ import annotations
@@ -53,11 +59,11 @@ NOISE_REL_LIMIT = 0.10
 
 UNITS = {"focal_length_m": "m", "diameter_m": "m", "exposure_s": "s", "pixel_pitch_m": "m",
          "altitude_m": "m", "gsd_m": "m", "diffraction_m": "m", "smear_m": "m", "signal_e": "e-", "haze_e": "e-",
-         "haze_fraction": "",
+         "reference_signal_e": "e-", "haze_fraction": "",
          "path_radiance_w_m2_sr_m": "W m-2 sr-1 m-1", "atmospheric_transmission": ""}
 #: Which direction is "better" for an image property.
 BETTER = {"gsd_m": "lower", "diffraction_m": "lower", "smear_m": "lower", "signal_e": "higher", "haze_e": "lower",
-          "haze_fraction": "lower"}
+          "reference_signal_e": "higher", "haze_fraction": "lower"}
 
 
 @dataclass
@@ -437,9 +443,7 @@ def check(image: RawImage, spec: Specification, measure_noise: bool = True) -> D
                       f"{', '.join(families) or '(none meets the required IoU)'}: no raw function turns one "
                       "filter array into another")
     if spec.property_model is not None:
-        signal, signal_source = _signal_with_known_gain(image, noise)
-        more_reject, more_reasons, found, model_chain = decide(image, spec.property_model, spec.required_iou,
-                                                               signal, signal_source)
+        more_reject, more_reasons, found, model_chain = decide(image, spec.property_model, spec.required_iou)
         return _verdict(image, noise, reject + more_reject, reasons + more_reasons, found, model_chain)
     values: dict[str, float | None] = dict(profile_properties(image))
     bin_factor = None
