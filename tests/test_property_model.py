@@ -149,6 +149,17 @@ def test_normalise_never_adds_what_the_fit_does_not_say_helps():
         assert model.best_move(name, props) is None, name
 
 
+def test_a_flat_line_states_the_nominal_value_as_its_optimum():
+    model = _model()
+    at = {"gsd_m": 0.9, "diffraction_m": 1.7, "reference_signal_e": 40.0, "haze_fraction": 0.3}
+    # IoU does not depend on the haze fraction: its line is flat within the fit's error, nothing to move to
+    line = model.optimum_line("haze_fraction", at)
+    assert line["flat"] and line["optimal"] == at["haze_fraction"]
+    # it falls with GSD: the finest sampled GSD is the optimum
+    line = model.optimum_line("gsd_m", at)
+    assert not line["flat"] and line["optimal"] == pytest.approx(0.6)
+
+
 def test_normalise_moves_toward_an_optimum_the_fit_shows():
     # IoU peaks at a mid signal (a network trained on dimmer images): thinning a bright image helps
     points = [{"point": f"p{i}", "iou": 0.35 - 0.2 * math.log(s / 40.0) ** 2, "iou_sd": 0.003, "gsd_m": 0.9,

@@ -266,8 +266,10 @@ class PropertyModel:
         return {"property": name, "from": have, "to": float(grid[i]), "predicted_iou": float(p.mean[i]),
                 "predicted_iou_here": here[0], "gain": gain}
 
-    def optimum_line(self, name: str, at: Mapping[str, float], n_grid: int = 201) -> dict[str, float]:
-        """Argmax of the predicted IoU along ``name`` over its sampled range, the others at ``at``."""
+    def optimum_line(self, name: str, at: Mapping[str, float], n_grid: int = 201) -> dict[str, Any]:
+        """Argmax of the predicted IoU along ``name`` over its sampled range, the others at ``at``; when it beats
+        the prediction at ``at`` by no more than ``HELPS_SIGMA`` predictive sd the line is flat within the fit's
+        error and its optimal value is ``at``'s own (``flat``: True), so no image is told to move for nothing."""
         from metraw.tolerance import Axis
 
         lo, hi = self.sampled_range(name)
@@ -277,7 +279,10 @@ class PropertyModel:
         X[:, j] = grid
         p = self.gp.predict(X)
         i = int(np.argmax(p.mean))
-        return {"optimal": float(grid[i]), "iou_at_optimal": float(p.mean[i]), "min": lo, "max": hi}
+        here_mean, here_sd = self.predict(at)
+        if float(p.mean[i]) - here_mean <= HELPS_SIGMA * here_sd:
+            return {"optimal": float(at[name]), "iou_at_optimal": here_mean, "min": lo, "max": hi, "flat": True}
+        return {"optimal": float(grid[i]), "iou_at_optimal": float(p.mean[i]), "min": lo, "max": hi, "flat": False}
 
     def to_dict(self) -> dict[str, Any]:
         return {"properties": list(self.names), "units": {n: UNITS[n] for n in self.names},
