@@ -1,17 +1,111 @@
-"""Progress bars for long work (tqdm on stderr; silent when not a terminal unless forced)."""
+"""Progress of long work: a tqdm bar on a terminal, timed log lines elsewhere (a job's log file, SLURM output).
+
+Snakemake sends each job's stderr to ``logs/...``; a bar there is one ever-growing line of carriage returns and
+nothing reaches ``tail -f`` until it ends. Off a terminal, long work therefore writes one plain line every
+``LOG_INTERVAL_S`` seconds (and a last one when it ends, if it wrote any): where it is, its rate and the time
+left. Work shorter than the interval writes nothing, so quick commands and their errors stay one line.
+"""
 
 from __future__ import annotations
 
+import math
+import os
 import sys
-from typing import Iterable, TypeVar
+import time
+from typing import Any, Iterable, Iterator, TypeVar
 
 T = TypeVar("T")
 
+#: Seconds between two progress lines off a terminal (``METRAW_LOG_INTERVAL_S`` overrides it): well under a minute,
+#: so no running job's log stays silent for longer.
+LOG_INTERVAL_S = 20.0
 
-def progress_bar(iterable: Iterable[T], total: int | None = None, desc: str = "", disable: bool | None = None) -> Iterable[T]:
-    """Wrap ``iterable`` in a tqdm bar on stderr. ``disable=None`` shows it only on a TTY."""
+
+def log_interval_s() -> float:
+    """``LOG_INTERVAL_S``, or the ``METRAW_LOG_INTERVAL_S`` environment variable when set (> 0)."""
+    try:
+        value = float(os.environ.get("METRAW_LOG_INTERVAL_S", LOG_INTERVAL_S))
+    except ValueError:
+        return LOG_INTERVAL_S
+    return value if value > 0 else LOG_INTERVAL_S
+
+
+def _duration(seconds: float) -> str:
+    seconds = int(round(seconds))
+    return f"{seconds // 3600}h{seconds % 3600 // 60:02d}m" if seconds >= 3600 else f"{seconds // 60}m{seconds % 60:02d}s"
+
+
+class LogProgress:
+    """Counts done of ``total`` (None: unknown) and writes a line to ``stream`` at most every ``interval_s``:
+    ``desc: done/total (pct) in elapsed, rate unit/s, about left`` plus any ``note`` given to `update`."""
+
+    def __init__(self, total: int | None, desc: str, unit: str = "it", interval_s: float | None = None,
+                 stream=None) -> None:
+        self.total, self.desc, self.unit = total, desc, unit
+        self.interval_s = log_interval_s() if interval_s is None else float(interval_s)
+        self.stream = stream or sys.stderr
+        self.done = 0
+        self.note = ""
+        self.lines = 0
+        self.written = -1  # ``done`` at the last line
+        self.t0 = self.last = time.monotonic()
+
+    def update(self, n: int = 1, note: str | None = None) -> None:
+        self.done += n
+        if note is not None:
+            self.note = note
+        now = time.monotonic()
+        if now - self.last >= self.interval_s:
+            self.write(now)
+
+    def write(self, now: float | None = None) -> None:
+        now = time.monotonic() if now is None else now
+        elapsed = now - self.t0
+        rate = self.done / elapsed if elapsed > 0 else math.inf
+        where = f"{self.done}/{self.total} ({100 * self.done / self.total:.0f} %)" if self.total else f"{self.done}"
+        left = (f", about {_duration((self.total - self.done) / rate)} left"
+                if self.total and 0 < rate < math.inf and self.done < self.total else "")
+        note = f"; {self.note}" if self.note else ""
+        print(f"{self.desc}: {where} in {_duration(elapsed)}, {rate:.3g} {self.unit}/s{left}{note}",
+              file=self.stream, flush=True)
+        self.last, self.written = now, self.done
+        self.lines += 1
+
+    def close(self) -> None:
+        """The last line, when the work wrote any (work shorter than the interval stays silent)."""
+        if self.lines and self.written != self.done:
+            self.write()
+
+
+def _logged(iterable: Iterable[T], total: int | None, desc: str) -> Iterator[T]:
+    if total is None:
+        try:
+            total = len(iterable)  # type: ignore[arg-type]
+        except TypeError:
+            total = None
+    log = LogProgress(total, desc or "progress")
+    for item in iterable:
+        yield item
+        log.update()
+    log.close()
+
+
+def progress_bar(iterable: Iterable[T], total: int | None = None, desc: str = "",
+                 disable: bool | None = None) -> Iterable[T]:
+    """``iterable`` with its progress on stderr. ``disable``: True nothing, False a tqdm bar, None a bar on a
+    terminal and timed log lines elsewhere (`LogProgress`)."""
+    if disable is True:
+        return iterable
+    if disable is None and not sys.stderr.isatty():
+        return _logged(iterable, total, desc)
     from tqdm.auto import tqdm
 
-    if disable is None:
-        disable = not sys.stderr.isatty()
-    return tqdm(iterable, total=total, desc=desc, disable=disable, file=sys.stderr, dynamic_ncols=True)
+    return tqdm(iterable, total=total, desc=desc, disable=False, file=sys.stderr, dynamic_ncols=True)
+
+
+def step_log(total: int, desc: str, unit: str = "it", disable: bool | None = None) -> LogProgress | None:
+    """A `LogProgress` for work counted in steps inside a loop that has its own bar (e.g. a training's steps
+    under its bar of epochs): off a terminal unless ``disable`` is True; None on a terminal or when disabled."""
+    if disable is not None or sys.stderr.isatty():
+        return None
+    return LogProgress(total, desc, unit)

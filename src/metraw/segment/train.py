@@ -304,13 +304,16 @@ def train_loop(model, epoch_batches, steps_per_epoch: int, config: TrainConfig, 
     """
     import torch
 
-    from metraw.progress import progress_bar
+    from metraw.progress import progress_bar, step_log
 
     opt = make_optimizer(model, config, device)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=config.learning_rate,
                                                 total_steps=steps_per_epoch * config.epochs, pct_start=0.15)
     losses = []
-    bar = progress_bar(range(config.epochs), desc="train", disable=None if progress is None else not progress)
+    disable = None if progress is None else not progress
+    # off a terminal: a log line every LOG_INTERVAL_S counted in steps (an epoch can outlast it), no epoch bar
+    steps_log = step_log(steps_per_epoch * config.epochs, "train", unit="steps", disable=disable)
+    bar = progress_bar(range(config.epochs), desc="train", disable=True if steps_log is not None else disable)
     dev_type = torch.device(device).type
     autocast = resolve_precision(config.precision, device) == "bfloat16"
     with flush_denormals():
@@ -332,9 +335,14 @@ def train_loop(model, epoch_batches, steps_per_epoch: int, config: TrainConfig, 
                     sched.step()
                 run += float(loss.detach())
                 n += 1
+                if steps_log is not None:
+                    steps_log.update(note=f"epoch {epoch + 1}/{config.epochs}, {len(x)} images per step, "
+                                     f"loss {run / n:.4f}")
             losses.append(run / max(n, 1))
             if hasattr(bar, "set_postfix"):
                 bar.set_postfix(loss=f"{losses[-1]:.4f}")
+    if steps_log is not None:
+        steps_log.close()
     return losses
 
 
