@@ -62,17 +62,25 @@ def test_averaging_a_sitewise_network_changes_nothing(pattern, shape, transforms
     assert np.array_equal(one, car_probability(predict_logits(SiteWise(), planes)))
 
 
+def _mono_mosaic(z: np.ndarray, net, transforms: int) -> np.ndarray:
+    """The averaged probability of a mono mosaic ``z`` (even sides: packed whole) back on the mosaic grid."""
+    from metraw.segment.predict import sites_to_mosaic
+
+    assert z.shape[0] % 2 == 0 and z.shape[1] % 2 == 0
+    return sites_to_mosaic(averaged_probability(net, z, "mono", transforms=transforms), "mono", z.shape)
+
+
 @pytest.mark.parametrize("k", range(1, 8))
 def test_eight_fold_average_turns_with_the_image(k):
     """The 8-fold average of a network with no symmetry is equivariant: turning or flipping the input turns or
     flips the prediction exactly; one pass is not."""
-    net = random_conv(1)
-    z = np.random.default_rng(3).normal(size=(21, 26)).astype(np.float32)
-    avg = averaged_probability(net, z, "mono", transforms=8)[0]
-    avg_k = averaged_probability(net, dihedral(z, k).copy(), "mono", transforms=8)[0]
+    net = random_conv(4)  # a mono mosaic packs in 4 planes of 2 x 2 pixels, as a Bayer one
+    z = np.random.default_rng(3).normal(size=(20, 26)).astype(np.float32)
+    avg = _mono_mosaic(z, net, 8)
+    avg_k = _mono_mosaic(dihedral(z, k).copy(), net, 8)
     np.testing.assert_allclose(avg_k, dihedral(avg, k), rtol=0, atol=1e-6)
-    one_k = averaged_probability(net, dihedral(z, k).copy(), "mono", transforms=1)[0]
-    assert np.abs(one_k - dihedral(averaged_probability(net, z, "mono", transforms=1)[0], k)).max() > 1e-2
+    one_k = _mono_mosaic(dihedral(z, k).copy(), net, 1)
+    assert np.abs(one_k - dihedral(_mono_mosaic(z, net, 1), k)).max() > 1e-2
 
 
 @pytest.mark.parametrize("transforms", [2, 4])
@@ -87,13 +95,13 @@ def test_axis_keeping_averages_turn_with_their_group_and_keep_the_smear_along_it
     row[4, 2:7] = 1.0  # a smear along x
     for k in ks:
         assert np.array_equal(dihedral(row, k), row)  # turned by a half or flipped, it stays one row
-    net = random_conv(1)
-    z = np.random.default_rng(4).normal(size=(21, 26)).astype(np.float32)
-    avg = averaged_probability(net, z, "mono", transforms=transforms)[0]
+    net = random_conv(4)
+    z = np.random.default_rng(4).normal(size=(20, 26)).astype(np.float32)
+    avg = _mono_mosaic(z, net, transforms)
     for k in ks[1:]:
-        avg_k = averaged_probability(net, dihedral(z, k).copy(), "mono", transforms=transforms)[0]
+        avg_k = _mono_mosaic(dihedral(z, k).copy(), net, transforms)
         np.testing.assert_allclose(avg_k, dihedral(avg, k), rtol=0, atol=1e-6)
-    avg_quarter = averaged_probability(net, dihedral(z, 1).copy(), "mono", transforms=transforms)[0]
+    avg_quarter = _mono_mosaic(dihedral(z, 1).copy(), net, transforms)
     assert np.abs(avg_quarter - dihedral(avg, 1)).max() > 1e-2  # not under a quarter turn
 
 

@@ -34,7 +34,7 @@ def test_payload_features_are_the_physics_of_the_profile():
     f2 = payload_condition(dataclasses.replace(nominal, focal_length_m=2 * 1.644).profile())
     assert f2[:3] - v[:3] == pytest.approx([-1, 1, -2], abs=1e-5) and f2[3] == pytest.approx(2 * v[3], rel=1e-5)
     mono = payload_condition(dataclasses.replace(nominal, cfa_pattern="mono").profile())
-    assert mono[0] == pytest.approx(v[0] - 1, abs=1e-6)  # a mono pixel is its own packed cell
+    assert mono[0] == pytest.approx(v[0], abs=1e-6)  # a mono mosaic packs in 2 x 2 cells as a Bayer one does
     # the atmosphere is not a payload feature (unknown at deployment)
     hazy = dataclasses.replace(nominal, atmospheric_transmission=0.5, path_radiance_w_m2_sr_m=6e7)
     assert np.array_equal(payload_condition(hazy.profile()), v)

@@ -425,23 +425,25 @@ def test_fine_tuning_starts_each_replicate_from_its_pretrained_replicate(stores,
 
 
 def test_cli_pretrain_with_another_sensor_pattern(stores, tmp_path, capsys):
-    """`metraw pretrain --cfa-pattern mono` draws the box with a mono sensor: a 1-channel network (the nominal's
-    Bayer one takes 4), which a Bayer point cannot fine-tune; an unknown pattern is one line, nothing written."""
+    """`metraw pretrain --cfa-pattern mono` draws the box with a mono sensor: a network of mono images (four planes
+    of 2 x 2 pixels, as the Bayer one's four sites), which a Bayer point cannot fine-tune; an unknown pattern is one
+    line, nothing written."""
     from metraw.cli import main
 
     src, tgt, _ = stores
     common = ["--params", str(PARAMS), "--epochs", "1", "--replicates", "1", "--points-per-scene", "1"]
-    for pattern, channels in (("mono", 1), (None, 4)):
+    for pattern, sensor in (("mono", "mono"), (None, "bayer")):
         out = tmp_path / f"pre_{pattern}"
         assert main(["pretrain", str(src), "--out", str(out), *common,
                      *(["--cfa-pattern", pattern] if pattern else [])]) == 0
         captured = capsys.readouterr()
         assert json.loads(captured.out)["cfa_pattern"] == (pattern or "RGGB")
         assert f"; {pattern or 'RGGB'} sensor)" in captured.err
-        assert json.loads((out / "train.json").read_text())["in_channels"] == channels
+        record = json.loads((out / "train.json").read_text())
+        assert record["in_channels"] == 4 and record["sensor"] == sensor
     assert main(["train", str(tgt), "--source", str(src), "--init", str(tmp_path / "pre_mono"), "--epochs", "1",
                  "--replicates", "1", "--out", str(tmp_path / "m"), "--params", str(PARAMS)]) == 2
-    assert "the pretrained weights do not fit this network" in capsys.readouterr().err
+    assert "was pretrained on mono images; this training sees bayer images" in capsys.readouterr().err
     assert main(["pretrain", str(src), "--out", str(tmp_path / "bad"), *common, "--cfa-pattern", "RGBW"]) == 2
     assert "unsupported CFA pattern 'RGBW'" in capsys.readouterr().err
     assert not (tmp_path / "m").exists() and not (tmp_path / "bad").exists()

@@ -103,7 +103,7 @@ def test_sites_to_mosaic_inverts_the_canonical_packing(pattern, shape):
         np.testing.assert_array_equal(back[-1, x0:x1], m[y1 - 1, x0:x1])
     if x1 < shape[1]:
         np.testing.assert_array_equal(back[y0:y1, -1], m[y0:y1, x1 - 1])
-    step = 1 if pattern == "mono" else 2
+    step = 2  # every mosaic packs in 2 x 2 cells (metraw.cfa.PACKED_CELL_PX)
     assert (y1 - y0) % step == 0 and (x1 - x0) % step == 0 and shape[0] - (y1 - y0) < 2 * step
 
 
@@ -306,18 +306,32 @@ def mono_model(data):
 
     cfg = TrainConfig(epochs=1, base_channels=4, depth=2)
     out = data["root"] / "mono_model"
+    save_model(out, build_model(4, cfg, 1, 1), cfg, {"upsample": 1, "pool": 1, "in_channels": 4, "sensor": "mono",
+                                                     "train_packed_gsd_m": None}, [0])
+    return out
+
+
+@pytest.fixture(scope="module")
+def old_mono_model(data):
+    """A mono model as metraw wrote it before mono mosaics packed in 2 x 2 cells: one input plane."""
+    from metraw.segment.train import TrainConfig, build_model, save_model
+
+    cfg = TrainConfig(epochs=1, base_channels=4, depth=2)
+    out = data["root"] / "old_mono_model"
     save_model(out, build_model(1, cfg, 1, 1), cfg, {"upsample": 1, "pool": 1, "in_channels": 1,
                                                      "train_packed_gsd_m": None}, [0])
     return out
 
 
 @pytest.mark.parametrize("command", ["evaluate", "predict"])
-def test_errors(data, mono_model, tmp_path, command):
+def test_errors(data, mono_model, old_mono_model, tmp_path, command):
     out = tmp_path / ("o.json" if command == "evaluate" else "o.zarr")
     run = [command, data["train"], "--model", data["model"], "--out", out]
     _refused([command, data["train"], "--model", tmp_path / "nope", "--out", out],
              "model directory", tmp_path)
-    _refused([command, data["train"], "--model", mono_model, "--out", out], "channel mismatch", tmp_path)
+    _refused([command, data["train"], "--model", mono_model, "--out", out], "sensor mismatch", tmp_path)
+    _refused([command, data["train"], "--model", old_mono_model, "--out", out], "a mono model of an older metraw",
+             tmp_path)
     (tmp_path / "not_a_store").mkdir()
     _refused([command, tmp_path / "not_a_store", *run[2:]], "is not a zarr v3 store", tmp_path)
     (tmp_path / "broken.zarr").mkdir()

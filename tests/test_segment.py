@@ -162,7 +162,8 @@ def test_a_car_outline_scores_one_against_its_box_only_as_a_box():
 
     class Fixed(torch.nn.Module):  # a "network" whose logits are the car outline
         def forward(self, x):
-            return torch.from_numpy(np.where(car, 8.0, -8.0).astype(np.float32))[None, None]
+            # packed as the mono mosaic is (2 x 2 cells, metraw.cfa.PACKED_CELL_PX)
+            return torch.from_numpy(pack_planes(np.where(car, 8.0, -8.0).astype(np.float32), "RGGB"))[None]
 
     img = PreparedImage(np.zeros((48, 48), np.float32), box.astype(np.float16), "mono", 0, gsd_m=0.1)
     rec = score_image(Fixed(), img, boxes=True)
@@ -272,7 +273,8 @@ def test_auto_precision_is_bfloat16_exactly_where_the_hardware_computes_it(tiny_
     from metraw.segment.train import fit, fit_replicates, resolve_precision
     from metraw.store import RawStore
 
-    def hardware(avx512_bf16: bool, amx: bool = False, cuda_bf16: bool = False):
+    def hardware(avx512_bf16: bool, amx: bool = False, cuda_bf16: bool = False, capability: str = "AVX512"):
+        monkeypatch.setattr(torch.backends.cpu, "get_cpu_capability", lambda: capability)
         monkeypatch.setattr(torch.cpu, "_is_avx512_bf16_supported", lambda: avx512_bf16)
         monkeypatch.setattr(torch.cpu, "_is_amx_tile_supported", lambda: amx)
         monkeypatch.setattr(torch.cuda, "is_bf16_supported", lambda *a, **k: cuda_bf16)
@@ -283,6 +285,8 @@ def test_auto_precision_is_bfloat16_exactly_where_the_hardware_computes_it(tiny_
     assert resolve_precision("auto", "cuda") == "float32" and resolve_precision("auto", "meta") == "float32"
     hardware(False, amx=True)
     assert resolve_precision("auto", "cpu") == "bfloat16"
+    hardware(True, amx=True, capability="AVX2")  # ATEN_CPU_CAPABILITY=avx2: the host runs as an AVX2-only one
+    assert resolve_precision("auto", "cpu") == "float32"
     hardware(False, cuda_bf16=True)
     assert resolve_precision("auto", "cuda") == "bfloat16" and resolve_precision("auto", "cpu") == "float32"
 
@@ -460,7 +464,8 @@ def test_cover_draws_enough_crops_to_see_each_image_once_per_epoch(tiny_store):
     def image(h, w):
         return PreparedImage(np.zeros((h, w), np.float32), np.zeros((h, w), np.float16), "mono", 0)
 
-    assert crops_to_cover([image(128, 128), image(160, 64), image(68, 68), image(30, 30)], 64).tolist() == [4, 2, 1, 1]
+    # packed 2 x 2: 128 x 128, 160 x 64, 68 x 68, 30 x 30 cells
+    assert crops_to_cover([image(256, 256), image(320, 128), image(136, 136), image(60, 60)], 64).tolist() == [4, 2, 1, 1]
     rggb = PreparedImage(np.zeros((256, 256), np.float32), np.zeros((256, 256), np.float16), "RGGB", 0)
     assert crops_to_cover([rggb], 64).tolist() == [4]  # 128 x 128 packed cells
     for bad in (0, "all", True, 1.5):

@@ -37,6 +37,14 @@ def cell_size(pattern: str) -> int:
     return 1 if validate_pattern(pattern) == "mono" else 2
 
 
+#: Side [pixels] of the cell the segmenter packs every mosaic in (`pack_planes` with the 2 x 2 geometry of
+#: ``PACKED_GEOMETRY``): a Bayer cell's four sites, or four neighbouring pixels of a mono sensor, become four
+#: planes at half resolution, so a mono network costs what a Bayer one does on the same pixels.
+PACKED_CELL_PX = 2
+#: The site order of the packed 2 x 2 cell (R G / G B positions; for mono, four pixels of one colour).
+PACKED_GEOMETRY = "RGGB"
+
+
 def fill_factor(pattern: str, channel: str) -> float:
     """Fraction phi_c of pixels carrying colour ``channel`` (R, B: 1/4, G: 1/2, mono: 1)."""
     if pattern == "mono":

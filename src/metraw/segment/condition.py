@@ -23,7 +23,7 @@ import math
 
 import numpy as np
 
-from metraw.cfa import cell_size
+from metraw.cfa import PACKED_CELL_PX
 from metraw.errors import MetrawError
 
 #: Names of the conditioning features, in the order of ``payload_condition``'s vector.
@@ -42,7 +42,7 @@ def payload_condition(profile) -> np.ndarray | None:
     if any(getattr(profile, name, None) in (None, 0) for name in _NEEDED):
         return None
     pitch, focal, diameter = profile.pixel_pitch_m, profile.focal_length_m, profile.aperture_diameter_m
-    packed_gsd_m = profile.gsd_m * cell_size(profile.cfa_pattern)
+    packed_gsd_m = profile.gsd_m * PACKED_CELL_PX
     fwhm_m = 1.029 * REFERENCE_WAVELENGTH_M / diameter * profile.altitude_m
     etendue_exposure = math.pi * diameter**2 / 4 * (pitch / focal) ** 2 * profile.exposure_s
     smear_m = (profile.ground_speed_m_per_s or 0.0) * profile.exposure_s

@@ -8,8 +8,8 @@ Input representation (one per image, computed once and cached in memory):
 2. centring: subtract the image's median VST value (a constant: the noise stays unit variance;
    colour differences between planes are kept);
 3. packing: the mosaic is shifted by at most one pixel so that its CFA cell reads R G / G B,
-   then packed into 4 planes (canonical site order R, G, G, B; 1 plane for mono) at half
-   resolution (``metraw.cfa.pack_planes``).
+   then packed into 4 planes (canonical site order R, G, G, B; a mono mosaic's 2 x 2 cells alike: four pixels
+   of one colour) at half resolution (``metraw.cfa.pack_planes``, ``metraw.cfa.PACKED_CELL_PX``).
 
 Targets: the car area fraction of every mosaic pixel (the store's mask), packed exactly like the
 image, so the network predicts one value per CFA site: the segmentation lives on the mosaic
@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from metraw.cfa import cell_size, color_index, pack_planes
+from metraw.cfa import PACKED_CELL_PX, PACKED_GEOMETRY, color_index, pack_planes
 from metraw.errors import MetrawError
 from metraw.image import RawImage
 from metraw.progress import progress_bar
@@ -162,7 +162,7 @@ def undo_dihedral(a: np.ndarray, k: int) -> np.ndarray:
 def canonical_window(pattern: str, shape: tuple[int, int], k: int = 0) -> tuple[int, int, int, int]:
     """(dy, dx, h, w): the mosaic window, rows dy..dy+h-1 and columns dx..dx+w-1 of the image of ``shape``
     transformed by ``dihedral`` k, that ``canonical_pack`` packs (whole R G / G B cells; h, w may be 0)."""
-    step = cell_size(pattern)
+    step = PACKED_CELL_PX
     tshape = (shape[1], shape[0]) if k % 2 else (shape[0], shape[1])
     corner = (2 + shape[0] % 2, 2 + shape[1] % 2)  # the CFA is periodic: the parities fix the corners' colours
     dy, dx = _canonical_offset(dihedral(color_index(pattern, corner), k), pattern == "mono")
@@ -181,7 +181,7 @@ def canonical_pack(z: np.ndarray, mask: np.ndarray | None, pattern: str, k: int 
     z = dihedral(z, k)
     if h < 1 or w < 1:
         raise MetrawError(f"image of shape {z.shape} is too small to pack")
-    packed = "mono" if pattern == "mono" else "RGGB"
+    packed = PACKED_GEOMETRY
     planes = pack_planes(np.ascontiguousarray(z[dy:dy + h, dx:dx + w]), packed)
     frac = None
     if mask is not None:
@@ -207,7 +207,7 @@ class PreparedImage:
     @property
     def packed_shape(self) -> tuple[int, int]:
         _, _, h, w = canonical_window(self.pattern, self.z.shape, 0)
-        s = cell_size(self.pattern)
+        s = PACKED_CELL_PX
         return h // s, w // s
 
     def full(self) -> tuple[np.ndarray, np.ndarray]:
@@ -218,7 +218,7 @@ class PreparedImage:
              gain_range: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
         """A random crop of ``crop_px`` packed pixels (or the whole image if smaller), augmented (dihedral;
         ``tone_jitter`` when a range exceeds 1)."""
-        s = cell_size(self.pattern)
+        s = PACKED_CELL_PX
         side = crop_px * s + (s - 1)  # one spare row/column for the canonical shift
         H, W = self.z.shape
         ch, cw = min(side, H), min(side, W)

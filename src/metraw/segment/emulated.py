@@ -17,6 +17,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from metraw.cfa import PACKED_CELL_PX
 from metraw.errors import MetrawError
 from metraw.segment.data import prepare
 
@@ -157,7 +158,7 @@ def fit_emulated(dataset: EmulatedDataset, config, workers: int = 2, device: str
     device = device or default_device()
     set_determinism(config.seed, config.threads, device)
     first, _ = dataset.sample(0)
-    in_ch = 1 if first.cfa_pattern == "mono" else 4
+    in_ch = PACKED_CELL_PX ** 2  # every mosaic packs in 4 planes (metraw.cfa.PACKED_CELL_PX)
     model = build_model(in_ch, config, upsample).to(device)
     gen = torch.Generator().manual_seed(config.seed)
     steps = math.ceil(len(dataset) / config.batch_size)

@@ -42,7 +42,7 @@ from typing import Any
 
 import numpy as np
 
-from metraw.cfa import pack_planes, unpack_planes
+from metraw.cfa import PACKED_GEOMETRY, pack_planes, unpack_planes
 from metraw.errors import MetrawError
 from metraw.segment.data import (TRANSFORM_SETS, PreparedImage, canonical_pack, canonical_window, check_transforms,
                                  undo_dihedral)
@@ -141,14 +141,14 @@ def gsd_scale(image_packed_gsd_m: float | None, train_packed_gsd_m: float | None
 
 def image_packed_gsd_m(image) -> float | None:
     """Packed GSD of a RawImage [m per packed pixel]: the profile's geometry, else its meta ``gsd_m``
-    (processed photos ingested with ``--gsd-m``), times the CFA cell side; None when unknown."""
-    from metraw.cfa import cell_size
+    (processed photos ingested with ``--gsd-m``), times the packed cell's side; None when unknown."""
+    from metraw.cfa import PACKED_CELL_PX
 
     gsd = image.profile.gsd_m
     if not gsd:
         meta_gsd = image.meta.get("gsd_m") if isinstance(image.meta, dict) else None
         gsd = float(meta_gsd) if isinstance(meta_gsd, (int, float)) and meta_gsd > 0 else None
-    return gsd * cell_size(image.cfa_pattern) if gsd else None
+    return gsd * PACKED_CELL_PX if gsd else None
 
 
 def resample_to_gsd(x, scale: float, size: tuple[int, int] | None = None):
@@ -270,17 +270,13 @@ def score_image(model, img: PreparedImage, device: str = "cpu", scale: float = 1
 
 
 def _mosaic(values: np.ndarray, pattern: str) -> np.ndarray:
-    """Packed (S, h, w) values back on the (canonical) mosaic grid."""
-    if pattern == "mono":
-        return values.reshape(values.shape[-2:])
-    return unpack_planes(values, "RGGB", (2 * values.shape[-2], 2 * values.shape[-1]))
+    """Packed (S, h, w) values back on the (canonical) mosaic grid (``pattern``: any; every mosaic packs alike)."""
+    return unpack_planes(values, PACKED_GEOMETRY, (2 * values.shape[-2], 2 * values.shape[-1]))
 
 
 def _packed(mosaic: np.ndarray, pattern: str, shape: tuple[int, ...]) -> np.ndarray:
     """Inverse of ``_mosaic``: mosaic values as packed planes of ``shape`` (S, h, w)."""
-    if pattern == "mono":
-        return mosaic.reshape(shape)
-    return pack_planes(mosaic, "RGGB")
+    return pack_planes(mosaic, PACKED_GEOMETRY)
 
 
 def evaluate_images(model, images: list[PreparedImage], device: str = "cpu", progress: bool | None = None,
@@ -312,13 +308,18 @@ def open_model(model_dir, device: str):
         raise MetrawError(f"cannot read the model in {model_dir}: {' '.join(str(exc).split())[:200]}") from None
 
 
-def check_channels(in_channels: int, pattern: str, where: str, model_dir) -> None:
-    """The model's input planes (1 mono, 4 Bayer) match the image's CFA, else a one-line error."""
-    planes = 1 if pattern == "mono" else 4
-    if planes != in_channels:
-        kind = "mono" if in_channels == 1 else "Bayer CFA"
-        raise MetrawError(f"the model in {model_dir} takes {in_channels} packed plane(s) ({kind} images) but "
-                          f"{where} is {pattern} ({planes} plane(s)): channel mismatch")
+def check_channels(ckpt: dict[str, Any], pattern: str, where: str, model_dir) -> None:
+    """The model was trained on images of the image's sensor kind (mono or Bayer: the checkpoint's ``sensor``),
+    and takes its four packed planes, else a one-line error."""
+    from metraw.cfa import cfa_family
+
+    if ckpt.get("in_channels") != 4:
+        raise MetrawError(f"the model in {model_dir} takes {ckpt.get('in_channels')} packed plane(s) (a mono model "
+                          "of an older metraw, which packed mono mosaics in 1 plane): train it again")
+    sensor = ckpt.get("sensor", "bayer")  # checkpoints without it are Bayer models (older mono ones failed above)
+    if sensor != cfa_family(pattern):
+        raise MetrawError(f"the model in {model_dir} was trained on {sensor} images but {where} is {pattern} "
+                          f"({cfa_family(pattern)}): sensor mismatch")
 
 
 def training_store(store, store_path, record: dict[str, Any]) -> tuple[bool, str]:
@@ -398,7 +399,7 @@ def evaluate_store(store_path, model_dir, device: str | None = None, progress: b
             if image.mask is None:
                 raise MetrawError(f"image {i} of {store_path} has no label mask: `metraw evaluate` needs labelled "
                                   "images (`metraw predict` segments unlabelled ones)")
-            check_channels(ckpt["in_channels"], image.cfa_pattern, f"image {i} of {store_path}", model_dir)
+            check_channels(ckpt, image.cfa_pattern, f"image {i} of {store_path}", model_dir)
             gsd = image_packed_gsd_m(image)
             scale, matched, note = gsd_scale(gsd, train_gsd, "train_packed_gsd_m" in ckpt)
             img = prepare(image, i)

@@ -21,7 +21,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from metraw.cfa import cell_size, cfa_family
+from metraw.cfa import PACKED_CELL_PX, cfa_family
 from metraw.draws import DEFAULT_OVERSAMPLE, PhaseField, build_field
 from metraw.errors import MetrawError
 from metraw.parallel import fork_pool, ordered_ahead
@@ -142,8 +142,8 @@ def fit_draws(fields: list, config: TrainConfig, device: str | None = None,
     first = every[0]
     families = {cfa_family(f.target.cfa_pattern) for f in every}
     if len(families) > 1:
-        raise MetrawError("the training fields mix mono and colour-filter targets: the network's inputs differ "
-                          "(1 full-resolution vs 4 packed channels); train them separately")
+        raise MetrawError("the training fields mix mono and colour-filter targets: a network learns one sensor's "
+                          "images; train them separately")
     probe = [prepare(first.draw(0), first.index)]
     fixed = [draw_prepared(f, config.seed, 0, codec_step) for f in fields] if static else None
     model, f_up, pool, in_ch = new_network(probe, config, device, upsample)
@@ -199,7 +199,8 @@ def fit_draws(fields: list, config: TrainConfig, device: str | None = None,
     total = time.perf_counter() - t0
     record = {"epochs": config.epochs, "steps": steps_per_epoch * config.epochs, "loss_per_epoch": losses,
               "training_time_s": total, "draw_time_s": timing["draw_s"], "device": device, "upsample": f_up,
-              "pool": pool, "in_channels": in_ch, "n_train": len(fields), "draws": n * config.epochs,
+              "pool": pool, "in_channels": in_ch, "sensor": families.pop(), "n_train": len(fields),
+              "draws": n * config.epochs,
               "draws_per_epoch": draws_per_epoch, "oversample": first.oversample, "static": static, "codec_step": codec_step,
               "fine_tuned": init_state is not None, "payload_batches": payload_keys is not None,
               # a box trains at every packed GSD of its targets, not at the first draw's
@@ -245,7 +246,7 @@ def payload_batches(payload_keys: Sequence[Sequence[Any]], draws_per_epoch: int,
 def packed_gsd_range_m(fields: Sequence[PhaseField]) -> list[float]:
     """[lowest, highest] packed-grid GSD [m per packed pixel] of the fields' targets (mosaic GSD x CFA cell side):
     what a model trained across a box records (evaluate / predict resample only images outside it)."""
-    gsds = [f.target.gsd_m * cell_size(f.target.cfa_pattern) for f in fields]
+    gsds = [f.target.gsd_m * PACKED_CELL_PX for f in fields]
     return [float(min(gsds)), float(max(gsds))]
 
 
@@ -282,7 +283,8 @@ def train_store_on_the_fly(store_path, source_path, out_dir, config: TrainConfig
     target = store_target(store)
     train_idx, test_idx = split_indices(n_source, config.test_fraction, config.split_seed)
     split_positions(store, config.test_fraction, config.split_seed)  # the store holds the test split
-    inits = pretrained_states(init_dir, max(1, config.replicates)) if init_dir is not None else None
+    inits = (pretrained_states(init_dir, max(1, config.replicates), cfa_family(target.cfa_pattern))
+             if init_dir is not None else None)
     t0 = time.perf_counter()
     fields = build_fields(source, train_idx, target, progress=progress, workers=workers)
     fields_s = time.perf_counter() - t0

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from metraw.cfa import cell_size, unpack_planes
+from metraw.cfa import PACKED_CELL_PX, PACKED_GEOMETRY, unpack_planes
 from metraw.errors import MetrawError
 from metraw.segment.data import canonical_window, check_transforms
 from metraw.segment.evaluate import THRESHOLD
@@ -51,7 +51,7 @@ def sites_to_mosaic(values: np.ndarray, pattern: str, shape: tuple[int, int]) ->
     value of the nearest packed pixel (edge replication).
     """
     y0, y1, x0, x1 = packed_window(pattern, shape)
-    inner = unpack_planes(values, "mono" if pattern == "mono" else "RGGB", (y1 - y0, x1 - x0))
+    inner = unpack_planes(values, PACKED_GEOMETRY, (y1 - y0, x1 - x0))
     H, W = shape
     return np.pad(inner, ((y0, H - y1), (x0, W - x1)), mode="edge")
 
@@ -81,7 +81,7 @@ def window_mask(probability: np.ndarray, window, packed_gsd_m: float | None, pat
 
     y0, y1, x0, x1 = window
     H, W = probability.shape
-    inner = predicted_mask(probability[y0:y1, x0:x1], packed_gsd_m / cell_size(pattern) if packed_gsd_m else None)
+    inner = predicted_mask(probability[y0:y1, x0:x1], packed_gsd_m / PACKED_CELL_PX if packed_gsd_m else None)
     return np.pad(inner, ((y0, H - y1), (x0, W - x1)), mode="edge")
 
 
@@ -134,7 +134,7 @@ def predict_store(store_path, model_dir, out_path, device: str | None = None, pr
             subgroups = {name: group.create_group(name) for name in ("probability", "mask")}
         for i in progress_bar(range(n), desc="predict", disable=None if progress is None else not progress):
             image = store[i]
-            check_channels(ckpt["in_channels"], image.cfa_pattern, f"image {i} of {store_path}", model_dir)
+            check_channels(ckpt, image.cfa_pattern, f"image {i} of {store_path}", model_dir)
             p, info, note = predict_image(model, image, device, train_gsd, recorded, transforms)
             mask = window_mask(p, info["packed_window"], info["packed_gsd_m"], image.cfa_pattern)
             if stacked:

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from metraw.cfa import cell_size
+from metraw.cfa import PACKED_CELL_PX, cfa_family
 from metraw.errors import MetrawError
 from metraw.parallel import prefetch
 from metraw.segment.data import PreparedImage, batch_crops, check_transforms, prepare_store, source_indices, split_indices
@@ -176,8 +176,12 @@ def resolve_precision(precision: str, device: str) -> str:
     if kind == "cuda":
         return "bfloat16" if torch.cuda.is_bf16_supported() else "float32"
     if kind == "cpu":
+        # the hardware's bfloat16 units, and ATen dispatching its AVX-512 kernels (ATEN_CPU_CAPABILITY=avx2 caps it:
+        # a host run as an AVX2-only one trains in float32, as such a host would)
+        capability = getattr(torch.backends.cpu, "get_cpu_capability", lambda: "AVX512")()
         probes = (getattr(torch.cpu, name, None) for name in BF16_CPU_PROBES)
-        return "bfloat16" if any(probe is not None and probe() for probe in probes) else "float32"
+        native = capability.startswith("AVX512") and any(probe is not None and probe() for probe in probes)
+        return "bfloat16" if native else "float32"
     return "float32"
 
 
@@ -219,7 +223,7 @@ def pool_factor(images: list[PreparedImage], grid_gsd_m: float) -> int:
 def packed_gsds_m(images: list[PreparedImage]) -> list[float] | None:
     """Packed-grid GSD of every image [m per packed pixel] (mosaic GSD x CFA cell side); None when an
     image's profile lacks the geometry (or there are no images)."""
-    gsds = [img.gsd_m * cell_size(img.pattern) for img in images if img.gsd_m]
+    gsds = [img.gsd_m * PACKED_CELL_PX for img in images if img.gsd_m]
     return gsds if gsds and len(gsds) == len(images) else None
 
 
@@ -378,8 +382,8 @@ def new_network(images: list[PreparedImage], config: TrainConfig, device: str, u
     (model on ``device``, upsampling factor, pooling factor, input channels)."""
     set_determinism(config.seed, config.threads, device)
     f, pool = grid_factors(images, config, upsample)
-    in_ch = 1 if images[0].pattern == "mono" else 4
-    if any((img.pattern == "mono") != (in_ch == 1) for img in images):
+    in_ch = PACKED_CELL_PX ** 2
+    if len({cfa_family(img.pattern) for img in images}) > 1:
         raise MetrawError("cannot train on a mix of mono and CFA images")
     return build_model(in_ch, config, f, pool).to(device), f, pool, in_ch
 
@@ -411,7 +415,7 @@ def fit(images: list[PreparedImage], config: TrainConfig, device: str | None = N
     losses = train_loop(model, epoch_batches, steps_per_epoch, config, device, progress)
     record = {"epochs": config.epochs, "steps": steps_per_epoch * config.epochs, "loss_per_epoch": losses,
               "training_time_s": time.perf_counter() - t0, "device": device, "upsample": f,
-              "pool": pool, "in_channels": in_ch, "n_train": len(images),
+              "pool": pool, "in_channels": in_ch, "sensor": cfa_family(images[0].pattern), "n_train": len(images),
               "train_packed_gsd_m": training_packed_gsd_m(images)}
     return model, record
 
@@ -499,7 +503,8 @@ def _write_model(folder: Path, model, config: TrainConfig, record: dict[str, Any
 
     torch.save({"state_dict": {k: v.cpu() for k, v in model.state_dict().items()},
                 "config": asdict(config), "upsample": record["upsample"], "pool": record.get("pool", 1),
-                "in_channels": record["in_channels"], "test_indices": [int(i) for i in test_indices],
+                "in_channels": record["in_channels"], "sensor": record.get("sensor", "bayer"),
+                "test_indices": [int(i) for i in test_indices],
                 "train_packed_gsd_m": record.get("train_packed_gsd_m")},
                folder / CHECKPOINT)
     (folder / TRAIN_METRICS).write_text(json.dumps({k: v for k, v in record.items() if k not in TIMINGS}, indent=2))
@@ -523,9 +528,10 @@ def load_model(model_dir: str | os.PathLike, device: str | None = None):
     return model, ckpt, record
 
 
-def pretrained_states(model_dir: str | os.PathLike, n: int) -> list[dict[str, Any]]:
+def pretrained_states(model_dir: str | os.PathLike, n: int, sensor: str | None = None) -> list[dict[str, Any]]:
     """The weights of the first ``n`` replicates of a model directory (``metraw pretrain``'s), in replicate
-    order: replicate r of a point fine-tunes from the r-th."""
+    order: replicate r of a point fine-tunes from the r-th. ``sensor`` ("mono" or "bayer"): the images the
+    fine-tuning sees; a network pretrained on the other kind is a one-line error (both take four planes)."""
     import torch
 
     dirs = [Path(model_dir)] + replicate_dirs(model_dir)
@@ -533,4 +539,9 @@ def pretrained_states(model_dir: str | os.PathLike, n: int) -> list[dict[str, An
         raise MetrawError(f"{model_dir} holds no {CHECKPOINT} (pretrain with `metraw pretrain` first)")
     if len(dirs) < n:
         raise MetrawError(f"{model_dir} holds {len(dirs)} pretrained replicate(s); {n} are asked for (one per replicate)")
-    return [torch.load(d / CHECKPOINT, map_location="cpu", weights_only=True)["state_dict"] for d in dirs[:n]]
+    ckpts = [torch.load(d / CHECKPOINT, map_location="cpu", weights_only=True) for d in dirs[:n]]
+    have = ckpts[0].get("sensor", "bayer" if ckpts[0].get("in_channels") == 4 else "mono")
+    if sensor is not None and have != sensor:
+        raise MetrawError(f"{model_dir} was pretrained on {have} images; this training sees {sensor} images: "
+                          "pretrain with its sensor's pattern (metraw pretrain --cfa-pattern)")
+    return [c["state_dict"] for c in ckpts]
