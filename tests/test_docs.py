@@ -1,5 +1,6 @@
 """The repository's documentation stands on its own: cited pages exist, relative links resolve, and nothing cites
-design notes kept outside the repository.
+design notes kept outside the repository. The README is the front door: short, the main job's and the test command
+in its first lines, every docs page reachable from it (directly or through docs/index.md), and the changelog linked.
 
 Fast, standard library only, no network.
 """
@@ -92,7 +93,7 @@ def repository_files(*names: str, root: Path = ROOT) -> list[Path]:
 
 
 def _markdown_pages() -> list[Path]:
-    pages = [ROOT / "README.md"] + sorted((ROOT / "docs").rglob("*.md"))
+    pages = [ROOT / "README.md", ROOT / "CHANGELOG.md"] + sorted((ROOT / "docs").rglob("*.md"))
     return [p for p in pages if p.is_file()]
 
 
@@ -149,12 +150,13 @@ def _rel_to(p: Path, root: Path) -> str:
 
 # ----------------------------------------------------------------------------- the repository
 def test_docs_pages_exist():
-    for page in ("index", "noise-model", "emulation", "codec", "statistics", "workflow"):
+    for page in ("index", "noise-model", "emulation", "codec", "statistics", "workflow", "training", "sim-to-real",
+                 "cli", "benchmarks"):
         assert (ROOT / "docs" / f"{page}.md").is_file(), f"docs/{page}.md is missing"
 
 
 @pytest.mark.parametrize("path", [_rel(p) for p in sorted((ROOT / "src" / "metraw").rglob("*.py"))]
-                         + ["README.md", "params.yaml"])
+                         + ["README.md", "CHANGELOG.md", "params.yaml"])
 def test_cited_doc_pages_exist(path):
     """(1) Every docs/<name>.md a module, the README or params.yaml mentions is a file of the repository."""
     missing = missing_doc_paths((ROOT / path).read_text(encoding="utf-8"))
@@ -183,3 +185,73 @@ def test_nothing_names_a_folder_beside_the_repository():
     needle = ("../" + "shared").encode()
     hits = [_rel_to(f, ROOT) for f in repository_files(*NO_OUTSIDE_NOTES) if needle in f.read_bytes()]
     assert not hits, f"a folder outside the repository is named in: {', '.join(hits)}"
+
+
+# ----------------------------------------------------------------------------- the README is the front door
+#: The README's budget of lines, and the part of it a newcomer reads first.
+README_MAX_LINES = 250
+README_HEAD_LINES = 40
+#: The commands a newcomer needs first: the main job and the test command (as ``.ci/run`` runs them).
+MAIN_JOB = "snakemake --cores all"
+TEST_COMMAND = "python3 -m pytest -q"
+
+
+def local_link_files(markdown: Path, root: Path = ROOT) -> set[Path]:
+    """The existing files that ``markdown``'s relative links name (anchors dropped), resolved."""
+    files = set()
+    for target in link_targets(markdown.read_text(encoding="utf-8")):
+        if not is_local(target):
+            continue
+        path = unquote(target.split("#", 1)[0])
+        resolved = ((root / path.lstrip("/")) if path.startswith("/") else (markdown.parent / path)).resolve()
+        if resolved.is_file():
+            files.add(resolved)
+    return files
+
+
+def unreachable_pages(root: Path = ROOT) -> list[str]:
+    """``docs/*.md`` pages that neither the README nor ``docs/index.md`` (when the README links it) links."""
+    readme = root / "README.md"
+    index = (root / "docs" / "index.md").resolve()
+    reached = local_link_files(readme, root)
+    if index in reached:
+        reached |= local_link_files(index, root)
+    return [_rel_to(p, root) for p in sorted((root / "docs").glob("*.md")) if p.resolve() not in reached]
+
+
+def test_unreachable_pages_helper(tmp_path):
+    (tmp_path / "docs").mkdir()
+    for name in ("index", "a", "b", "c"):
+        (tmp_path / "docs" / f"{name}.md").write_text(f"# {name}\n")
+    (tmp_path / "docs" / "index.md").write_text("[a](a.md) [b](b.md#part)\n")
+    (tmp_path / "README.md").write_text("[notes](docs/index.md)\n")
+    assert unreachable_pages(tmp_path) == ["docs/c.md"]
+    (tmp_path / "README.md").write_text("[c](docs/c.md)\n")  # the index itself no longer linked: a, b, index lost
+    assert unreachable_pages(tmp_path) == ["docs/a.md", "docs/b.md", "docs/index.md"]
+
+
+def test_readme_is_short():
+    n = len((ROOT / "README.md").read_text(encoding="utf-8").splitlines())
+    assert n <= README_MAX_LINES, f"README.md has {n} lines, more than {README_MAX_LINES}: move detail into docs/"
+
+
+@pytest.mark.parametrize("command", [MAIN_JOB, TEST_COMMAND])
+def test_readme_opens_with_the_main_commands(command):
+    head = (ROOT / "README.md").read_text(encoding="utf-8").splitlines()[:README_HEAD_LINES]
+    assert any(line.strip() == command for line in head), (
+        f"`{command}` is not a line of the README's first {README_HEAD_LINES} lines")
+
+
+def test_readme_test_command_is_the_one_ci_runs():
+    assert TEST_COMMAND in (ROOT / ".ci" / "run").read_text(encoding="utf-8")
+
+
+def test_every_docs_page_is_reachable_from_the_readme():
+    missing = unreachable_pages()
+    assert not missing, f"not linked from README.md or docs/index.md: {', '.join(missing)}"
+
+
+def test_changelog_exists_and_the_readme_links_it():
+    changelog = (ROOT / "CHANGELOG.md").resolve()
+    assert changelog.is_file(), "CHANGELOG.md is missing"
+    assert changelog in local_link_files(ROOT / "README.md"), "README.md does not link CHANGELOG.md"
