@@ -57,6 +57,13 @@ report: "workflow/report/workflow.rst"
 
 
 include: "workflow/rules/common.smk"
+
+
+# a point wildcard is one of the parameter points (common.smk), so no rule's pattern swallows another's
+wildcard_constraints:
+    point="|".join(re.escape(p) for p in POINTS),
+
+
 include: "workflow/rules/source.smk"
 include: "workflow/rules/emulate.smk"
 include: "workflow/rules/segment.smk"

@@ -5,6 +5,8 @@ Tolerances are sampling errors: k standard errors of the estimated quantity.
 
 from __future__ import annotations
 
+import json
+
 import math
 
 import numpy as np
@@ -383,6 +385,28 @@ def test_cli_emulate_writes_store_atomically(tmp_path, capsys):
     rc = main(["emulate", str(src_path), str(bad), "--params", str(params), "--point", "diameter_m=30,exposure_s=1"])
     assert rc == 2 and "times more light" in capsys.readouterr().err
     assert not bad.exists() and not any(p.name.startswith(".bad.zarr") for p in tmp_path.iterdir())
+    # --at-point NAME: the params file's point, merged once in metraw.points; the same store as the full list of
+    # its fields as overrides (what the workflow passed before), ints of the params file held as floats alike
+    from metraw.points import target_params
+
+    full["target"]["nominal"]["black_level_dn"] = 64  # an int in the file
+    params.write_text(yaml.safe_dump(full))
+    fields = target_params(full, "diameter_m-0.5")
+    listed = ",".join(f"{k}={v}" for k, v in fields.items() if not isinstance(v, (dict, list)))
+    by_name, by_list = tmp_path / "name.zarr", tmp_path / "list.zarr"
+    assert main(["emulate", str(src_path), str(by_name), "--params", str(params), "--at-point", "diameter_m-0.5"]) == 0
+    assert main(["emulate", str(src_path), str(by_list), "--params", str(params), "--point", listed]) == 0
+    a, b = RawStore.open(by_name), RawStore.open(by_list)
+    assert a[0].profile.aperture_diameter_m == 0.5
+    for i in range(2):
+        assert np.array_equal(a[i].data, b[i].data) and a[i].provenance == b[i].provenance
+    assert json.dumps(a[0].provenance[-1]["params"]["target"]) == json.dumps(b[0].provenance[-1]["params"]["target"])
+    capsys.readouterr()
+    rc = main(["emulate", str(src_path), str(tmp_path / "both.zarr"), "--params", str(params), "--at-point", "nominal",
+               "--point", "diameter_m=0.3"])
+    assert rc == 2 and "not both" in capsys.readouterr().err
+    rc = main(["emulate", str(src_path), str(tmp_path / "nope.zarr"), "--params", str(params), "--at-point", "nope"])
+    assert rc == 2 and "unknown parameter point 'nope'" in capsys.readouterr().err
 
 
 def test_expected_chain_matches_optics_kernel_for_a_point_source():

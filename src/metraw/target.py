@@ -69,6 +69,12 @@ class TargetSystem:
     name: str = "target"
 
     def __post_init__(self) -> None:
+        # one typed object: every float field holds a float, however it was given (64 or 64.0 in a params file, a
+        # value parsed from a command line), so a target states itself the same way on every route
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if f.type in ("float", "float | None") and isinstance(v, (int, float)) and not isinstance(v, bool):
+                object.__setattr__(self, f.name, float(v))
         validate_pattern(self.cfa_pattern)
         for name in ("altitude_m", "diameter_m", "focal_length_m", "pixel_pitch_m", "gain_dn_per_e"):
             v = float(getattr(self, name))

@@ -30,6 +30,7 @@ rule aggregate:
         # sim-to-real benchmark (when on): each point's model on its emulated real images, the source model's pair
         real=expand(REAL_POINT_METRICS, point=POINTS) if SIM_TO_REAL else [],
         source_real=[SOURCE_REAL_METRICS, "results/source/metrics.json"] if SIM_TO_REAL else [],
+        params_file=ancient(PARAMS_FILE),  # the effective params (Snakefile); params: track its values
     output:
         spec=report("results/spec.yaml", caption="../report/spec.rst", category="Specification"),
         table=report("results/aggregate.json", caption="../report/aggregate.rst", category="Specification"),
@@ -44,8 +45,8 @@ rule aggregate:
         code=METRAW_CODE,
         # extra aggregate arguments of the sim-to-real benchmark (a function: a params string would be formatted
         # with the job's wildcards, and {point} is the aggregate's own pattern)
-        real=lambda wildcards: (" --real-metrics-pattern '" + REAL_POINT_METRICS + "' --source-real-metrics "
-                                + SOURCE_REAL_METRICS + " --source-metrics results/source/metrics.json"
+        real=lambda wildcards: (f" --real-metrics-pattern '{REAL_POINT_METRICS}' --source-real-metrics "
+                                f"{SOURCE_REAL_METRICS} --source-metrics results/source/metrics.json"
                                 ) if SIM_TO_REAL else "",
     # Between-workflow output cache (active with --cache, which profiles/default sets; location from the Snakefile):
     # keyed by Snakemake's provenance hash (this command, these params, and the same hash of every upstream job,
@@ -59,7 +60,7 @@ rule aggregate:
     log:
         "logs/aggregate.log",
     shell:
-        "metraw aggregate --params {PARAMS_FILE} --results results --out results"
+        "metraw aggregate --params {input.params_file} --results results --out results"
         " --metrics-pattern 'results/points/{{point}}/metrics.json'"
         " --compression-pattern 'results/points/{{point}}/compression.json'"
         " --stores-pattern 'results/points/{{point}}/target.zarr'{params.real} 2> {log}"

@@ -2,33 +2,15 @@
 # array is stored with the noise-preserving codec at params.yaml codec.step.
 
 
-def point_overrides(wildcards):
-    """All target fields of the point as 'name=value' pairs for `metraw emulate --point`."""
-    target = point_target(wildcards)
-    return ",".join(f"{k}={v}" for k, v in target.items() if not isinstance(v, (dict, list)))
-
-
-def emulation_priority(wildcards):
-    """Light collected relative to nominal, D^2 (1 - eps^2) t (x100): the emulation's cost grows with it
-    (the photon-exact chain costs per photon), so the brightest points start first and the two cores
-    finish together (longest job first; the D = 0.5 m point alone takes ~4x a nominal one)."""
-    t, n = point_target(wildcards), config["target"]["nominal"]
-
-    def light(v):
-        return v["diameter_m"] ** 2 * (1 - v.get("obscuration_ratio", 0.0) ** 2) * v["exposure_s"]
-
-    return int(round(100 * light(t) / light(n)))
-
-
 rule emulate:
     input:
         source=SOURCE_STORE,
         decoded=ancient(SOURCE_DECODED),  # what the command reads (common.smk)
+        params_file=ancient(PARAMS_FILE),  # the effective params (Snakefile); params: track its values
     output:
         directory("results/points/{point}/target.zarr"),
     params:
         target=point_target,
-        point=point_overrides,
         emulation=config["target"].get("emulation", {}),
         images=config["target"].get("emulation", {}).get("images", "all"),
         # the test split (images: test) is the training section's; a change to it re-emulates
@@ -42,6 +24,6 @@ rule emulate:
     log:
         "logs/emulate/{point}.log",
     shell:
-        "metraw emulate {input.decoded} {output} --params {PARAMS_FILE} --point '{params.point}'"
+        "metraw emulate {input.decoded} {output} --params {input.params_file} --at-point {wildcards.point}"
         " --mode {params.emulation[mode]} --seed {params.emulation[seed]} --images {params.images} --workers {threads}"
         " --codec-step {params.codec[step]} --codec-seed {params.codec[seed]} 2> {log}"

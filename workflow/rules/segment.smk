@@ -5,45 +5,6 @@
 # trains one model on the source store's images (it is no point of the sweep).
 
 
-def train_inputs(wildcards):
-    """The point's store and the source (and its decoded copy); the pretrained model when the point fine-tunes it."""
-    inputs = {"store": f"results/points/{wildcards.point}/target.zarr", "source": SOURCE_STORE,
-              "source_decoded": ancient(SOURCE_DECODED)}  # the copy is what the command reads (common.smk)
-    if wildcards.point in PRETRAINED_POINTS:
-        inputs["init"] = PRETRAINED_MODEL.format(cfa_pattern=POINT_PATTERNS[wildcards.point])
-    return inputs
-
-
-def finetune_args(wildcards, input):
-    """`metraw train`'s fine-tuning options for a point that starts from the pretrained networks (else none)."""
-    if "init" not in input.keys():
-        return ""
-    rate = PRETRAIN["finetune_learning_rate"]
-    return f"--init {input.init} --epochs {PRETRAIN['finetune_epochs']}" + (f" --learning-rate {rate}" if rate else "")
-
-
-def profile_threads(name):
-    """Torch threads of training profile ``name`` (its `threads`, else TrainConfig's default), at most the cores:
-    what its training uses, and its evaluation (`metraw evaluate` runs the model's recorded threads)."""
-    from metraw.segment.train import TrainConfig
-
-    return min(workflow.cores, int(config["training"]["profiles"][name].get("threads", TrainConfig.threads)))
-
-
-# the drone-resolution reference's training profile (train_source's --profile and its jobs' threads)
-SOURCE_PROFILE = config["training"].get("source_profile", config["training"]["profile"])
-
-
-def source_model_threads(wildcards):
-    """The drone-resolution reference's profile threads (train_source, evaluate_source[_real])."""
-    return profile_threads(SOURCE_PROFILE)
-
-
-def point_model_threads(wildcards):
-    """The points' profile threads (evaluate, evaluate_real: the models' recorded torch threads)."""
-    return profile_threads(config["training"]["profile"])
-
-
 if PRETRAIN["enabled"]:
 
     if PRETRAIN_EXTRA:
@@ -53,6 +14,8 @@ if PRETRAIN["enabled"]:
             that no test scene is among them. Quantised by the codec like the source and stored as the pixels it
             decodes to (--codec-decoded): `pretrain` reads them without decoding (~30 ms of CPU per scene saved
             there, ~19 ms of coding here) at ~4x the disk (~2 GB at the default 960 scenes)."""
+            input:
+                params_file=ancient(PARAMS_FILE),  # the effective params (Snakefile); params: track its values
             output:
                 directory(PRETRAIN_SCENES),
             params:
@@ -72,14 +35,8 @@ if PRETRAIN["enabled"]:
                 "logs/pretrain_scenes.log",
             shell:
                 "metraw scenes --n {params.n} --seed {params.seed}"
-                " --size {params.synthetic[size_px]} --camera {PARAMS_FILE} --out {output} --workers {threads}"
+                " --size {params.synthetic[size_px]} --camera {input.params_file} --out {output} --workers {threads}"
                 " --codec-step {params.codec[step]} --codec-seed {params.codec[seed]} --codec-decoded 2> {log}"
-
-    def pretrain_priority(wildcards):
-        """The nominal's pattern: 1000, every fine-tuned point but a few waits for it (it runs before the emulations,
-        priority <= ~600, rule emulate). Another pattern's (mono): 20, after the points' emulations (>= 25), which
-        the nominal's fine-tunings need sooner, and before the jobs of priority 0."""
-        return 1000 if wildcards.cfa_pattern == PRETRAINED_PATTERNS[0] else 20
 
     rule pretrain:
         """One network per replicate on draws across training.pretrain.box (metraw.segment.pretrain) with the CFA
@@ -89,6 +46,7 @@ if PRETRAIN["enabled"]:
             source=SOURCE_STORE,
             decoded=ancient(SOURCE_DECODED),  # what the command reads (common.smk)
             extra=PRETRAIN_EXTRA,
+            params_file=ancient(PARAMS_FILE),  # the effective params (Snakefile); params: track its values
         output:
             directory(PRETRAINED_MODEL),
         params:
@@ -111,12 +69,13 @@ if PRETRAIN["enabled"]:
             "logs/pretrain/{cfa_pattern}.log",
         shell:
             "metraw pretrain {input.decoded} {params.extra} --codec-step {params.codec[step]} --out {output}"
-            " --cfa-pattern {wildcards.cfa_pattern} --params {PARAMS_FILE} --workers {threads} 2> {log}"
+            " --cfa-pattern {wildcards.cfa_pattern} --params {input.params_file} --workers {threads} 2> {log}"
 
 
 rule train:
     input:
         unpack(train_inputs),
+        params_file=ancient(PARAMS_FILE),  # the effective params (Snakefile); params: track its values
     output:
         directory("results/points/{point}/model"),
     params:
@@ -134,7 +93,7 @@ rule train:
         "logs/train/{point}.log",
     shell:
         "metraw train {input.store} --source {input.source_decoded} --codec-step {params.codec[step]} {params.finetune}"
-        " --out {output} --params {PARAMS_FILE} --workers {threads} 2> {log}"
+        " --out {output} --params {input.params_file} --workers {threads} 2> {log}"
 
 
 rule evaluate:
@@ -158,6 +117,7 @@ rule train_source:
     input:
         source=SOURCE_STORE,
         decoded=ancient(SOURCE_DECODED),  # what the command reads (common.smk)
+        params_file=ancient(PARAMS_FILE),  # the effective params (Snakefile); params: track its values
     output:
         directory("results/source/model"),
     params:
@@ -171,7 +131,7 @@ rule train_source:
     log:
         "logs/train/source.log",
     shell:
-        "metraw train {input.decoded} --out {output} --params {PARAMS_FILE} --replicates 1"
+        "metraw train {input.decoded} --out {output} --params {input.params_file} --replicates 1"
         " --profile {params.profile} 2> {log}"
 
 

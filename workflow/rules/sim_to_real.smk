@@ -6,6 +6,8 @@
 
 
 rule real_store:
+    input:
+        params_file=ancient(PARAMS_FILE),  # the effective params (Snakefile); params: track its values
     output:
         directory(REAL_STORE),
     params:
@@ -21,7 +23,7 @@ rule real_store:
     log:
         "logs/real_store.log",
     shell:
-        "metraw ingest {params.real[path]} --labels {params.labels} --camera {PARAMS_FILE} --gsd-m {params.real[gsd_m]}"
+        "metraw ingest {params.real[path]} --labels {params.labels} --camera {input.params_file} --gsd-m {params.real[gsd_m]}"
         " --white-fraction {params.white_fraction} --seed {params.seed} --out {output}"
         " --codec-step {params.codec[step]} --codec-seed {params.codec[seed]} 2> {log}"
 
@@ -30,11 +32,11 @@ rule emulate_real:
     input:
         real=REAL_STORE,
         decoded=ancient(REAL_DECODED),  # what the command reads (common.smk)
+        params_file=ancient(PARAMS_FILE),  # the effective params (Snakefile); params: track its values
     output:
         directory("results/points/{point}/real.zarr"),
     params:
         target=point_target,
-        point=point_overrides,
         # mode and seed only: the real store is emulated whole (target.emulation.images is the synthetic stores')
         emulation={k: v for k, v in config["target"].get("emulation", {}).items() if k != "images"},
         codec=config["codec"],
@@ -46,7 +48,7 @@ rule emulate_real:
     log:
         "logs/emulate_real/{point}.log",
     shell:
-        "metraw emulate {input.decoded} {output} --params {PARAMS_FILE} --point '{params.point}'"
+        "metraw emulate {input.decoded} {output} --params {input.params_file} --at-point {wildcards.point}"
         " --mode {params.emulation[mode]} --seed {params.emulation[seed]} --images all --workers {threads}"
         " --codec-step {params.codec[step]} --codec-seed {params.codec[seed]} 2> {log}"
 

@@ -5,6 +5,8 @@
 if config["source"]["dataset"] == "synthetic":
 
     rule source_store:
+        input:
+            params_file=ancient(PARAMS_FILE),  # the effective params (Snakefile); params: track its values
         output:
             directory(SOURCE_STORE),
         params:
@@ -23,7 +25,7 @@ if config["source"]["dataset"] == "synthetic":
             "logs/source_store.log",
         shell:
             "metraw scenes --n {params.synthetic[n_scenes]} --seed {params.synthetic[seed]}"
-            " --size {params.synthetic[size_px]} --camera {PARAMS_FILE} --out {output} --workers {threads}"
+            " --size {params.synthetic[size_px]} --camera {input.params_file} --out {output} --workers {threads}"
             " --codec-step {params.codec[step]} --codec-seed {params.codec[seed]} 2> {log}"
 
 elif config["source"]["dataset"] == "raws":
@@ -34,15 +36,6 @@ elif config["source"]["dataset"] == "raws":
     RAWS_CALIBRATION = RAWS.get("calibration") or {}
     RAWS_METHOD = calibration_method(RAWS)
 
-    def _calibrate_command(wildcards, input):
-        """The `metraw calibrate` arguments of the source's calibration method (metraw.sources)."""
-        if RAWS_METHOD == "photon_transfer":
-            return (f"--flats {RAWS_CALIBRATION['flats']} --darks {RAWS_CALIBRATION['darks']}"
-                    f" --frames-per-level {RAWS_CALIBRATION.get('frames_per_level', 2)}")
-        if RAWS_METHOD == "profile":
-            return f"--profile {input.profile[0]}"
-        return RAWS["path"]  # the single-frame fit of the raws themselves
-
     rule source_camera:
         """The source camera's calibrated profile (results/source/camera.json: params' camera with the measured
         gain, read noise and black level and their uncertainties) and the whole fit (camera_calibration.json)."""
@@ -51,6 +44,7 @@ elif config["source"]["dataset"] == "raws":
             flats=SOURCE_FILES.get("flats", []),
             darks=SOURCE_FILES.get("darks", []),
             profile=SOURCE_FILES.get("profile", []),
+            params_file=ancient(PARAMS_FILE),  # the effective params (Snakefile); params: track its values
         output:
             profile=SOURCE_CAMERA,
             report="results/source/camera_calibration.json",
@@ -65,7 +59,7 @@ elif config["source"]["dataset"] == "raws":
         log:
             "logs/source_camera.log",
         shell:
-            "metraw calibrate {params.command} --camera {PARAMS_FILE} --out {output.profile}"
+            "metraw calibrate {params.command} --camera {input.params_file} --out {output.profile}"
             " --report {output.report}{params.gsd} > {log} 2>&1"
 
     rule source_store:
@@ -93,6 +87,7 @@ else:
     rule source_store:
         input:
             SOURCE_FILES["images"],
+            params_file=ancient(PARAMS_FILE),  # the effective params (Snakefile); params: track its values
         output:
             directory(SOURCE_STORE),
         params:
@@ -107,7 +102,7 @@ else:
         log:
             "logs/source_store.log",
         shell:
-            "metraw ingest {params.photos[path]} --labels {params.labels} --camera {PARAMS_FILE}"
+            "metraw ingest {params.photos[path]} --labels {params.labels} --camera {input.params_file}"
             " --gsd-m {params.photos[gsd_m]} --white-fraction {params.photos[white_fraction]}"
             " --seed {params.photos[seed]} --out {output}"
             " --codec-step {params.codec[step]} --codec-seed {params.codec[seed]} 2> {log}"

@@ -13,11 +13,14 @@ def register(subparsers) -> None:
     p = subparsers.add_parser("emulate", help="emulate the raws a target system (satellite) would record",
                               description="Photon-exact / expected-value emulation of a target system from a "
                               "source RawStore (docs/emulation.md). The target is target.nominal of the "
-                              "parameter file, updated by --point.")
+                              "parameter file, updated by --point, or the parameter point named by --at-point.")
     p.add_argument("source", help="source RawStore (zarr)")
     p.add_argument("output", help="output RawStore (zarr), written atomically")
     p.add_argument("--point", default="", help="target overrides name=value,... (any TargetSystem field; "
                    "tuples with ':', e.g. frame_offset_m=10:-5), e.g. focal_length_m=1.644,diameter_m=0.2")
+    p.add_argument("--at-point", default=None, metavar="NAME",
+                   help="the target of the parameter file's point NAME (metraw.points.target_params: the nominal "
+                   "with the point's overrides, merged once), e.g. diameter_m-0.5; what the workflow passes")
     p.add_argument("--params", default="params.yaml", help="parameter file with target.nominal (default params.yaml)")
     p.add_argument("--mode", choices=("photon", "expected", "auto"), default=None,
                    help="emulation chain (default: target.emulation.mode of the parameter file, else auto)")
@@ -57,7 +60,14 @@ def run(args: argparse.Namespace) -> int:
         raise MetrawError(f"--workers must be >= 1, got {args.workers}")
     if args.limit is not None and args.limit < 1:
         raise MetrawError(f"--limit must be >= 1, got {args.limit}")
-    target = TargetSystem.from_params(params, parse_point(args.point))
+    if args.at_point is not None and args.point:
+        raise MetrawError("give --point (overrides) or --at-point (a point of the parameter file), not both")
+    if args.at_point is not None:
+        from metraw.points import target_params
+
+        target = TargetSystem.from_dict(target_params(params, args.at_point))
+    else:
+        target = TargetSystem.from_params(params, parse_point(args.point))
     acc_over = {}
     for item in filter(None, (s.strip() for s in args.accuracy.split(","))):
         if "=" not in item:
