@@ -9,7 +9,7 @@
 # A dry run on a CPU: OUT=/tmp/o NS=12 NX=8 SIZE=256 DEV=cpu ESPEED=1 EDEF=2 EMIN=2 DW=2 bash benchmarks/gpu_chain.sh 300
 # Measured 2026-11-27 on one H100 (16 cores), budget 515 s: scenes 61 s, test stores 27 s, step 1 115 s, the
 # default pretraining 202 s (+ 20 s of fields), the nominal's fine-tune 19 s, nominal IoU 0.209 +- 0.009; the
-# D 0.5 m fine-tune and step 3 ran out of time (README, "GPUs").
+# D 0.5 m fine-tune and step 3 ran out of time (docs/training.md, "GPUs").
 set -uo pipefail
 BUDGET=${1:-540}
 . benchmarks/gpu_common.sh

@@ -7,7 +7,7 @@
 # OUT=/tmp/o NS=12 NX=8 SIZE=256 DEV=cpu VARIANTS=b8e1,b16e2,b8e1s10w1 bash benchmarks/gpu_scale.sh 600
 # Measured 2026-11-27 on one H100 (16 cores): data 170 s (scenes 122 s, test stores 35 s), fields 37 s; b8e20 and
 # b32e80 side by side with three longer variants: 159 s and 180 s, nominal 0.220 / 0.247, D 0.5 m 0.280 / 0.301;
-# b64e160w12 alone (second call): 155 s, 0.259 / 0.315 (README, "GPUs"). The default VARIANTS are those three.
+# b64e160w12 alone (second call): 155 s, 0.259 / 0.315 (docs/training.md, "GPUs"). The default VARIANTS are those three.
 # Measured 2026-11-28 on one H200 (16 cores): VARIANTS=b128e280w14, budget 585: data 141 s, fields 35 s, training 206 s,
 # whole run 407 s; 0.253 / 0.317, under the line of the three above (the batch past 64 buys less than more steps).
 set -uo pipefail

@@ -113,7 +113,7 @@ def main(argv=None) -> int:
     ap.add_argument("--sections", default="speed,curve,draws,box")
     ap.add_argument("--levers", default=",".join(LEVERS), help=f"levers section: any of {', '.join(LEVERS)}")
     ap.add_argument("--codec-step", type=float, default=None, help="training draws through the codec at this step "
-                    "(the workflow's codec.step; default: none, as the curve rows in the README)")
+                    "(the workflow's codec.step; default: none, as the curve rows in docs/training.md)")
     ap.add_argument("--more-scenes", default=None, help="curve, draws, levers and box sections: add the scenes of this "
                     "larger store of the same generator and seed past the source's count to the training scenes")
     ap.add_argument("--thresholds", default="0.3", help="levers section: extra decision thresholds to score")

@@ -9,7 +9,7 @@ optimiser, ``metraw.segment.train.train_loop`` / ``make_optimizer``), on random 
 - ``source``: depth-3 U-Net, base 16, 64 px crops (the drone reference).
 The two precisions alternate step by step (machine noise falls on both); each row gives the median of
 ``rounds`` steps after 3 warm-ups, and the ratio float32 / bfloat16 (> 1: bfloat16 is faster). Whole trainings
-also make their draws and crops, which autocast does not touch: see the README for job-level numbers.
+also make their draws and crops, which autocast does not touch: see docs/training.md for job-level numbers.
 """
 
 from __future__ import annotations

@@ -14,7 +14,7 @@ draws, seconds. The parent process never touches the device, so the forked train
 ``python benchmarks/pretrain_scale.py --plot docs/figures/pretrain_scale.csv docs/figures/pretrain_scale.png`` draws
 the scored variants (the CSV: the runs below, scored by ``metraw evaluate``).
 
-Measured 2026-11-27 (README, "GPUs"): on one H100 (``benchmarks/gpu_scale.sh``, 2304 scenes, 5760 steps) batch 8 /
+Measured 2026-11-27 (docs/training.md, "GPUs"): on one H100 (``benchmarks/gpu_scale.sh``, 2304 scenes, 5760 steps) batch 8 /
 32 / 64 scored 0.220 / 0.247 / 0.259 at the nominal and 0.280 / 0.301 / 0.315 at D 0.5 m, +0.012 to +0.014 per
 doubling of the draws; on one H200 (2026-11-28) batch 128 for 5040 steps (645 k draws) 0.253 / 0.317, under
 that line (fine-tuned on the CPU: 0.241 / 0.323); on the 2-core CPU (default data, ``--device cpu --variants

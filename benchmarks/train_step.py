@@ -13,7 +13,7 @@ Measured 2026-11-27 on one NVIDIA H100 (torch 2.11 + CUDA 13, 16 cores), 300 ste
 (bfloat16) 16.45 ms wall / 16.47 ms CPU; float32 13.36; not deterministic + cudnn.benchmark 14.62; no prefetch
 thread 15.04. The profiler: 25.8 ms of kernels in 16 steps (1.6 ms a step), 12088 kernel launches (755 a step),
 5622 ``fill_`` (deterministic mode initialises every new tensor). The GPU waits on the CPU that launches its
-kernels: see README, "GPUs". On the project's 2-core CPU (1 torch thread) the same loop takes ~22 ms a step.
+kernels: see docs/training.md, "GPUs". On the project's 2-core CPU (1 torch thread) the same loop takes ~22 ms a step.
 """
 
 from __future__ import annotations

@@ -19,7 +19,7 @@ The local cluster's settings the profile leaves to the user are passed here: no 
 a short first status check, and the SLURM logs kept for a failure's message.
 
 Marker ``slurm``, left out of the default ``python3 -m pytest -q`` (pyproject addopts): installing SLURM and
-running 21 jobs through it takes 4-7 min on 2 shared cores, beyond the README's test budget. Run it with
+running 21 jobs through it takes 4-7 min on 2 shared cores, beyond the test budget (docs/benchmarks.md). Run it with
 ``python3 -m pytest -m slurm tests/test_slurm.py``. Skipped with the reason when SLURM cannot be started
 (not root, no apt-get, no package source, daemons refusing) or the executor plugin is not installed
 (``pip install -e '.[slurm]'``).

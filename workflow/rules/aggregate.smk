@@ -13,7 +13,7 @@ rule compress:
     # compress job waited for both cores to be free (default run of 2026-11-26: 15 of the 20 ran in its last 14 %)
     threads: 1
     resources:
-        mem_mb=1000,  # measured peak RSS with head room (README, SLURM: resources table)
+        mem_mb=1000,  # measured peak RSS with head room (docs/workflow.md, "Resources per rule")
         runtime=20,  # minutes, a generous bound on the measured wall time
     log:
         "logs/compress/{point}.log",
@@ -55,7 +55,7 @@ rule aggregate:
     # The key covers metraw's own code through params.code (metraw.provenance).
     cache: True
     resources:
-        mem_mb=1500,  # measured peak RSS with head room (README, SLURM: resources table)
+        mem_mb=1500,  # measured peak RSS with head room (docs/workflow.md, "Resources per rule")
         runtime=20,  # minutes, a generous bound on the measured wall time
     log:
         "logs/aggregate.log",

@@ -19,7 +19,7 @@ rule emulate:
     threads: 1  # one process per point; the points share the cores (see emulation_priority)
     priority: emulation_priority
     resources:
-        mem_mb=2000,  # measured peak RSS with head room (README, SLURM: resources table)
+        mem_mb=2000,  # measured peak RSS with head room (docs/workflow.md, "Resources per rule")
         runtime=60,  # minutes, a generous bound on the measured wall time
     log:
         "logs/emulate/{point}.log",

@@ -87,7 +87,7 @@ rule train:
     # from-scratch training ~1.2); the SLURM profile gives it 2 CPUs (set-threads), and with them 2 field processes
     threads: 1
     resources:
-        mem_mb=1500,  # measured peak RSS with head room (README, SLURM: resources table)
+        mem_mb=1500,  # measured peak RSS with head room (docs/workflow.md, "Resources per rule")
         runtime=60,  # minutes, a generous bound on the measured wall time
     log:
         "logs/train/{point}.log",
@@ -105,7 +105,7 @@ rule evaluate:
     # the model's torch threads (1 in the default profile), so that evaluations run beside other jobs
     threads: point_model_threads
     resources:
-        mem_mb=1500,  # measured peak RSS with head room (README, SLURM: resources table)
+        mem_mb=1500,  # measured peak RSS with head room (docs/workflow.md, "Resources per rule")
         runtime=20,  # minutes, a generous bound on the measured wall time
     log:
         "logs/evaluate/{point}.log",
@@ -126,7 +126,7 @@ rule train_source:
     # the profile's torch threads (1 for the default `source` profile: the job runs beside others)
     threads: source_model_threads
     resources:
-        mem_mb=6000,  # measured peak RSS with head room (README, SLURM: resources table)
+        mem_mb=6000,  # measured peak RSS with head room (docs/workflow.md, "Resources per rule")
         runtime=120,  # minutes, a generous bound on the measured wall time
     log:
         "logs/train/source.log",
@@ -144,7 +144,7 @@ rule evaluate_source:
         "results/source/metrics.json",
     threads: source_model_threads  # the model's torch threads, as rule evaluate
     resources:
-        mem_mb=2000,  # measured peak RSS with head room (README, SLURM: resources table)
+        mem_mb=2000,  # measured peak RSS with head room (docs/workflow.md, "Resources per rule")
         runtime=20,  # minutes, a generous bound on the measured wall time
     log:
         "logs/evaluate/source.log",

@@ -18,7 +18,7 @@ rule real_store:
         seed=config["sim_to_real"].get("seed", 0),
         labels=config["sim_to_real"].get("labels", "yolo"),
     resources:
-        mem_mb=2000,  # measured peak RSS with head room (README, SLURM: resources table)
+        mem_mb=2000,  # measured peak RSS with head room (docs/workflow.md, "Resources per rule")
         runtime=20,  # minutes, a generous bound on the measured wall time
     log:
         "logs/real_store.log",
@@ -43,7 +43,7 @@ rule emulate_real:
     threads: 1  # one process per point, as rule emulate
     priority: emulation_priority
     resources:
-        mem_mb=1500,  # measured peak RSS with head room (README, SLURM: resources table)
+        mem_mb=1500,  # measured peak RSS with head room (docs/workflow.md, "Resources per rule")
         runtime=30,  # minutes, a generous bound on the measured wall time
     log:
         "logs/emulate_real/{point}.log",
@@ -61,7 +61,7 @@ rule evaluate_real:
         REAL_POINT_METRICS,
     threads: point_model_threads  # the model's torch threads, as rule evaluate
     resources:
-        mem_mb=1500,  # measured peak RSS with head room (README, SLURM: resources table)
+        mem_mb=1500,  # measured peak RSS with head room (docs/workflow.md, "Resources per rule")
         runtime=20,  # minutes, a generous bound on the measured wall time
     log:
         "logs/evaluate_real/{point}.log",
@@ -77,7 +77,7 @@ rule evaluate_source_real:
         SOURCE_REAL_METRICS,
     threads: source_model_threads  # the model's torch threads, as rule evaluate_source
     resources:
-        mem_mb=1500,  # measured peak RSS with head room (README, SLURM: resources table)
+        mem_mb=1500,  # measured peak RSS with head room (docs/workflow.md, "Resources per rule")
         runtime=20,  # minutes, a generous bound on the measured wall time
     log:
         "logs/evaluate_real/source.log",

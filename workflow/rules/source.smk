@@ -19,7 +19,7 @@ if config["source"]["dataset"] == "synthetic":
         # codes and stores) cost ~20 % more CPU per scene (pickled 7 MB scenes, 3 busy processes per job)
         threads: 1
         resources:
-            mem_mb=3000,  # measured peak RSS with head room (README, SLURM: resources table)
+            mem_mb=3000,  # measured peak RSS with head room (docs/workflow.md, "Resources per rule")
             runtime=60,  # minutes, a generous bound on the measured wall time
         log:
             "logs/source_store.log",
@@ -120,7 +120,7 @@ rule decode_store:
     threads: 1
     priority: 2000  # its readers wait for it: right after its store
     resources:
-        mem_mb=1500,  # measured peak RSS with head room (README, SLURM: resources table)
+        mem_mb=1500,  # measured peak RSS with head room (docs/workflow.md, "Resources per rule")
         runtime=20,  # minutes, a generous bound on the measured wall time
     log:
         "logs/decode_store/{name}.log",
@@ -135,7 +135,7 @@ rule calibrate_source:
     output:
         "results/source/calibration.json",
     resources:
-        mem_mb=1000,  # measured peak RSS with head room (README, SLURM: resources table)
+        mem_mb=1000,  # measured peak RSS with head room (docs/workflow.md, "Resources per rule")
         runtime=10,  # minutes, a generous bound on the measured wall time
     log:
         "logs/calibrate_source.log",

@@ -29,7 +29,7 @@ def register(subparsers) -> None:
     p.add_argument("--epochs", type=int, default=None, help="override training.pretrain.epochs")
     p.add_argument("--batch-size", type=int, default=None,
                    help="override training.pretrain.batch_size (default: the training profile's batch size; larger "
-                        "batches pay on a GPU, README 'GPUs')")
+                        "batches pay on a GPU, docs/training.md, 'GPUs')")
     p.add_argument("--points-per-scene", type=int, default=None,
                    help="override training.pretrain.points_per_scene")
     p.add_argument("--batches", choices=("payload", "mixed"), default=None,

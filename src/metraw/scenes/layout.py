@@ -26,7 +26,7 @@ KINDS = ("urban", "suburban", "rural")
 MATERIALS: dict[str, tuple[float, float, float]] = {
     # weathered city asphalt (the binder worn off the aggregate): 0.10-0.20 (LBNL heat-island measurements);
     # fresh asphalt (0.05) only in patches (``add_distractor`` "dark_rect"). 0.144 / 0.195 put the synthetic
-    # cars' contrast against their surroundings where KIT AIS has it (``metraw.scenes.stats``; README).
+    # cars' contrast against their surroundings where KIT AIS has it (``metraw.scenes.stats``; docs/sim-to-real.md).
     "asphalt": (0.144, 0.144, 0.136),
     "asphalt_old": (0.195, 0.1885, 0.1755),
     "concrete": (0.30, 0.29, 0.26),

@@ -235,7 +235,7 @@ def payload_batches(payload_keys: Sequence[Sequence[Any]], draws_per_epoch: int,
     mixed batch's Dice is carried by its bright, sharp images, and a network told each image's payload
     (``TrainConfig.condition``) then learns to predict no car at the dim corner; batch crops are also cut to the
     batch's smallest image. Batches of one payload keep the Dice per payload, as fine-tuning at one point does
-    (README, issue #15)."""
+    (docs/training.md, "Batches of one payload")."""
     n = len(payload_keys) * draws_per_epoch
     chosen = rng.integers(0, np.tile([len(keys) for keys in payload_keys], draws_per_epoch)).astype(np.int64)
     order = sorted(rng.permutation(n).tolist(), key=lambda j: payload_keys[j % len(payload_keys)][chosen[j]])

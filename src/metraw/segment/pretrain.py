@@ -33,7 +33,7 @@ from metraw.segment.train import TrainConfig
 from metraw.sensor import rng_from_seed
 from metraw.target import TargetSystem
 
-#: ``training.pretrain`` of params.yaml, where it leaves a key out (measured settings: README, issue #15).
+#: ``training.pretrain`` of params.yaml, where it leaves a key out (measured settings: docs/training.md).
 #: ``batch_size`` None: the training profile's (the fine-tunings always keep the profile's). ``finetune_learning_rate``
 #: None: the fine-tunings' peak learning rate is the training profile's.
 PRETRAIN_DEFAULTS = {"enabled": False, "box": {}, "epochs": 20, "points_per_scene": 4, "finetune_epochs": 5,

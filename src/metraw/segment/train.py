@@ -82,7 +82,7 @@ class TrainConfig:
     and the draws' thread fill 2 cores best (the ``default`` profile), on drone crops 2 torch threads.
     ``precision``: arithmetic of the training passes: "float32", "bfloat16" (autocast: convolutions in
     bfloat16 with float32 weights, optimiser and loss; faster where the hardware computes bfloat16, slower
-    where it emulates it: see the README), or "auto": bfloat16 where the device computes it natively, else
+    where it emulates it: see docs/training.md), or "auto": bfloat16 where the device computes it natively, else
     float32 (``resolve_precision``; every training record and saved config holds the resolved value).
     Evaluation and prediction always run in float32.
     ``loss``: one of ``LOSSES`` (``segmentation_loss``); "bce+dice", the default, is what the measured profiles use.
