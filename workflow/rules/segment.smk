@@ -125,6 +125,10 @@ rule train_source:
         profile=SOURCE_PROFILE,
     # the profile's torch threads (1 for the default `source` profile: the job runs beside others)
     threads: source_model_threads
+    # before the emulations (priority <= ~600): the longest job no point waits for starts as soon as the source is
+    # decoded, beside the pretraining, instead of last and alone (default run of 2026-11-28: it ran the final
+    # 17 min on one core while the other idled; benchmarks/main_job.py)
+    priority: 700
     resources:
         mem_mb=6000,  # measured peak RSS with head room (docs/workflow.md, "Resources per rule")
         runtime=120,  # minutes, a generous bound on the measured wall time
