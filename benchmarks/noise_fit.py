@@ -20,7 +20,7 @@ import numpy as np
 
 from metraw.calibrate import from_image
 from metraw.errors import MetrawError
-from metraw.image import RawImage
+from metraw.raw.image import RawImage
 from metraw.scenes import KINDS, default_camera, generate_one
 
 
@@ -30,7 +30,7 @@ def scene(i: int, seed: int, size: int, cache: Path | None) -> RawImage:
     path = cache / f"scene_s{seed}_n{size}_i{i}.npy"
     prof_path = path.with_suffix(".json")
     if path.exists() and prof_path.exists():
-        from metraw.profile import CalibrationProfile
+        from metraw.raw.profile import CalibrationProfile
         return RawImage(np.load(path), CalibrationProfile.from_json(prof_path.read_text()))
     img = generate_one(i, seed, size)
     cache.mkdir(parents=True, exist_ok=True)

@@ -24,7 +24,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
     from metraw.scenes import generate
-    from metraw.store import RawStore
+    from metraw.io.store import RawStore
 
     tmp = tempfile.mkdtemp(prefix="metraw-scenes-bench-")
     try:

@@ -25,7 +25,7 @@ import numpy as np
 
 def _subset(store_path: str, n: int | None, work: Path):
     """First n images of a store as their own store (so the split is over n images)."""
-    from metraw.store import RawStore
+    from metraw.io.store import RawStore
 
     src = RawStore.open(store_path)
     if n is None or n >= len(src):
@@ -39,9 +39,9 @@ def _subset(store_path: str, n: int | None, work: Path):
 
 
 def _emulated(source: Path, point: str, work: Path) -> Path:
-    from metraw.emulate import emulate
-    from metraw.store import RawStore
-    from metraw.target import TargetSystem, parse_point
+    from metraw.emulate.emulator import emulate
+    from metraw.io.store import RawStore
+    from metraw.emulate.target import TargetSystem, parse_point
 
     overrides = {} if point == "nominal" else parse_point(point)
     out = work / f"{source.stem}_{point.replace('=', '_')}.zarr"
@@ -61,7 +61,7 @@ def _run(store: Path, config, label: str):
     from metraw.segment.data import prepare_store, split_indices
     from metraw.segment.evaluate import evaluate_images
     from metraw.segment.train import fit
-    from metraw.store import RawStore
+    from metraw.io.store import RawStore
 
     s = RawStore.open(store)
     tr, te = split_indices(len(s), config.test_fraction, config.split_seed)
@@ -146,8 +146,8 @@ def _robust(source: Path, points: list[str], config, work: Path):
     from metraw.segment.emulated import EmulatedDataset, fit_emulated
     from metraw.segment.evaluate import evaluate_images
     from metraw.segment.train import upsample_factor
-    from metraw.store import RawStore
-    from metraw.target import parse_point
+    from metraw.io.store import RawStore
+    from metraw.emulate.target import parse_point
 
     rows = []
     box: dict[str, list[float]] = {}
@@ -164,7 +164,7 @@ def _robust(source: Path, points: list[str], config, work: Path):
     tr, te = split_indices(n, config.test_fraction, config.split_seed)
     nominal_imgs = prepare_store(RawStore.open(stores[points[0]]), te[:1], False)
     f = upsample_factor(nominal_imgs, config.min_grid_px)
-    from metraw.target import TargetSystem  # noqa: F401  (nominal comes from params.yaml)
+    from metraw.emulate.target import TargetSystem  # noqa: F401  (nominal comes from params.yaml)
 
     ds = EmulatedDataset(source, tr, box, "params.yaml", crop_px=config.crop_px, seed=config.seed)
     model, rec = fit_emulated(ds, config, workers=2, device="cpu", progress=False, upsample=f)
@@ -187,11 +187,11 @@ def _robust_vs_workflow(source: Path, results: Path, config, workers: int, model
     scored on the same test split of every point's stored images.
     """
     from metraw.cli.aggregate import iou_measurement
-    from metraw.points import load_params, parameter_points
+    from metraw.study.points import load_params, parameter_points
     from metraw.segment.data import prepare_store, split_indices
     from metraw.segment.emulated import EmulatedDataset, fit_emulated
     from metraw.segment.evaluate import evaluate_images
-    from metraw.store import RawStore
+    from metraw.io.store import RawStore
 
     params = load_params("params.yaml")
     sweeps = params["target"]["sweeps"]

@@ -132,7 +132,7 @@ def table_for(level: str, real_store: Path, syn_store: Path, config, real_test: 
               overlays: Path | None = None) -> list[dict]:
     from metraw.segment.data import prepare_store, split_indices
     from metraw.segment.train import COVER, crops_to_cover, fit, grid_factors
-    from metraw.store import RawStore
+    from metraw.io.store import RawStore
 
     real, syn = RawStore.open(real_store), RawStore.open(syn_store)
     r_train, r_test = real_split(len(real), real_test, seed)
@@ -209,7 +209,7 @@ def main() -> None:
 
     from metraw.scenes.stats import format_table, summarise
     from metraw.segment.train import TrainConfig, load_config
-    from metraw.store import RawStore
+    from metraw.io.store import RawStore
 
     levels = args.levels.split(",")
     paths = stores(args.work, args.params, args.kit, args.n_synthetic, args.kit_gsd_m, "nominal" in levels,

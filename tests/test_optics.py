@@ -1,4 +1,4 @@
-"""Tests of metraw.optics against independent references (spatial quadrature of the analytic
+"""Tests of metraw.physics.optics against independent references (spatial quadrature of the analytic
 annulus PSF, scipy dblquad, radial encircled-energy integrals, shifted-PSF averages, POPPY)."""
 
 import math
@@ -9,8 +9,8 @@ from scipy.integrate import dblquad, quad
 from scipy.optimize import brentq
 from scipy.special import j0, j1, roots_hermite, roots_legendre
 
-from metraw import optics as o
-from metraw.accuracy import Accuracy, airy_flux_outside, kernel_radius_px
+from metraw.physics import optics as o
+from metraw.physics.accuracy import Accuracy, airy_flux_outside, kernel_radius_px
 from metraw.errors import MetrawError
 
 LAM, D = 550e-9, 0.2

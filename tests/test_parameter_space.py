@@ -17,10 +17,11 @@ import pytest
 import yaml
 
 from metraw.errors import MetrawError
-from metraw.points import (grid_point_name, load_params, parameter_points, swept_parameters, target_params,
+from metraw.study.points import (grid_point_name, load_params, parameter_points, swept_parameters, target_params,
                            validate_params)
-from metraw.spec import Choice, Limit, Specification, apply_chain, check, stated_haze_e
-from metraw.tolerance import categorical_choice, grid_region
+from metraw.spec.builder import Choice, Limit, Specification
+from metraw.spec.check import apply_chain, check, stated_haze_e
+from metraw.spec.tolerance import categorical_choice, grid_region
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -39,7 +40,7 @@ def base_params() -> dict:
 def test_every_workflow_configfile_merged_over_params_is_valid(configfile):
     from snakemake.utils import update_config
 
-    from metraw.points import validate_params
+    from metraw.study.points import validate_params
     from metraw.segment.pretrain import pretrain_settings
 
     params = yaml.safe_load((REPO / "params.yaml").read_text())
@@ -304,7 +305,7 @@ def _spec(allowed=("RGGB",), haze=(20.0, 10.0, 30.0)) -> Specification:
 def hazy_image():
     from test_emulate import flat_source, gsd_ratio_target
 
-    from metraw.emulate import emulate
+    from metraw.emulate.emulator import emulate
 
     tgt = gsd_ratio_target(6.0, exposure_s=6.0e-4, ground_speed_m_per_s=0.0, path_radiance_w_m2_sr_m=3e7)
     return tgt, emulate(flat_source((300, 450), 10000.0, seed=1), tgt, seed=3)

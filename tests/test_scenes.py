@@ -11,11 +11,11 @@ import pytest
 from metraw.cli import main
 from metraw.scenes import default_camera, generate, generate_one
 from metraw.scenes.layout import Scene, add_vehicle, make_scene, rect
-from metraw.daylight import neutral_response, solar_toa_irradiance_w_m2_m
+from metraw.physics.daylight import neutral_response, solar_toa_irradiance_w_m2_m
 from metraw.scenes.radiance import electrons_per_reflectance
 from metraw.scenes.render import RenderSettings, render
-from metraw.sensor import rng_from_seed
-from metraw.store import RawStore
+from metraw.raw.sensor import rng_from_seed
+from metraw.io.store import RawStore
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -372,7 +372,7 @@ def test_colour_blur_is_scipy_gaussian_filter_bit_for_bit():
     CFA pattern, odd and even sizes, blurs whose radius reaches 1-6 pixels) and leaves the others alone."""
     from scipy import ndimage
 
-    from metraw.cfa import color_index
+    from metraw.raw.cfa import color_index
     from metraw.scenes.render import blur_at_colour, gaussian_weights
 
     rng = np.random.default_rng(8)

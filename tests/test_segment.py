@@ -9,13 +9,13 @@ import re
 import numpy as np
 import pytest
 
-from metraw.cfa import pack_planes
+from metraw.raw.cfa import pack_planes
 from metraw.errors import MetrawError
-from metraw.image import RawImage
+from metraw.raw.image import RawImage
 from metraw.segment.data import canonical_pack, prepare, split_indices, vst_mosaic
 from metraw.segment.evaluate import confusion, iou, scores, summarise
 from metraw.segment.toy import toy_profile, toy_scene, toy_store
-from metraw.sensor import expose, rng_from_seed
+from metraw.raw.sensor import expose, rng_from_seed
 
 
 # ----------------------------------------------------------------- input representation
@@ -36,7 +36,7 @@ def test_vst_input_has_unit_noise_variance_on_flat_image(mean_e):
 
 def test_canonical_pack_restores_rggb_for_every_pattern_and_transform():
     # A mosaic whose value encodes its colour: R=0, G=1, B=2 -> packed planes must read R, G, G, B.
-    from metraw.cfa import color_index
+    from metraw.raw.cfa import color_index
 
     for pattern in ("RGGB", "BGGR", "GRBG", "GBRG"):
         ci = color_index(pattern, (10, 14)).astype(np.float32)
@@ -162,7 +162,7 @@ def test_a_car_outline_scores_one_against_its_box_only_as_a_box():
 
     class Fixed(torch.nn.Module):  # a "network" whose logits are the car outline
         def forward(self, x):
-            # packed as the mono mosaic is (2 x 2 cells, metraw.cfa.PACKED_CELL_PX)
+            # packed as the mono mosaic is (2 x 2 cells, metraw.raw.cfa.PACKED_CELL_PX)
             return torch.from_numpy(pack_planes(np.where(car, 8.0, -8.0).astype(np.float32), "RGGB"))[None]
 
     img = PreparedImage(np.zeros((48, 48), np.float32), box.astype(np.float16), "mono", 0, gsd_m=0.1)
@@ -251,7 +251,7 @@ def test_bfloat16_training_is_deterministic_learns_and_differs_from_float32(tiny
     from metraw.errors import MetrawError
     from metraw.segment.data import prepare_store
     from metraw.segment.train import TrainConfig, fit
-    from metraw.store import RawStore
+    from metraw.io.store import RawStore
 
     images = prepare_store(RawStore.open(tiny_store), range(8), progress=False)
     runs = [fit(images, _cfg(epochs=4, precision=prec), device="cpu", progress=False)
@@ -271,7 +271,7 @@ def test_auto_precision_is_bfloat16_exactly_where_the_hardware_computes_it(tiny_
 
     from metraw.segment.data import prepare_store
     from metraw.segment.train import fit, fit_replicates, resolve_precision
-    from metraw.store import RawStore
+    from metraw.io.store import RawStore
 
     def hardware(avx512_bf16: bool, amx: bool = False, cuda_bf16: bool = False, capability: str = "AVX512"):
         monkeypatch.setattr(torch.backends.cpu, "get_cpu_capability", lambda: capability)
@@ -338,7 +338,7 @@ def test_training_reduces_loss_and_upsampling_keeps_native_grid(tiny_store):
     from metraw.segment.data import prepare_store
     from metraw.segment.train import fit
 
-    images = prepare_store(__import__("metraw.store", fromlist=["RawStore"]).RawStore.open(tiny_store), range(8),
+    images = prepare_store(__import__("metraw.io.store", fromlist=["RawStore"]).RawStore.open(tiny_store), range(8),
                            progress=False)
     model, rec = fit(images, _cfg(epochs=4, min_grid_px=96), device="cpu", progress=False)
     assert rec["upsample"] == 2  # 48 packed px -> factor 2 to reach 96
@@ -393,7 +393,7 @@ def test_image_without_mask_is_rejected():
 def small_source(tmp_path_factory):
     pytest.importorskip("metraw.emulate")
     generate_one = pytest.importorskip("metraw.scenes").generate_one
-    from metraw.store import RawStore
+    from metraw.io.store import RawStore
 
     path = tmp_path_factory.mktemp("segsrc") / "src.zarr"
     with RawStore.create(path) as store:
@@ -459,7 +459,7 @@ def test_pool_factor_follows_ground_sampling_and_keeps_the_grid():
 def test_cover_draws_enough_crops_to_see_each_image_once_per_epoch(tiny_store):
     from metraw.segment.data import PreparedImage, prepare_store
     from metraw.segment.train import TrainConfig, crops_to_cover, fit
-    from metraw.store import RawStore
+    from metraw.io.store import RawStore
 
     def image(h, w):
         return PreparedImage(np.zeros((h, w), np.float32), np.zeros((h, w), np.float16), "mono", 0)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from metraw.errors import MetrawError
-from metraw.tolerance import ResponseGP, joint_region, tolerance_interval
+from metraw.spec.tolerance import ResponseGP, joint_region, tolerance_interval
 
 
 def test_gp_recovers_smooth_function_with_calibrated_bands():
@@ -110,7 +110,7 @@ def _write_point(root, point, iou=0.7):
 
 def test_aggregate_errors_clearly_when_a_point_is_missing(tmp_path):
     from metraw.cli.aggregate import load_point_results
-    from metraw.points import load_params, parameter_points
+    from metraw.study.points import load_params, parameter_points
 
     params = load_params("params.yaml")
     points = list(parameter_points(params))

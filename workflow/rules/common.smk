@@ -1,13 +1,13 @@
 import re
 
-# Shared definitions: the parameter points come from params.yaml via metraw.points,
+# Shared definitions: the parameter points come from params.yaml via metraw.study.points,
 # never from a glob of existing outputs.
 
 from snakemake.exceptions import WorkflowError
 
-from metraw.points import parameter_points, target_params
+from metraw.study.points import parameter_points, target_params
 from metraw.provenance import code_digest
-from metraw.sources import calibration_method
+from metraw.study.sources import calibration_method
 from metraw.segment.pretrain import (draws_extra_scenes, fine_tuned_points, point_patterns, pretrain_settings,
                                      pretrained_patterns)
 

@@ -9,7 +9,7 @@ What is generated and what is templated:
   number and values follow params.yaml at ``dvc repro`` time: ``dvc exp run -S
   target.sweeps.focal_length_m='[0.8,1.3,2.0]'`` needs no regeneration. A stage's point name is
   ``<parameter>-${item}``; DVC renders ``${item}`` with ``str``, exactly as
-  ``metraw.points.format_value`` does, so DVC outputs and Snakemake targets are the same paths.
+  ``metraw.study.points.format_value`` does, so DVC outputs and Snakemake targets are the same paths.
 - DVC templating cannot map a list of values to a list of paths, so the aggregate stage's deps
   (the per-point outputs of the current params, never a glob) index the lists:
   ``results/points/focal_length_m-${target.sweeps.focal_length_m[0]}/metrics.json``, ... One
@@ -52,7 +52,7 @@ from typing import Any
 import yaml
 
 from metraw.errors import MetrawError
-from metraw.points import CATEGORICAL, NOMINAL, load_params, parameter_points, point_name, same_value
+from metraw.study.points import CATEGORICAL, NOMINAL, load_params, parameter_points, point_name, same_value
 from metraw.segment.pretrain import (draws_extra_scenes, fine_tuned_points, point_patterns, pretrain_settings,
                                      pretrained_patterns)
 
@@ -155,7 +155,7 @@ def build(params: dict[str, Any]) -> dict[str, Any]:
         same = [v for v in values if same_value(v, nominal[parameter])]
         if same:
             raise MetrawError(f"target.sweeps.{parameter} holds the nominal value {same[0]}: a DVC foreach stage "
-                              "cannot skip it as metraw.points does; remove it from the sweep")
+                              "cannot skip it as metraw.study.points does; remove it from the sweep")
         if len({v if isinstance(v, str) else float(v) for v in values}) != len(values):
             raise MetrawError(f"target.sweeps.{parameter} repeats a value")
     points_now = parameter_points(params)  # validates sweep names against target.nominal

@@ -1,6 +1,6 @@
 """``metraw aggregate``: per-point results -> GP response surfaces, tolerances, spec.yaml, figures.
 
-The point list comes from params.yaml (`metraw.points.parameter_points`), never from a glob;
+The point list comes from params.yaml (`metraw.study.points.parameter_points`), never from a glob;
 every point's metrics (and compression) file must exist. Outputs under ``--out``:
 ``spec.yaml``, ``aggregate.json``, ``figures/*.png`` and ``plots/*.csv`` (for ``dvc plots``).
 With replicate models a point's IoU, precision, recall and object F1 (synthetic and real) are the means over
@@ -133,9 +133,9 @@ def iou_measurement(metrics: dict[str, Any], where: str) -> tuple[float, float]:
 def load_point_results(params: dict[str, Any], results: str, metrics_pattern: str, compression_pattern: str,
                        real_pattern: str = "", gap_tolerance: float | None = None) -> list[dict[str, Any]]:
     """One record per point of params.yaml: parameters, IoU (+variance), compression (+variance) and, with
-    ``real_pattern``, the real-image columns (``metraw.sim_to_real.real_columns``)."""
-    from metraw.points import CATEGORICAL, parameter_points, swept_parameters, target_params
-    from metraw.sim_to_real import GAP_TOLERANCE, real_columns
+    ``real_pattern``, the real-image columns (``metraw.study.sim_to_real.real_columns``)."""
+    from metraw.study.points import CATEGORICAL, parameter_points, swept_parameters, target_params
+    from metraw.study.sim_to_real import GAP_TOLERANCE, real_columns
 
     names = swept_parameters(params)
     if not names:
@@ -186,8 +186,8 @@ def _sd_of_mean(values: list[float]) -> float:
 
 def _sim_to_real(args, rows: list[dict[str, Any]]) -> dict[str, Any] | None:
     """The top-level ``sim_to_real`` block (None without ``--real-metrics-pattern``)."""
-    from metraw.points import NOMINAL
-    from metraw import sim_to_real
+    from metraw.study.points import NOMINAL
+    from metraw.study import sim_to_real
 
     if not args.real_metrics_pattern:
         if args.source_real_metrics:
@@ -232,10 +232,10 @@ def run(args) -> int:
 
 
 def _aggregate(args) -> int:
-    from metraw import figures
-    from metraw.points import CATEGORICAL, NOMINAL, load_params, swept_parameters, target_params
-    from metraw.spec import build_spec
-    from metraw.tolerance import BAND_SIGMA, ResponseGP, categorical_choice, joint_region, tolerance_interval
+    from metraw.spec import figures
+    from metraw.study.points import CATEGORICAL, NOMINAL, load_params, swept_parameters, target_params
+    from metraw.spec.builder import build_spec
+    from metraw.spec.tolerance import BAND_SIGMA, ResponseGP, categorical_choice, joint_region, tolerance_interval
 
     params = load_params(args.params)
     required = float(params.get("spec", {}).get("required_iou", math.nan))
@@ -277,7 +277,7 @@ def _aggregate(args) -> int:
         r["iou_loo_pred"], r["iou_loo_sd"], r["iou_loo_inside"] = rec["predicted"], rec["sd"], rec["inside"]
     examples = []
     if args.stores_pattern:
-        from metraw.store import RawStore
+        from metraw.io.store import RawStore
 
         for r in rows:
             spath = Path(args.stores_pattern.format(point=r["point"], results=args.results))
@@ -399,9 +399,9 @@ def _aggregate(args) -> int:
 
 def _property_model(args, rows: list[dict[str, Any]]):
     """Each point's image properties (medians over its store's images, ``row["properties"]``) and the IoU fit
-    over them (`metraw.property_model`), from every point: lines, grids and categorical points."""
-    from metraw.property_model import PropertyModel, store_properties
-    from metraw.store import RawStore
+    over them (`metraw.spec.property_model`), from every point: lines, grids and categorical points."""
+    from metraw.spec.property_model import PropertyModel, store_properties
+    from metraw.io.store import RawStore
 
     for r in rows:
         spath = Path(args.stores_pattern.format(point=r["point"], results=args.results))
@@ -414,7 +414,7 @@ def _property_model(args, rows: list[dict[str, Any]]):
 
 def _on_line(row: dict[str, Any], name: str, nominal: dict[str, Any], names: list[str]) -> bool:
     """Whether ``row`` lies on the one-at-a-time line of ``name``: every other swept parameter nominal."""
-    from metraw.points import same_value
+    from metraw.study.points import same_value
 
     return all(same_value(row[m], nominal[m]) for m in names if m != name)
 
@@ -436,9 +436,9 @@ def _channel_series(rows: list[dict[str, Any]], name: str) -> dict[str, list[tup
 
 def _grid_summary(params: dict[str, Any], grid: dict[str, Any], rows: list[dict[str, Any]], nominal: dict[str, Any],
                   names: list[str], required: float, seed: int):
-    """(2-D GP, summary) of one ``target.grids`` entry from its measured points (`metraw.tolerance.grid_region`)."""
-    from metraw.points import grid_axes, same_value
-    from metraw.tolerance import grid_region
+    """(2-D GP, summary) of one ``target.grids`` entry from its measured points (`metraw.spec.tolerance.grid_region`)."""
+    from metraw.study.points import grid_axes, same_value
+    from metraw.spec.tolerance import grid_region
 
     axes, fixed = grid_axes(grid)
     if len(axes) != 2:

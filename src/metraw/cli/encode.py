@@ -23,10 +23,10 @@ def register(sub) -> None:
 
 def load_image(path: str, profile_path: str | None, black: float | None, cfa: str | None):
     """Read a raw image and give it a profile: from ``profile_path``, or calibrated from the image."""
-    from metraw.cfa import validate_pattern
-    from metraw.image import RawImage
+    from metraw.raw.cfa import validate_pattern
+    from metraw.raw.image import RawImage
     from metraw.io import read_raw
-    from metraw.profile import load_profile
+    from metraw.raw.profile import load_profile
 
     if not Path(path).is_file():
         raise MetrawError(f"input {path} does not exist")

@@ -37,7 +37,7 @@ def register(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     from metraw.progress import progress_bar
     from metraw.scenes import default_camera, generate
-    from metraw.store import RawStore
+    from metraw.io.store import RawStore
 
     if args.n < 1:
         raise MetrawError(f"--n must be >= 1, got {args.n}")

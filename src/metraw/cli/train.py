@@ -48,7 +48,7 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     from metraw.errors import MetrawError
-    from metraw.points import load_params
+    from metraw.study.points import load_params
     from metraw.segment.train import load_config, train_store
 
     load_params(args.params, complete=False)  # schema: one line naming a bad or unknown key

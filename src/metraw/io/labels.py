@@ -138,7 +138,7 @@ def attach_labels(image, path: Path, labels: str = "auto", class_names: list[str
     ``meta['mask_kind']``), "auto" (whichever exists, else none) or "none". A required label file that is
     missing, or a mask of another size than the image, is a ``MetrawError`` naming the file.
     """
-    from metraw.image import RawImage
+    from metraw.raw.image import RawImage
 
     shape = image.shape
     yolo = path.with_suffix(".txt")

@@ -7,11 +7,11 @@ noise is no longer the sensor's. It can still feed the raw workflow as an approx
 2. remosaic: keep, at each pixel, the colour the stated CFA has there;
 3. undo the white balance and scale to the photoelectrons of a stated camera: the photo shows a neutral
    (grey) surface as R = G = B, while the camera's raw records it in the ratios of daylight seen through
-   the camera's bands and QE (``metraw.daylight.neutral_response``, sun at ``sun_elevation_deg``); so
+   the camera's bands and QE (``metraw.physics.daylight.neutral_response``, sun at ``sun_elevation_deg``); so
    linear 1.0 of channel c -> ``white_fraction * saturation_e * neutral_c`` (the largest channel reaches
    ``white_fraction`` of saturation). For the default camera at 45 degrees B/G = 0.51, where the QE ratio
    alone (0.73) would leave raws too blue compared with rendered daylight scenes;
-4. apply the camera's sensor model (``metraw.sensor.expose``: Poisson shot noise, dark current,
+4. apply the camera's sensor model (``metraw.raw.sensor.expose``: Poisson shot noise, dark current,
    read noise, gain, black level, ADC) with a seeded generator.
 
 The result is a valid raw image with a noise model for the *added* noise; the photo's own
@@ -26,12 +26,12 @@ from typing import Any
 
 import numpy as np
 
-from metraw.cfa import color_index
-from metraw.daylight import neutral_response
+from metraw.raw.cfa import color_index
+from metraw.physics.daylight import neutral_response
 from metraw.errors import MetrawError
-from metraw.image import RawImage
-from metraw.profile import CalibrationProfile
-from metraw.sensor import expose
+from metraw.raw.image import RawImage
+from metraw.raw.profile import CalibrationProfile
+from metraw.raw.sensor import expose
 
 PROCESSED_SUFFIXES = {".png", ".jpg", ".jpeg"}
 

@@ -23,7 +23,7 @@ import math
 
 import numpy as np
 
-from metraw.cfa import PACKED_CELL_PX
+from metraw.raw.cfa import PACKED_CELL_PX
 from metraw.errors import MetrawError
 
 #: Names of the conditioning features, in the order of ``payload_condition``'s vector.

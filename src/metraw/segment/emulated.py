@@ -17,7 +17,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from metraw.cfa import PACKED_CELL_PX
+from metraw.raw.cfa import PACKED_CELL_PX
 from metraw.errors import MetrawError
 from metraw.segment.data import prepare
 
@@ -59,7 +59,7 @@ class EmulatedDataset:
     def __init__(self, source, indices: Sequence[int], box: dict[str, Any], params: Any = "params.yaml",
                  crop_px: int = 64, seed: int = 0, mode: str = "auto", augment: bool = True,
                  emulate_kwargs: dict[str, Any] | None = None):
-        from metraw.points import load_params
+        from metraw.study.points import load_params
 
         self.source = str(source)
         self.indices = [int(i) for i in indices]
@@ -78,7 +78,7 @@ class EmulatedDataset:
     def preload(self, progress: bool = False) -> "EmulatedDataset":
         """Decode every source image of ``indices`` now (kept in memory; see the class docstring)."""
         from metraw.progress import progress_bar
-        from metraw.store import RawStore
+        from metraw.io.store import RawStore
 
         store = RawStore.open(self.source)
         for i in progress_bar(sorted(set(self.indices)), desc="preload sources", disable=not progress):
@@ -103,9 +103,9 @@ class EmulatedDataset:
 
     def sample(self, i: int):
         """(RawImage emulated, point) for item ``i`` of the current epoch."""
-        from metraw.emulate import emulate
-        from metraw.store import RawStore
-        from metraw.target import TargetSystem
+        from metraw.emulate.emulator import emulate
+        from metraw.io.store import RawStore
+        from metraw.emulate.target import TargetSystem
 
         source = self._preloaded.get(self.indices[i])
         if source is None:
@@ -158,7 +158,7 @@ def fit_emulated(dataset: EmulatedDataset, config, workers: int = 2, device: str
     device = device or default_device()
     set_determinism(config.seed, config.threads, device)
     first, _ = dataset.sample(0)
-    in_ch = PACKED_CELL_PX ** 2  # every mosaic packs in 4 planes (metraw.cfa.PACKED_CELL_PX)
+    in_ch = PACKED_CELL_PX ** 2  # every mosaic packs in 4 planes (metraw.raw.cfa.PACKED_CELL_PX)
     model = build_model(in_ch, config, upsample).to(device)
     gen = torch.Generator().manual_seed(config.seed)
     steps = math.ceil(len(dataset) / config.batch_size)

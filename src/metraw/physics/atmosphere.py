@@ -35,9 +35,9 @@ from __future__ import annotations
 
 import math
 
-from metraw.daylight import C_LIGHT_M_PER_S, H_PLANCK_J_S
+from metraw.physics.daylight import C_LIGHT_M_PER_S, H_PLANCK_J_S
 from metraw.errors import MetrawError
-from metraw.profile import CalibrationProfile
+from metraw.raw.profile import CalibrationProfile
 
 #: Reference wavelength of the path radiance's power law [m].
 PATH_RADIANCE_REF_M = 550e-9

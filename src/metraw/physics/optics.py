@@ -42,7 +42,7 @@ import numpy as np
 import scipy.fft as sfft
 from scipy.special import erf, j0, j1
 
-from metraw.accuracy import DEFAULT_ACCURACY, Accuracy
+from metraw.physics.accuracy import DEFAULT_ACCURACY, Accuracy
 from metraw.errors import MetrawError
 
 __all__ = [

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from metraw.cfa import channel_names, validate_pattern
+from metraw.raw.cfa import channel_names, validate_pattern
 from metraw.errors import MetrawError
 
 SCHEMA_VERSION = 1

@@ -11,7 +11,7 @@ kernel (polychromatic diffraction PSF of the annular aperture, uniform motion sm
 v t along the track, Gaussian jitter), mapped to the target frame (GSD = pitch h / f, any
 offset, rotation and non-integer GSD ratio) and detected only on a target pixel of its colour
 (every pixel for a mono target). Then haze path radiance (Poisson), dark current, read noise,
-gain, black, rounding, full well and ADC (`metraw.sensor.readout`).
+gain, black, rounding, full well and ADC (`metraw.raw.sensor.readout`).
 
 Two chains of one continuous model, each the other's test:
 
@@ -20,11 +20,11 @@ Two chains of one continuous model, each the other's test:
   kept photon gets a continuous position: uniform in its cell (block), plus a PSF displacement
   drawn exactly (wavelength uniform in the band, radius by inverse CDF of the annulus encircled
   energy, its r^-2 tail beyond the table drawn from the asymptote), plus smear and jitter, in one
-  compiled loop that draws its own random numbers (`metraw.photon_landing`).
+  compiled loop that draws its own random numbers (`metraw.physics.photon_landing`).
   Cost: O(kept photons): 35 ns a kept photon on one core, thinning included (93 ns with numpy's uniforms; 2026-11-27).
 - expected (FFT): the same model in expectation, evaluated in the Fourier domain where it is exact:
   cell counts are spread onto an oversampled ground grid (Gaussian gridding, separable banded
-  operators: `metraw.gridding`), multiplied by the transfer functions (cell box, annulus OTF averaged over the band,
+  operators: `metraw.physics.gridding`), multiplied by the transfer functions (cell box, annulus OTF averaged over the band,
   smear, jitter, target pixel box) and evaluated at the target pixel centres (type-2 gridding).
   The OTF vanishes beyond D / lambda, so a grid at twice that band limit loses nothing; the
   gridding error is ~1e-5 of the signal. Then one Poisson draw per target pixel: its excess
@@ -54,15 +54,15 @@ import numpy as np
 import scipy.fft as sfft
 import scipy.sparse as sp
 
-from metraw.accuracy import DEFAULT_ACCURACY, Accuracy
-from metraw.cfa import channel_names, color_index, fill_factor, plane_offsets
+from metraw.physics.accuracy import DEFAULT_ACCURACY, Accuracy
+from metraw.raw.cfa import channel_names, color_index, fill_factor, plane_offsets
 from metraw.errors import MetrawError
-from metraw.gridding import GaussianWindow
-from metraw.image import FLAG_SATURATED, RawImage
-from metraw.photon_landing import land_photons
-from metraw.rawfunc import stochastic_round, thin_counts
-from metraw.sensor import readout, rng_from_seed
-from metraw.target import TargetSystem
+from metraw.physics.gridding import GaussianWindow
+from metraw.raw.image import FLAG_SATURATED, RawImage
+from metraw.physics.photon_landing import land_photons
+from metraw.physics.rawfunc import stochastic_round, thin_counts
+from metraw.raw.sensor import readout, rng_from_seed
+from metraw.emulate.target import TargetSystem
 
 __all__ = ["emulate", "expected_electrons", "photon_electrons", "plan_emulation", "EmulationPlan",
            "thinning_ratios", "EDGE_POLICIES"]
@@ -101,7 +101,7 @@ def thinning_ratios(source_profile, target: TargetSystem) -> tuple[dict[str, flo
     g = _source_geometry(source_profile)
     if target.exposure_s <= 0:
         raise MetrawError("target exposure_s must be > 0: a zero exposure records no light "
-                          "(use metraw.sensor.readout on zeros for a dark frame)")
+                          "(use metraw.raw.sensor.readout on zeros for a dark frame)")
     if source_profile.is_mono and target.cfa_pattern != "mono":
         raise MetrawError("a mono source has no colour information for a colour (CFA) target")
     a_s = math.pi / 4 * g["aperture_diameter_m"] ** 2 * (1 - source_profile.obscuration_ratio**2)
@@ -181,7 +181,7 @@ class EmulationPlan:
 def _poly_otf_table(band, diameter, obscuration, altitude, n_lambda, f_max):
     """Radial table (f [cycles/m], OTF) of the band-averaged annulus OTF on the ground. Cached (read-only arrays),
     as the plan arrays below: the pretraining makes a plan per box point, and most points share the optics."""
-    from metraw.optics import annulus_otf, band_wavelengths
+    from metraw.physics.optics import annulus_otf, band_wavelengths
 
     lam, w = band_wavelengths(band, n_lambda)
     f = np.linspace(0.0, f_max, 8193)
@@ -235,7 +235,7 @@ def _ee_table(obscuration: float, v_max: float):
     Cached (read-only arrays): it depends on the target optics only, while plans are per source
     profile (each scene has its own exposure), and it is the costliest part of a plan (~0.3 s).
     """
-    from metraw.optics import annulus_intensity
+    from metraw.physics.optics import annulus_intensity
 
     v = np.linspace(0.0, v_max, int(v_max / 0.005) + 1)
     integrand = 0.5 * (1 - obscuration**2) * annulus_intensity(v, obscuration) * v
@@ -276,7 +276,7 @@ def plan_emulation(source_profile, source_shape: tuple[int, int], target: Target
 
 
 def _make_plan(source_profile, source_shape, target: TargetSystem, acc: Accuracy, edge: str) -> EmulationPlan:
-    from metraw.optics import n_band_wavelengths
+    from metraw.physics.optics import n_band_wavelengths
 
     if edge not in EDGE_POLICIES:
         raise MetrawError(f"edge policy must be one of {', '.join(EDGE_POLICIES)}, got {edge!r}")
