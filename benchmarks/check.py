@@ -34,7 +34,7 @@ from normalise import paired_difference, pooled  # noqa: E402  (benchmarks/norma
 
 
 def check_point(point: str, results: Path, spec, required: float, seed: int) -> dict:
-    from metraw.cli.aggregate import _read_measured
+    from metraw.spec.aggregate import _read_measured
     from metraw.segment.data import prepare
     from metraw.segment.evaluate import evaluate_images
     from metraw.segment.train import load_model

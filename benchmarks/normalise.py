@@ -17,7 +17,7 @@ are left out of "after" and of the paired difference). The reference row is the 
 nominal point's own emulated test images.
 
 IoU is the pooled ground-area IoU of `metraw.segment.evaluate`; "+-" is its sampling standard
-error over the draw of test images (ratio-estimator delta method, `metraw.cli.aggregate.
+error over the draw of test images (ratio-estimator delta method, `metraw.spec.aggregate.
 iou_measurement`). The paired difference after - before is computed on the same images with the
 same linearisation (per-image influence terms differenced before averaging), so its standard
 error is smaller than either IoU's when the two track each other.
@@ -48,7 +48,7 @@ def emulate_points(source, indices, target, mode: str, seed: int, accuracy=None)
 
 def pooled(metrics: dict[str, Any], where: str) -> tuple[float | None, float | None]:
     """(pooled IoU, its standard error) of an `evaluate_images` result; (None, None) when empty."""
-    from metraw.cli.aggregate import iou_measurement
+    from metraw.spec.aggregate import iou_measurement
 
     if not metrics.get("per_image") or metrics.get("iou") is None:
         return None, None

@@ -186,7 +186,7 @@ def _robust_vs_workflow(source: Path, results: Path, config, workers: int, model
     robust model also sees combinations the one-at-a-time sweep never ran). Both models are
     scored on the same test split of every point's stored images.
     """
-    from metraw.cli.aggregate import iou_measurement
+    from metraw.spec.aggregate import iou_measurement
     from metraw.study.points import load_params, parameter_points
     from metraw.segment.data import prepare_store, split_indices
     from metraw.segment.emulated import EmulatedDataset, fit_emulated

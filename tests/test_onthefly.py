@@ -67,7 +67,7 @@ def test_on_the_fly_replicates_are_deterministic_and_scored(stores, tmp_path):
 
 
 def test_aggregate_adds_the_seed_spread_to_the_test_image_error():
-    from metraw.cli.aggregate import iou_measurement
+    from metraw.spec.aggregate import iou_measurement
 
     per_image = [{"tp": tp, "fp": 2.0, "fn": 1.0} for tp in (1.0, 3.0, 2.0, 4.0)]
     single = {"iou": 0.5, "per_image": per_image}

@@ -231,11 +231,11 @@ def test_aggregate_runs_its_linear_algebra_on_one_blas_thread():
     code = """
 import json
 from threadpoolctl import threadpool_info
-from metraw.cli import aggregate
+from metraw.spec import aggregate
 blas = lambda: [p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"]
 seen = []
-aggregate._aggregate = lambda args: seen.append(blas()) or 0
-assert aggregate.run(None) == 0
+aggregate._aggregate = lambda options: seen.append(blas()) or 0
+assert aggregate.aggregate(None) == 0
 import scipy.linalg, sklearn.gaussian_process
 print(json.dumps({"inside": seen[0], "after": blas()}))
 """

@@ -100,7 +100,7 @@ def _aggregate(root: Path, *extra: str) -> int:
 
 
 def test_aggregate_reports_real_columns_and_the_gap(hand_made, capsys):
-    from metraw.cli.aggregate import iou_measurement
+    from metraw.spec.aggregate import iou_measurement
 
     root, made, (src_syn, src_real) = hand_made
     assert _aggregate(root, "--real-metrics-pattern", "{results}/{point}/real_metrics.json",
@@ -150,7 +150,7 @@ def test_real_iou_of_replicate_models_is_their_mean_as_on_the_synthetic_side(han
     """With replicates the synthetic IoU is the replicates' mean; the real IoU and the gap must be measured alike
     (not the first replicate's IoU against the others' mean), for the points and for the source, and so must
     precision, recall and object F1."""
-    from metraw.cli.aggregate import iou_measurement
+    from metraw.spec.aggregate import iou_measurement
 
     root, made, (src_syn, src_real) = hand_made
     shifted = {}

@@ -109,7 +109,7 @@ def _write_point(root, point, iou=0.7):
 
 
 def test_aggregate_errors_clearly_when_a_point_is_missing(tmp_path):
-    from metraw.cli.aggregate import load_point_results
+    from metraw.spec.aggregate import load_point_results
     from metraw.study.points import load_params, parameter_points
 
     params = load_params("params.yaml")
@@ -126,7 +126,7 @@ def test_aggregate_errors_clearly_when_a_point_is_missing(tmp_path):
 
 def test_pooled_iou_variance_matches_resampling():
     """The delta-method variance of the pooled IoU agrees with the spread over resampled test sets."""
-    from metraw.cli.aggregate import iou_measurement
+    from metraw.spec.aggregate import iou_measurement
 
     rng = np.random.default_rng(5)
     recs = _records(rng, 400, 0.6)
