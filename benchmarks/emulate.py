@@ -135,7 +135,8 @@ def main() -> None:
     w, h = (int(v) for v in args.size.split("x"))
 
     from metraw.physics.accuracy import Accuracy
-    from metraw.emulate.emulator import emulate, expected_electrons, plan_emulation
+    from metraw.emulate.emulator import emulate, expected_electrons
+    from metraw.emulate.plan import plan_emulation
     from metraw.study.points import load_params
     from metraw.raw.sensor import rng_from_seed
     from metraw.emulate.target import TargetSystem

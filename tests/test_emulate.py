@@ -12,7 +12,8 @@ import pytest
 from scipy import stats
 
 from metraw.physics.accuracy import Accuracy
-from metraw.emulate.emulator import emulate, expected_electrons, photon_electrons, plan_emulation, thinning_ratios
+from metraw.emulate.emulator import emulate, expected_electrons, photon_electrons
+from metraw.emulate.plan import plan_emulation, thinning_ratios
 from metraw.errors import MetrawError
 from metraw.raw.image import FLAG_SATURATED, RawImage
 from metraw.raw.profile import CalibrationProfile
@@ -261,7 +262,7 @@ def test_saturated_source_pixels_flag_the_target_pixels_they_feed():
 
 
 def test_scenes_that_differ_in_exposure_alone_share_the_plan_but_keep_their_own_thinning():
-    from metraw.emulate import emulator as emulate_module
+    from metraw.emulate import plan as emulate_module
 
     short = flat_source((600, 900), 800.0, seed=3, exposure_s=0.5e-3)
     long = RawImage(short.data, short.profile.replace(exposure_s=1.0e-3))
@@ -418,7 +419,7 @@ def test_expected_chain_matches_optics_kernel_for_a_point_source():
 def test_axis_aligned_sinc_shortcut_is_the_grid_form_bit_for_bit():
     """``_sinc_along`` takes the vector form only where the other axis's factor is exactly zero (signed zeros
     included): it then equals the full grid's sines element for element, and elsewhere it is the full form."""
-    from metraw.emulate.emulator import _sinc_along
+    from metraw.emulate.plan import _sinc_along
 
     fy = np.fft.fftfreq(37, 0.31)[:, None]
     fx = np.fft.rfftfreq(40, 0.29)[None, :]
@@ -433,7 +434,7 @@ def test_axis_aligned_sinc_shortcut_is_the_grid_form_bit_for_bit():
 def test_plans_are_the_same_with_their_cached_arrays_and_without():
     """A plan made after others (its grid, OTF table and OTF on the grid taken from the caches) has the transfer
     functions of one made from empty caches, and the cached arrays cannot be written to."""
-    from metraw.emulate import emulator as E
+    from metraw.emulate import plan as E
 
     src = flat_source((400, 600), 5000.0)
     targets = [gsd_ratio_target(6.0), gsd_ratio_target(7.5), gsd_ratio_target(6.0, exposure_s=3e-4),

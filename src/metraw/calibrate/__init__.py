@@ -48,8 +48,8 @@ channels disagree). Standard uncertainties (1 sigma) go in ``profile.uncertainty
 
 from metraw.calibrate.photon_transfer import from_series
 from metraw.calibrate.results import FIT_FRACTION, CalibrationResult, ChannelCalibration, detect_unused_low_bits
-from metraw.calibrate.single_frame import (BIN_BLOCKS, BLOCK_CELLS, MAX_RELATIVE_GAIN_UNCERTAINTY, MIN_BLOCKS, MIN_PER_BIN,
-                                           SMOOTH_QUANTILE, TILES, combine_images, from_image)
+from metraw.calibrate.single_frame import (BIN_BLOCKS, BLOCK_CELLS, MAX_RELATIVE_GAIN_UNCERTAINTY, MIN_BLOCKS,
+                                           MIN_PER_BIN, SMOOTH_QUANTILE, TILES, combine_images, from_image)
 
 __all__ = ["BIN_BLOCKS", "BLOCK_CELLS", "FIT_FRACTION", "MAX_RELATIVE_GAIN_UNCERTAINTY", "MIN_BLOCKS", "MIN_PER_BIN",
            "SMOOTH_QUANTILE", "TILES", "CalibrationResult", "ChannelCalibration", "combine_images",

@@ -37,7 +37,8 @@ import scipy.sparse as sp
 
 from metraw.physics.accuracy import DEFAULT_ACCURACY, Accuracy
 from metraw.raw.cfa import color_index
-from metraw.emulate.emulator import _cell_mask, _cell_planes, _detect, _Fourier, _saturated_cells, plan_emulation
+from metraw.emulate.emulator import _cell_mask, _cell_planes, _detect, _Fourier, _saturated_cells
+from metraw.emulate.plan import plan_emulation
 from metraw.errors import MetrawError
 from metraw.physics.gridding import GaussianWindow
 from metraw.raw.image import FLAG_SATURATED, RawImage
