@@ -101,7 +101,7 @@ def box_area_fraction(rects: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 
 def read_mask_image(path: Path, shape: tuple[int, int]) -> np.ndarray:
     """A label mask image (PNG/TIFF) -> car area fraction in [0, 1]: 0/1 as is, else / dtype max."""
-    from metraw.io.processed import decode_image
+    from metraw.io.pictures import decode_image
 
     m = decode_image(path)
     if m.ndim == 3:

@@ -31,6 +31,8 @@ from metraw.physics.daylight import neutral_response
 from metraw.errors import MetrawError
 from metraw.raw.image import RawImage
 from metraw.raw.profile import CalibrationProfile
+from metraw.io.pictures import decode_image
+from metraw.io.labels import attach_labels
 from metraw.raw.sensor import expose
 
 PROCESSED_SUFFIXES = {".png", ".jpg", ".jpeg"}
@@ -38,23 +40,6 @@ PROCESSED_SUFFIXES = {".png", ".jpg", ".jpeg"}
 APPROXIMATE_REASON = ("made from a processed 8-bit RGB image: sRGB curve inverted, remosaicked and re-exposed "
                       "with the stated camera model; the photo's own demosaicing, tone mapping, compression "
                       "and noise are not undone")
-
-
-def decode_image(path: Path) -> np.ndarray:
-    """Decode PNG / JPEG / TIFF to an array (H, W[, C]); one clear error when the file is damaged."""
-    import imagecodecs
-
-    head = path.read_bytes()
-    try:
-        if head[:8] == b"\x89PNG\r\n\x1a\n":
-            return imagecodecs.png_decode(head)
-        if head[:3] == b"\xff\xd8\xff":
-            return imagecodecs.jpeg8_decode(head)
-        if head[:4] in (b"II*\x00", b"MM\x00*"):
-            return imagecodecs.tiff_decode(head)
-    except Exception as exc:  # imagecodecs raises codec-specific errors
-        raise MetrawError(f"{path}: corrupt or truncated image ({exc})") from None
-    raise MetrawError(f"{path}: unsupported image format (expected PNG, JPEG or TIFF)")
 
 
 def srgb_to_linear(values: np.ndarray) -> np.ndarray:
@@ -121,8 +106,6 @@ def read_processed(path: Path, camera: CalibrationProfile, *, labels: str = "aut
                    white_fraction: float = 1.0, gsd_m: float | None = None,
                    class_names: list[str] | None = None) -> RawImage:
     """Read a processed RGB image (+ labels) as an approximate raw (see module docstring)."""
-    from metraw.io.labels import attach_labels
-
     rgb = decode_image(path)
     image = approximate_raw(rgb, camera, seed_for(path, seed), white_fraction=white_fraction, gsd_m=gsd_m,
                             source=str(path))
