@@ -388,52 +388,6 @@ def test_image_without_mask_is_rejected():
     assert vst_mosaic(img).dtype == np.float32
 
 
-# ----------------------------------------------------------------- on-the-fly emulation
-@pytest.fixture(scope="module")
-def small_source(tmp_path_factory):
-    pytest.importorskip("metraw.emulate")
-    generate_one = pytest.importorskip("metraw.scenes").generate_one
-    from metraw.io.store import RawStore
-
-    path = tmp_path_factory.mktemp("segsrc") / "src.zarr"
-    with RawStore.create(path) as store:
-        for i in range(4):
-            store.append(generate_one(i, 0, 256))
-    return path
-
-
-def test_emulated_dataset_is_deterministic_and_trains_with_workers(small_source):
-    from pathlib import Path
-
-    from metraw.segment.emulated import EmulatedDataset, draw_point, fit_emulated
-
-    params = Path(__file__).resolve().parents[1] / "params.yaml"
-    box = {"focal_length_m": [1.2, 2.0], "exposure_s": {"values": [1e-4, 5e-4]}}
-    ds = EmulatedDataset(small_source, range(4), box, params, crop_px=16, seed=3)
-    x, y = ds[1]
-    x2, y2 = ds[1]
-    assert np.array_equal(x, x2) and np.array_equal(y, y2)
-    assert x.shape[0] == 4 and x.shape == y.shape and 0 <= y.min() and y.max() <= 1
-    _, point = ds.sample(1)
-    assert 1.2 <= point["focal_length_m"] <= 2.0 and point["exposure_s"] in (1e-4, 5e-4)
-    pts = [draw_point(box, rng_from_seed(i)) for i in range(200)]
-    f = np.array([p["focal_length_m"] for p in pts])
-    assert abs(f.mean() - 1.6) < 4 * 0.8 / math.sqrt(12 * 200)  # uniform mean within 4 standard errors
-    with pytest.raises(MetrawError):
-        EmulatedDataset(small_source, range(4), {"diameter_m": [0.5, 0.1]}, params)
-    model, rec = fit_emulated(ds, _cfg(epochs=1, batch_size=2), workers=2, device="cpu", progress=False)
-    assert rec["steps"] == 2 and np.isfinite(rec["loss_per_epoch"][0])
-    # preloaded sources (decoded once, shared with forked workers): the same items and the same training
-    import pickle
-
-    pre = EmulatedDataset(small_source, range(4), box, params, crop_px=16, seed=3).preload()
-    assert sorted(pre._preloaded) == [0, 1, 2, 3] and pickle.loads(pickle.dumps(pre))._preloaded == {}
-    xp, yp = pre[1]
-    assert np.array_equal(x, xp) and np.array_equal(y, yp)
-    _, rec_pre = fit_emulated(pre, _cfg(epochs=1, batch_size=2), workers=2, device="cpu", progress=False)
-    assert rec_pre["loss_per_epoch"] == rec["loss_per_epoch"]
-
-
 def test_pool_factor_follows_ground_sampling_and_keeps_the_grid():
     import torch
 
