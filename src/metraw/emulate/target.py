@@ -234,15 +234,15 @@ def parse_point(text: str) -> dict[str, Any]:
         if name not in known:
             raise MetrawError(f"--point: unknown target field {name!r}; known: {', '.join(sorted(known))}")
         if ":" in value:
-            out[name] = tuple(_number(v, name) for v in value.split(":"))
+            out[name] = tuple(_parse_number(v, name) for v in value.split(":"))
         elif name in ("cfa_pattern", "name"):
             out[name] = value
         else:
-            out[name] = _number(value, name)
+            out[name] = _parse_number(value, name)
     return out
 
 
-def _number(text: str, name: str) -> float | int:
+def _parse_number(text: str, name: str) -> float | int:
     try:
         v = float(text)
     except ValueError:

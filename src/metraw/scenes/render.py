@@ -262,7 +262,7 @@ def _flat_pixels(obj, caster_h, ss, h_eps, sun_cos, sky_view, tex_amp, refl, is_
 
 
 @nb.njit(cache=True, nogil=True)
-def _saturation_flags(counts, data, full_well, white):
+def _saturation_flags_at_readout(counts, data, full_well, white):
     """FLAG_SATURATED where the photoelectron count reached the full well or the DN the white level."""
     flags = np.zeros(counts.shape, np.uint8)
     for y in range(counts.shape[0]):
@@ -353,7 +353,7 @@ def render(scene: Scene, camera: CalibrationProfile, size_px: int, rng: np.rando
 
     counts = rng.poisson(mean_e)
     data = readout(counts, profile, rng)
-    flags = _saturation_flags(counts, data, float(profile.full_well_e or np.inf), profile.white_level_dn)
+    flags = _saturation_flags_at_readout(counts, data, float(profile.full_well_e or np.inf), profile.white_level_dn)
 
     vis = _seen(obj, len(heights))
     vehicles = [dict(v, visible_fraction=None) for v in scene.vehicles]
