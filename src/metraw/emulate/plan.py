@@ -59,7 +59,9 @@ def thinning_ratios(source_profile, target: TargetSystem) -> tuple[dict[str, flo
                           "(use metraw.raw.sensor.readout on zeros for a dark frame)")
     if source_profile.is_mono and target.cfa_pattern != "mono":
         raise MetrawError("a mono source has no colour information for a colour (CFA) target")
-    a_s = math.pi / 4 * g["aperture_diameter_m"] ** 2 * (1 - source_profile.obscuration_ratio**2)
+    from metraw.physics.optics import pupil_area_m2
+
+    a_s = pupil_area_m2(g["aperture_diameter_m"], source_profile.obscuration_ratio)
     src = a_s / g["altitude_m"] ** 2 * g["exposure_s"] * source_profile.optical_transmission
     tgt = (target.aperture_area_m2 / target.altitude_m**2 * target.exposure_s * target.optical_transmission
            * target.atmospheric_transmission)

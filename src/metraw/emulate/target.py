@@ -123,7 +123,9 @@ class TargetSystem:
     @property
     def aperture_area_m2(self) -> float:
         """Collecting area of the annular aperture [m^2]."""
-        return math.pi / 4.0 * self.diameter_m**2 * (1.0 - self.obscuration_ratio**2)
+        from metraw.physics.optics import pupil_area_m2
+
+        return pupil_area_m2(self.diameter_m, self.obscuration_ratio)
 
     @property
     def smear_m(self) -> float:

@@ -118,10 +118,14 @@ def pupil_area_m2(diameter_m: float, obscuration: float = 0.0, spider_vanes: int
     Vanes run from the obscuration's edge to the rim; their mutual overlap near the centre (only when
     the obscuration is smaller than the vanes' width allows) is neglected.
     """
-    d = _positive("diameter_m", diameter_m)
-    eps = _obscuration(obscuration)
-    area = math.pi / 4 * d * d * (1 - eps * eps)
-    return area - int(spider_vanes) * _nonneg("spider_width_m", spider_width_m) * d / 2 * (1 - eps)
+    _positive("diameter_m", diameter_m)
+    _obscuration(obscuration)
+    # The one formula of the collected light, pi / 4 D^2 (1 - eps^2) (the target's aperture_area_m2, the
+    # emulation plan's source aperture, atmosphere.pixel_etendue_m2_sr), in their arithmetic: D**2 and eps**2 on
+    # the caller's own types (a numpy float squares as x * x, a Python float through pow: they differ in the last
+    # bit now and then), so the emulator's floats are the ones it always had.
+    area = math.pi / 4 * diameter_m**2 * (1 - obscuration**2)
+    return area - int(spider_vanes) * _nonneg("spider_width_m", spider_width_m) * diameter_m / 2 * (1 - obscuration)
 
 
 def encircled_energy(radius_rad, wavelength_m, diameter_m: float, obscuration: float = 0.0, *, weights=None) -> np.ndarray:

@@ -208,6 +208,7 @@ def photon_budget(values: Mapping[str, float], nominal: Mapping[str, float]) -> 
 
     def budget(v):
         eps = v("obscuration_ratio", 0.0)
+        # D^2 (1 - eps^2): optics.pupil_area_m2 without its pi / 4, in this arithmetic order (the spec's bytes)
         return (v("diameter_m") ** 2 * (1 - eps**2) * v("exposure_s") * v("pixel_pitch_m") ** 2
                 * v("atmospheric_transmission") / v("focal_length_m") ** 2)
 

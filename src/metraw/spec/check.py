@@ -313,6 +313,8 @@ def light_ratio(profile, optimum: Mapping[str, Any], bin_factor: int = 1) -> flo
     None when either side lacks D, exposure, pitch or focal length. QE and haze are taken equal.
     """
     def light(d, eps, t, pitch, f, trans):
+        # the collected light of optics.pupil_area_m2 without its pi / 4, in this arithmetic order (through
+        # pupil_area_m2 the ratio's last bit would change for ~40 % of systems, and with it the planned chain)
         return trans * d * d * (1.0 - eps * eps) * t * (pitch / f) ** 2
 
     need = ("diameter_m", "exposure_s", "pixel_pitch_m", "focal_length_m")
