@@ -34,12 +34,12 @@ from normalise import paired_difference, pooled  # noqa: E402  (benchmarks/norma
 
 
 def check_point(point: str, results: Path, spec, required: float, seed: int) -> dict:
-    from metraw.spec.aggregate import _read_measured
+    from metraw.io.store import RawStore
     from metraw.segment.data import prepare
     from metraw.segment.evaluate import evaluate_images
     from metraw.segment.train import load_model
+    from metraw.spec.aggregate import _read_measured
     from metraw.spec.check import apply_chain, check
-    from metraw.io.store import RawStore
 
     folder = results / "points" / point
     _, (iou, var) = _read_measured(folder / "metrics.json", "metrics file")
@@ -93,8 +93,8 @@ def main(argv: list[str] | None = None) -> int:
     import torch
 
     from metraw.errors import MetrawError
-    from metraw.study.points import load_params, parameter_points
     from metraw.spec.builder import Specification
+    from metraw.study.points import load_params, parameter_points
 
     torch.set_num_threads(args.threads)
     results = Path(args.results)
@@ -146,9 +146,9 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _check_source(args, params, spec) -> dict:
+    from metraw.io.store import RawStore
     from metraw.segment.data import split_indices
     from metraw.spec.check import check
-    from metraw.io.store import RawStore
 
     store = RawStore.open(args.source)
     training = params.get("training") or {}

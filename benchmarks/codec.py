@@ -221,8 +221,8 @@ from metraw import codec
 from metraw.calibrate import from_image
 from metraw.codec import prepare
 from metraw.codec.selfcheck import self_check
-from metraw.raw.image import RawImage
 from metraw.io import read_raw
+from metraw.raw.image import RawImage
 from metraw.raw.profile import CalibrationProfile
 from metraw.raw.sensor import expose, rng_from_seed
 

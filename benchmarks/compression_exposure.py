@@ -48,9 +48,9 @@ def measure(source, target, n: int, step: float, seed: int) -> dict[str, list[fl
 
 
 def main(argv: list[str] | None = None) -> int:
-    from metraw.study.points import NOMINAL, load_params, target_params
-    from metraw.io.store import RawStore
     from metraw.emulate.target import TargetSystem
+    from metraw.io.store import RawStore
+    from metraw.study.points import NOMINAL, load_params, target_params
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--source", required=True)

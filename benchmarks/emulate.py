@@ -35,8 +35,8 @@ def naive_baseline(source, target, plan, rng):
     padding at the edges, area resampling onto the target grid, fresh Poisson + read noise."""
     from scipy.signal import fftconvolve
 
-    from metraw.physics import optics
     from metraw.emulate.emulator import _cell_planes, _detect
+    from metraw.physics import optics
     from metraw.raw.sensor import readout
 
     cells = _cell_planes(source, plan)
@@ -79,9 +79,9 @@ def figure(path: str, size_px: int = 3072) -> None:
     import matplotlib.pyplot as plt
 
     from metraw.emulate.emulator import emulate
-    from metraw.study.points import load_params
-    from metraw.scenes import generate_one
     from metraw.emulate.target import TargetSystem
+    from metraw.scenes import generate_one
+    from metraw.study.points import load_params
 
     here = os.path.dirname(os.path.abspath(__file__))
     params = load_params(os.path.join(here, "..", "params.yaml"))
@@ -134,12 +134,12 @@ def main() -> None:
         return
     w, h = (int(v) for v in args.size.split("x"))
 
-    from metraw.physics.accuracy import Accuracy
     from metraw.emulate.emulator import emulate, expected_electrons
     from metraw.emulate.plan import plan_emulation
-    from metraw.study.points import load_params
-    from metraw.raw.sensor import rng_from_seed
     from metraw.emulate.target import TargetSystem
+    from metraw.physics.accuracy import Accuracy
+    from metraw.raw.sensor import rng_from_seed
+    from metraw.study.points import load_params
 
     here = os.path.dirname(os.path.abspath(__file__))
     target = TargetSystem.from_params(load_params(os.path.join(here, "..", "params.yaml")))

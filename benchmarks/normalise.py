@@ -186,14 +186,14 @@ def main(argv: list[str] | None = None) -> int:
 
     import torch
 
-    from metraw.physics.accuracy import Accuracy
+    from metraw.emulate.target import TargetSystem, parse_point
     from metraw.errors import MetrawError
-    from metraw.study.points import load_params
+    from metraw.io.store import RawStore
+    from metraw.physics.accuracy import Accuracy
     from metraw.segment.data import split_indices
     from metraw.segment.train import load_model
     from metraw.spec.builder import Specification
-    from metraw.io.store import RawStore
-    from metraw.emulate.target import TargetSystem, parse_point
+    from metraw.study.points import load_params
 
     torch.set_num_threads(args.threads)
     try:

@@ -36,8 +36,8 @@ def _subset(store_path: str, n: int | None, work: Path):
 
 def _emulated(source: Path, point: str, work: Path) -> Path:
     from metraw.emulate.emulator import emulate
-    from metraw.io.store import RawStore
     from metraw.emulate.target import TargetSystem, parse_point
+    from metraw.io.store import RawStore
 
     overrides = {} if point == "nominal" else parse_point(point)
     out = work / f"{source.stem}_{point.replace('=', '_')}.zarr"
@@ -54,10 +54,10 @@ def _emulated(source: Path, point: str, work: Path) -> Path:
 
 
 def _run(store: Path, config, label: str):
+    from metraw.io.store import RawStore
     from metraw.segment.data import prepare_store, split_indices
     from metraw.segment.evaluate import evaluate_images
     from metraw.segment.train import fit
-    from metraw.io.store import RawStore
 
     s = RawStore.open(store)
     tr, te = split_indices(len(s), config.test_fraction, config.split_seed)

@@ -79,9 +79,9 @@ def stores(tmp_path_factory):
     import dataclasses
 
     from metraw.emulate.emulator import emulate
-    from metraw.scenes import generate_one
-    from metraw.io.store import RawStore
     from metraw.emulate.target import TargetSystem
+    from metraw.io.store import RawStore
+    from metraw.scenes import generate_one
 
     root = tmp_path_factory.mktemp("otf")
     params = Path(__file__).resolve().parents[1] / "params.yaml"

@@ -51,8 +51,8 @@ def emulation() -> None:
     from pathlib import Path
 
     from metraw.emulate.emulator import emulate
-    from metraw.scenes import generate_one
     from metraw.emulate.target import TargetSystem
+    from metraw.scenes import generate_one
 
     target = TargetSystem.from_params(str(Path(__file__).resolve().parents[1] / "params.yaml"))
     for size in (96, 160):

@@ -103,8 +103,8 @@ def test_decoded_copy_holds_the_same_images_uncompressed(stores, tmp_path, capsy
     digest (a model trained on the copy recognises the original), and the original named as its origin."""
     import zarr
 
-    from metraw.segment.train import store_digest
     from metraw.io.store import read_shard_index
+    from metraw.segment.train import store_digest
 
     _, coded = stores
     out = tmp_path / "copy.zarr"

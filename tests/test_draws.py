@@ -11,9 +11,9 @@ import pytest
 
 from metraw.emulate.draws import build_field
 from metraw.emulate.emulator import emulate, expected_electrons
+from metraw.emulate.target import TargetSystem
 from metraw.errors import MetrawError
 from metraw.raw.image import RawImage
-from metraw.emulate.target import TargetSystem
 
 PARAMS = Path(__file__).resolve().parents[1] / "params.yaml"
 

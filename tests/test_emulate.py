@@ -11,14 +11,14 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from metraw.physics.accuracy import Accuracy
 from metraw.emulate.emulator import emulate, expected_electrons, photon_electrons
 from metraw.emulate.plan import plan_emulation, thinning_ratios
+from metraw.emulate.target import TargetSystem, parse_point
 from metraw.errors import MetrawError
+from metraw.physics.accuracy import Accuracy
 from metraw.raw.image import FLAG_SATURATED, RawImage
 from metraw.raw.profile import CalibrationProfile
 from metraw.raw.sensor import expose, rng_from_seed
-from metraw.emulate.target import TargetSystem, parse_point
 
 SOURCE = dict(camera="test drone", cfa_pattern="RGGB", pixel_pitch_m=2.41e-6, focal_length_m=10.26e-3,
               aperture_diameter_m=3.664e-3, altitude_m=250.0, exposure_s=1.0e-3, optical_transmission=0.9,
@@ -390,8 +390,8 @@ def test_expected_chain_matches_optics_kernel_for_a_point_source():
     """One bright source cell: the Fourier chain equals metraw.physics.optics.system_kernel (an independent
     implementation, validated against the Airy formula) averaged over the cell (uniform photon positions),
     to <= 5e-4 of the peak (band sampling 1e-4 in each, gridding 2e-7)."""
-    from metraw.physics import optics
     from metraw.emulate.emulator import _cell_planes, _Fourier
+    from metraw.physics import optics
 
     data = np.full((600, 900), 256, np.uint16)
     ci, cj = 151, 223

@@ -315,9 +315,9 @@ def test_box_points_change_one_parameter_log_uniform_in_its_range():
 
 
 def test_payload_batches_hold_one_payload_each_and_every_draw_once():
+    from metraw.raw.sensor import rng_from_seed
     from metraw.segment.onthefly import payload_batches
     from metraw.segment.pretrain import payload_keys, sample_box
-    from metraw.raw.sensor import rng_from_seed
 
     box = {"focal_length_m": [0.8, 2.0], "exposure_s": [1e-4, 5e-4], "diameter_m": [0.1, 0.5]}
     overrides = sample_box(box, 1500, 4, seed=3)

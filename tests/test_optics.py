@@ -9,10 +9,10 @@ from scipy.integrate import dblquad, quad
 from scipy.optimize import brentq
 from scipy.special import j0, j1, roots_hermite, roots_legendre
 
+from metraw.errors import MetrawError
 from metraw.physics import kernels
 from metraw.physics import optics as o
 from metraw.physics.accuracy import Accuracy, airy_flux_outside, kernel_radius_px
-from metraw.errors import MetrawError
 
 LAM, D = 550e-9, 0.2
 LOD = LAM / D

@@ -17,11 +17,11 @@ import pytest
 import yaml
 
 from metraw.errors import MetrawError
-from metraw.study.points import (grid_point_name, load_params, parameter_points, swept_parameters, target_params,
-                           validate_params)
 from metraw.spec.builder import Choice, Limit, Specification
 from metraw.spec.check import apply_chain, check, stated_haze_e
 from metraw.spec.tolerance import categorical_choice, grid_region
+from metraw.study.points import (grid_point_name, load_params, parameter_points, swept_parameters, target_params,
+                           validate_params)
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -40,8 +40,8 @@ def base_params() -> dict:
 def test_every_workflow_configfile_merged_over_params_is_valid(configfile):
     from snakemake.utils import update_config
 
-    from metraw.study.points import validate_params
     from metraw.segment.pretrain import pretrain_settings
+    from metraw.study.points import validate_params
 
     params = yaml.safe_load((REPO / "params.yaml").read_text())
     update_config(params, yaml.safe_load(configfile.read_text()))  # what --configfile does to the config

@@ -14,12 +14,12 @@ import numpy as np
 import pytest
 
 from metraw.raw.image import RawImage
+from metraw.raw.sensor import rng_from_seed
 from metraw.segment.data import canonical_pack
 from metraw.segment.evaluate import confusion, gsd_scale, predict_logits, resample_to_gsd
-from metraw.segment.predict import load_prediction, packed_window, sites_to_mosaic
 from metraw.segment.objects import MIN_OBJECT_AREA_M2, drop_small_objects
+from metraw.segment.predict import load_prediction, packed_window, sites_to_mosaic
 from metraw.segment.toy import toy_profile, toy_scene
-from metraw.raw.sensor import rng_from_seed
 
 BOX = "box-approximate: union of axis-aligned YOLO boxes, area fraction per pixel"
 

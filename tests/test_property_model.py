@@ -12,15 +12,15 @@ import numpy as np
 import pytest
 
 from metraw.emulate.emulator import emulate
+from metraw.emulate.target import TargetSystem
 from metraw.errors import MetrawError
 from metraw.physics.daylight import C_LIGHT_M_PER_S, H_PLANCK_J_S, ground_irradiance_w_m2_m
-from metraw.spec.property_model import (REFERENCE_SCENE, PropertyModel, decide, haze_fraction, image_properties,
-                                   reference_signal_e, stated_haze_per_pixel_e)
 from metraw.physics.rawfunc import add_poisson, thin
 from metraw.scenes import generate_one
 from metraw.spec.builder import Specification
 from metraw.spec.check import check
-from metraw.emulate.target import TargetSystem
+from metraw.spec.property_model import (REFERENCE_SCENE, PropertyModel, decide, haze_fraction, image_properties,
+                                   reference_signal_e, stated_haze_per_pixel_e)
 
 PARAMS = Path(__file__).resolve().parents[1] / "params.yaml"
 

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from metraw.errors import MetrawError
+from metraw.physics.rawfunc import add_poisson, bin_same_colour, redistribute, shoot, stochastic_round, thin, thin_counts
 from metraw.raw.image import FLAG_SATURATED, RawImage
 from metraw.raw.profile import CalibrationProfile
-from metraw.physics.rawfunc import add_poisson, bin_same_colour, redistribute, shoot, stochastic_round, thin, thin_counts
 from metraw.raw.sensor import expose, rng_from_seed
 
 

@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 
 from metraw.cli import main
+from metraw.io.store import RawStore
+from metraw.physics.daylight import neutral_response, solar_toa_irradiance_w_m2_m
+from metraw.raw.sensor import rng_from_seed
 from metraw.scenes import generate, generate_one, scene_camera
 from metraw.scenes.layout import Scene, add_vehicle, make_scene, rect
-from metraw.physics.daylight import neutral_response, solar_toa_irradiance_w_m2_m
 from metraw.scenes.radiance import electrons_per_reflectance
 from metraw.scenes.render import RenderSettings, render
-from metraw.raw.sensor import rng_from_seed
-from metraw.io.store import RawStore
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -9,13 +9,13 @@ import re
 import numpy as np
 import pytest
 
-from metraw.raw.cfa import pack_planes
 from metraw.errors import MetrawError
+from metraw.raw.cfa import pack_planes
 from metraw.raw.image import RawImage
+from metraw.raw.sensor import expose, rng_from_seed
 from metraw.segment.data import canonical_pack, prepare, split_indices, vst_mosaic
 from metraw.segment.evaluate import confusion, iou, scores, summarise
 from metraw.segment.toy import toy_profile, toy_scene, toy_store
-from metraw.raw.sensor import expose, rng_from_seed
 
 
 # ----------------------------------------------------------------- input representation
@@ -249,9 +249,9 @@ def test_bfloat16_training_is_deterministic_learns_and_differs_from_float32(tiny
     import torch
 
     from metraw.errors import MetrawError
+    from metraw.io.store import RawStore
     from metraw.segment.data import prepare_store
     from metraw.segment.train import TrainConfig, fit
-    from metraw.io.store import RawStore
 
     images = prepare_store(RawStore.open(tiny_store), range(8), progress=False)
     runs = [fit(images, _cfg(epochs=4, precision=prec), device="cpu", progress=False)
@@ -269,9 +269,9 @@ def test_bfloat16_training_is_deterministic_learns_and_differs_from_float32(tiny
 def test_auto_precision_is_bfloat16_exactly_where_the_hardware_computes_it(tiny_store, monkeypatch):
     import torch
 
+    from metraw.io.store import RawStore
     from metraw.segment.data import prepare_store
     from metraw.segment.train import fit, fit_replicates, resolve_precision
-    from metraw.io.store import RawStore
 
     def hardware(avx512_bf16: bool, amx: bool = False, cuda_bf16: bool = False, capability: str = "AVX512"):
         monkeypatch.setattr(torch.backends.cpu, "get_cpu_capability", lambda: capability)
@@ -411,9 +411,9 @@ def test_pool_factor_follows_ground_sampling_and_keeps_the_grid():
 
 
 def test_cover_draws_enough_crops_to_see_each_image_once_per_epoch(tiny_store):
+    from metraw.io.store import RawStore
     from metraw.segment.data import PreparedImage, prepare_store
     from metraw.segment.train import TrainConfig, crops_to_cover, fit
-    from metraw.io.store import RawStore
 
     def image(h, w):
         return PreparedImage(np.zeros((h, w), np.float32), np.zeros((h, w), np.float16), "mono", 0)

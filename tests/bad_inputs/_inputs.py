@@ -14,8 +14,8 @@ import numpy as np
 import tifffile
 import yaml
 
-from metraw.raw.image import RawImage
 from metraw.io import write_tiff
+from metraw.raw.image import RawImage
 from metraw.raw.profile import CalibrationProfile
 from metraw.spec.builder import Limit, Specification
 

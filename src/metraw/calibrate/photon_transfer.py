@@ -7,12 +7,12 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from metraw.raw.cfa import channel_names, plane_offsets, split_planes
-from metraw.errors import MetrawError
-from metraw.raw.image import RawImage
-from metraw.raw.profile import CalibrationProfile
 from metraw.calibrate.results import (FIT_FRACTION, CalibrationResult, ChannelCalibration, _build_profile,
                                      _first_profile, _frame_array, _native, _radiometry, _read_noise)
+from metraw.errors import MetrawError
+from metraw.raw.cfa import channel_names, plane_offsets, split_planes
+from metraw.raw.image import RawImage
+from metraw.raw.profile import CalibrationProfile
 
 
 # ------------------------------------------------------------------------------ photon transfer

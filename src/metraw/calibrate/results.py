@@ -10,10 +10,10 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from metraw.raw.cfa import validate_pattern
 from metraw.errors import MetrawError
-from metraw.raw.image import RawImage
 from metraw.io.dn import unused_low_bits
+from metraw.raw.cfa import validate_pattern
+from metraw.raw.image import RawImage
 from metraw.raw.profile import CalibrationProfile
 
 #: Default fraction of the saturation signal used for the photon-transfer fit (EMVA 1288).

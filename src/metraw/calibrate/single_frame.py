@@ -8,12 +8,12 @@ from typing import Sequence
 import numpy as np
 from scipy import stats
 
-from metraw.raw.cfa import channel_names, plane_offsets, split_planes
-from metraw.errors import MetrawError
-from metraw.raw.image import RawImage
-from metraw.raw.profile import CalibrationProfile
 from metraw.calibrate.results import (FIT_FRACTION, CalibrationResult, ChannelCalibration, _build_profile,
                                      _frame_array, _native, _radiometry, _weighted_mean)
+from metraw.errors import MetrawError
+from metraw.raw.cfa import channel_names, plane_offsets, split_planes
+from metraw.raw.image import RawImage
+from metraw.raw.profile import CalibrationProfile
 
 #: Side of a from_image block in 2 x 2 cells of one CFA plane (8 -> 16 x 16 plane pixels).
 BLOCK_CELLS = 8

@@ -16,8 +16,8 @@ from pathlib import Path
 
 from metraw.atomic import atomic_path
 from metraw.errors import MetrawError
-from metraw.raw.image import RawImage
 from metraw.io.store import RawStore
+from metraw.raw.image import RawImage
 
 
 def add_input_arguments(p) -> None:

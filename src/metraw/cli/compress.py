@@ -106,8 +106,8 @@ def stored_raw(store, n: int) -> dict[str, Any]:
 
 def run(args) -> int:
     from metraw.codec import encode
-    from metraw.progress import progress_bar
     from metraw.io.store import RawStore
+    from metraw.progress import progress_bar
 
     if not (math.isfinite(args.step) and args.step > 0):
         raise MetrawError(f"--step must be a positive number of sigmas, got {args.step}")

@@ -39,12 +39,12 @@ def register(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from metraw.physics.accuracy import Accuracy
-    from metraw.errors import MetrawError
-    from metraw.study.points import load_params
-    from metraw.progress import progress_bar
-    from metraw.io.store import RawStore
     from metraw.emulate.target import TargetSystem, parse_point
+    from metraw.errors import MetrawError
+    from metraw.io.store import RawStore
+    from metraw.physics.accuracy import Accuracy
+    from metraw.progress import progress_bar
+    from metraw.study.points import load_params
 
     codec = StoreCodec(args)
     params = load_params(args.params)

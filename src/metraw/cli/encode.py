@@ -23,9 +23,9 @@ def register(sub) -> None:
 
 def load_or_calibrate(path: str, profile_path: str | None, black: float | None, cfa: str | None):
     """Read a raw image and give it a profile: from ``profile_path``, or calibrated from the image."""
+    from metraw.io import read_raw
     from metraw.raw.cfa import validate_pattern
     from metraw.raw.image import RawImage
-    from metraw.io import read_raw
     from metraw.raw.profile import load_profile
 
     if not Path(path).is_file():

@@ -29,9 +29,9 @@ def register(sub) -> None:
 
 def run(args) -> int:
     from metraw.cli.check import format_decision, load_image
+    from metraw.io.store import RawStore
     from metraw.spec.builder import Specification
     from metraw.spec.check import apply_chain, check
-    from metraw.io.store import RawStore
 
     spec = Specification.load(args.spec)
     image = load_image(args)

@@ -35,9 +35,9 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from metraw.io.store import RawStore
     from metraw.progress import progress_bar
     from metraw.scenes import generate, scene_camera
-    from metraw.io.store import RawStore
 
     if args.n < 1:
         raise MetrawError(f"--n must be >= 1, got {args.n}")

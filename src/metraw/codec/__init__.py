@@ -30,9 +30,9 @@ from concurrent.futures import ThreadPoolExecutor
 import numba as nb
 import numpy as np
 
-from metraw.raw.cfa import plane_offsets, cell_size
 from metraw.codec import container, entropy, native, predictive, prepare
 from metraw.errors import MetrawError
+from metraw.raw.cfa import plane_offsets, cell_size
 from metraw.raw.image import RawImage
 from metraw.raw.profile import CalibrationProfile
 

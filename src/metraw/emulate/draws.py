@@ -35,15 +35,15 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from metraw.physics.accuracy import DEFAULT_ACCURACY, Accuracy
-from metraw.raw.cfa import color_index
 from metraw.emulate.emulator import _cell_mask, _cell_planes, _detect, _Fourier, _saturated_cells
 from metraw.emulate.plan import plan_emulation
+from metraw.emulate.target import TargetSystem
 from metraw.errors import MetrawError
+from metraw.physics.accuracy import DEFAULT_ACCURACY, Accuracy
 from metraw.physics.gridding import GaussianWindow
+from metraw.raw.cfa import color_index
 from metraw.raw.image import FLAG_SATURATED, RawImage
 from metraw.raw.sensor import readout, rng_from_seed
-from metraw.emulate.target import TargetSystem
 
 __all__ = ["PhaseField", "build_field", "DEFAULT_OVERSAMPLE"]
 

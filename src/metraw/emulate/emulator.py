@@ -51,16 +51,16 @@ import numpy as np
 import scipy.fft as sfft
 import scipy.sparse as sp
 
-from metraw.physics.accuracy import DEFAULT_ACCURACY, Accuracy
-from metraw.raw.cfa import color_index, plane_offsets
+from metraw.emulate.plan import EmulationPlan, plan_emulation
+from metraw.emulate.target import TargetSystem
 from metraw.errors import MetrawError
+from metraw.physics.accuracy import DEFAULT_ACCURACY, Accuracy
 from metraw.physics.gridding import GaussianWindow
-from metraw.raw.image import FLAG_SATURATED, RawImage
 from metraw.physics.photon_landing import land_photons
 from metraw.physics.rawfunc import stochastic_round, thin_counts
+from metraw.raw.cfa import color_index, plane_offsets
+from metraw.raw.image import FLAG_SATURATED, RawImage
 from metraw.raw.sensor import readout, rng_from_seed
-from metraw.emulate.target import TargetSystem
-from metraw.emulate.plan import EmulationPlan, plan_emulation
 
 __all__ = ["emulate", "expected_electrons", "photon_electrons"]
 

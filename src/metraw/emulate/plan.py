@@ -14,11 +14,11 @@ import numpy as np
 import scipy.fft as sfft
 import scipy.sparse as sp
 
+from metraw.emulate.target import TargetSystem
+from metraw.errors import MetrawError
 from metraw.physics.accuracy import DEFAULT_ACCURACY, Accuracy
 from metraw.raw.cfa import channel_names, fill_factor
-from metraw.errors import MetrawError
 from metraw.raw.sensor import readout
-from metraw.emulate.target import TargetSystem
 
 __all__ = ["plan_emulation", "EmulationPlan", "thinning_ratios", "EDGE_POLICIES"]
 

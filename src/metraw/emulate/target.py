@@ -16,9 +16,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from metraw.errors import MetrawError
 from metraw.physics.atmosphere import path_radiance_electrons
 from metraw.raw.cfa import channel_names, validate_pattern
-from metraw.errors import MetrawError
 from metraw.raw.profile import DEFAULT_BANDS_M, CalibrationProfile
 
 

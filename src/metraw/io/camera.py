@@ -19,11 +19,11 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from metraw.raw.cfa import BAYER_PATTERNS
 from metraw.errors import MetrawError
-from metraw.raw.image import RawImage
-from metraw.io.dn import as_dn, bits_needed
 from metraw.io._unknown import UNKNOWN_GAIN_DN_PER_E, UNKNOWN_READ_NOISE_E, unknown_uncertainty
+from metraw.io.dn import as_dn, bits_needed
+from metraw.raw.cfa import BAYER_PATTERNS
+from metraw.raw.image import RawImage
 from metraw.raw.profile import CalibrationProfile
 
 #: File suffixes handed to LibRaw without sniffing.

@@ -16,9 +16,9 @@ from typing import Any
 import numpy as np
 
 from metraw.errors import MetrawError
-from metraw.raw.image import RawImage
-from metraw.io.dn import as_dn, bits_needed
 from metraw.io._unknown import UNKNOWN_GAIN_DN_PER_E, UNKNOWN_READ_NOISE_E
+from metraw.io.dn import as_dn, bits_needed
+from metraw.raw.image import RawImage
 from metraw.raw.profile import CalibrationProfile
 
 HEADERLESS_SUFFIXES = {".raw", ".bin"}

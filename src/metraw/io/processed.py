@@ -26,13 +26,13 @@ from typing import Any
 
 import numpy as np
 
-from metraw.raw.cfa import color_index
-from metraw.physics.daylight import neutral_response
 from metraw.errors import MetrawError
+from metraw.io.labels import attach_labels
+from metraw.io.pictures import decode_image
+from metraw.physics.daylight import neutral_response
+from metraw.raw.cfa import color_index
 from metraw.raw.image import RawImage
 from metraw.raw.profile import CalibrationProfile
-from metraw.io.pictures import decode_image
-from metraw.io.labels import attach_labels
 from metraw.raw.sensor import expose
 
 PROCESSED_SUFFIXES = {".png", ".jpg", ".jpeg"}

@@ -35,8 +35,8 @@ from __future__ import annotations
 
 import math
 
-from metraw.physics.daylight import C_LIGHT_M_PER_S, H_PLANCK_J_S
 from metraw.errors import MetrawError
+from metraw.physics.daylight import C_LIGHT_M_PER_S, H_PLANCK_J_S
 from metraw.raw.profile import CalibrationProfile
 
 #: Reference wavelength of the path radiance's power law [m].

@@ -42,8 +42,8 @@ import numpy as np
 import scipy.fft as sfft
 from scipy.special import j1
 
-from metraw.physics.accuracy import DEFAULT_ACCURACY, Accuracy
 from metraw.errors import MetrawError
+from metraw.physics.accuracy import DEFAULT_ACCURACY, Accuracy
 from metraw.physics.kernels import _centre, _nonneg, _obscuration, _positive, _shape2
 
 __all__ = [

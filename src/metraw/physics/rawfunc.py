@@ -15,9 +15,9 @@ from typing import Any
 
 import numpy as np
 
+from metraw.errors import MetrawError
 from metraw.physics.atmosphere import path_radiance_electrons
 from metraw.raw.cfa import cell_size, channel_names, plane_offsets
-from metraw.errors import MetrawError
 from metraw.raw.image import FLAG_SATURATED, RawImage
 from metraw.raw.profile import CalibrationProfile
 from metraw.raw.sensor import readout, rng_from_seed

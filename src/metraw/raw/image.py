@@ -8,8 +8,8 @@ from typing import Any
 
 import numpy as np
 
-from metraw.raw.cfa import color_index, split_planes
 from metraw.errors import MetrawError
+from metraw.raw.cfa import color_index, split_planes
 from metraw.raw.profile import CalibrationProfile
 
 #: Bits of ``RawImage.flags``.

@@ -14,12 +14,12 @@ from typing import Iterator, Sequence
 import numpy as np
 
 from metraw.errors import MetrawError
-from metraw.raw.image import RawImage
 from metraw.parallel import ordered_map
+from metraw.raw.image import RawImage
 from metraw.raw.profile import CalibrationProfile
+from metraw.raw.sensor import rng_from_seed
 from metraw.scenes.layout import KINDS, make_scene
 from metraw.scenes.render import RenderSettings, render
-from metraw.raw.sensor import rng_from_seed
 
 __all__ = ["KINDS", "RenderSettings", "generate", "generate_one", "scene_camera", "scene_seeds"]
 

@@ -17,8 +17,8 @@ from typing import Sequence
 
 import numpy as np
 
-from metraw.raw.cfa import plane_offsets
 from metraw.errors import MetrawError
+from metraw.raw.cfa import plane_offsets
 from metraw.raw.image import RawImage
 
 

@@ -45,10 +45,10 @@ from scipy import ndimage
 from metraw.raw.cfa import color_index
 from metraw.raw.image import FLAG_SATURATED, RawImage
 from metraw.raw.profile import CalibrationProfile
+from metraw.raw.sensor import readout
 from metraw.scenes.layout import Scene
 from metraw.scenes.radiance import electrons_per_reflectance
 from metraw.scenes.raster import rasterise
-from metraw.raw.sensor import readout
 
 #: Relative diffuse-sky irradiance on a surface in a cast shadow (sky partly hidden by the caster).
 SHADOW_SKY_VIEW = 0.75

@@ -28,13 +28,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from metraw.raw.cfa import PACKED_CELL_PX, PACKED_GEOMETRY, color_index, pack_planes
 from metraw.errors import MetrawError
-from metraw.raw.image import RawImage
 from metraw.progress import progress_bar
-from metraw.segment.condition import payload_condition
+from metraw.raw.cfa import PACKED_CELL_PX, PACKED_GEOMETRY, color_index, pack_planes
+from metraw.raw.image import RawImage
 from metraw.raw.sensor import rng_from_seed
 from metraw.raw.vst import anscombe
+from metraw.segment.condition import payload_condition
 
 
 def split_indices(n_images: int, test_fraction: float, split_seed: int) -> tuple[np.ndarray, np.ndarray]:

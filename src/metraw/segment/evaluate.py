@@ -42,8 +42,8 @@ from typing import Any
 
 import numpy as np
 
-from metraw.raw.cfa import PACKED_GEOMETRY, pack_planes, unpack_planes
 from metraw.errors import MetrawError
+from metraw.raw.cfa import PACKED_GEOMETRY, pack_planes, unpack_planes
 from metraw.segment.data import (TRANSFORM_SETS, PreparedImage, canonical_pack, canonical_window, check_transforms,
                                  undo_dihedral)
 from metraw.segment.objects import (MIN_OBJECT_AREA_M2, drop_small_objects, object_boxes, object_counts,
@@ -375,10 +375,10 @@ def evaluate_store(store_path, model_dir, device: str | None = None, progress: b
     ``transforms``: dihedral transforms averaged per prediction (``averaged_probability``); default the
     model's ``predict_transforms``.
     """
+    from metraw.io.store import RawStore
     from metraw.progress import progress_bar
     from metraw.segment.data import prepare
     from metraw.segment.train import TrainConfig, default_device, flush_denormals, replicate_dirs, set_determinism
-    from metraw.io.store import RawStore
 
     device = device or default_device()
     model, ckpt, record = open_model(model_dir, device)

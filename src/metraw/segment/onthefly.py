@@ -21,14 +21,14 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from metraw.raw.cfa import PACKED_CELL_PX, cfa_family
 from metraw.emulate.draws import DEFAULT_OVERSAMPLE, PhaseField, build_field
+from metraw.emulate.target import TargetSystem
 from metraw.errors import MetrawError
 from metraw.parallel import fork_pool, ordered_ahead
+from metraw.raw.cfa import PACKED_CELL_PX, cfa_family
+from metraw.raw.sensor import rng_from_seed
 from metraw.segment.data import batch_crops, prepare
 from metraw.segment.train import TrainConfig, default_device, new_network, train_loop, training_packed_gsd_m
-from metraw.raw.sensor import rng_from_seed
-from metraw.emulate.target import TargetSystem
 
 
 def build_fields(store, indices: Sequence[int], target, oversample: int = DEFAULT_OVERSAMPLE,
@@ -270,9 +270,9 @@ def train_store_on_the_fly(store_path, source_path, out_dir, config: TrainConfig
     directory (``metraw pretrain``): replicate r fine-tunes its replicate r (``config.epochs`` epochs). ``workers``:
     processes building the scenes' expected fields (``scene_fields``); ``draw_workers``: processes drawing from them
     during the training (``fit_draws``)."""
+    from metraw.io.store import RawStore
     from metraw.segment.data import source_indices, split_indices, split_positions
     from metraw.segment.train import fit_replicates, pretrained_states, save_replicates, store_digest
-    from metraw.io.store import RawStore
 
     store = RawStore.open(store_path)
     source = RawStore.open(source_path)

@@ -26,12 +26,12 @@ import time
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
-from metraw.raw.cfa import cfa_family
 from metraw.emulate.draws import DEFAULT_OVERSAMPLE
-from metraw.errors import MetrawError
-from metraw.segment.train import TrainConfig
-from metraw.raw.sensor import rng_from_seed
 from metraw.emulate.target import TargetSystem
+from metraw.errors import MetrawError
+from metraw.raw.cfa import cfa_family
+from metraw.raw.sensor import rng_from_seed
+from metraw.segment.train import TrainConfig
 
 #: ``training.pretrain`` of params.yaml, where it leaves a key out (measured settings: README, issue #15).
 #: ``batch_size`` None: the training profile's (the fine-tunings always keep the profile's). ``finetune_learning_rate``
@@ -141,8 +141,8 @@ def prepare_box(source_path, make_target: Callable[[dict[str, float]], TargetSys
     seeded with ``config.seed``; ``make_target`` turns an override into the full target), built by ``workers``
     processes. ``max_scenes``: only the first that many scenes (source first; the box points of a scene do not
     depend on how many follow it)."""
-    from metraw.segment.data import split_indices
     from metraw.io.store import RawStore
+    from metraw.segment.data import split_indices
 
     if batches not in BATCHES:
         raise MetrawError(f"pretraining batches must be one of {', '.join(BATCHES)}, got {batches!r}")

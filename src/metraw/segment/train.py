@@ -28,11 +28,11 @@ from typing import Any
 
 import numpy as np
 
-from metraw.raw.cfa import PACKED_CELL_PX, cfa_family
 from metraw.errors import MetrawError
 from metraw.parallel import prefetch
-from metraw.segment.data import PreparedImage, batch_crops, check_transforms, prepare_store, source_indices, split_indices
+from metraw.raw.cfa import PACKED_CELL_PX, cfa_family
 from metraw.raw.sensor import rng_from_seed
+from metraw.segment.data import PreparedImage, batch_crops, check_transforms, prepare_store, source_indices, split_indices
 
 CHECKPOINT = "model.pt"
 TRAIN_METRICS = "train.json"

@@ -180,8 +180,8 @@ def _sd_of_mean(values: list[float]) -> float:
 
 def _sim_to_real(options, rows: list[dict[str, Any]]) -> dict[str, Any] | None:
     """The top-level ``sim_to_real`` block (None without ``--real-metrics-pattern``)."""
-    from metraw.study.points import NOMINAL
     from metraw.study import sim_to_real
+    from metraw.study.points import NOMINAL
 
     if not options.real_metrics_pattern:
         if options.source_real_metrics:
@@ -227,9 +227,9 @@ def aggregate(options: AggregateOptions) -> int:
 
 def _aggregate(options) -> int:
     from metraw.spec import figures
-    from metraw.study.points import CATEGORICAL, NOMINAL, load_params, swept_parameters, target_params
     from metraw.spec.builder import build_spec
     from metraw.spec.tolerance import BAND_SIGMA, ResponseGP, categorical_choice, joint_region, tolerance_interval
+    from metraw.study.points import CATEGORICAL, NOMINAL, load_params, swept_parameters, target_params
 
     params = load_params(options.params)
     required = float(params.get("spec", {}).get("required_iou", math.nan))
@@ -395,8 +395,8 @@ def _aggregate(options) -> int:
 def _property_model(options, rows: list[dict[str, Any]]):
     """Each point's image properties (medians over its store's images, ``row["properties"]``) and the IoU fit
     over them (`metraw.spec.property_model`), from every point: lines, grids and categorical points."""
-    from metraw.spec.property_model import PropertyModel, store_properties
     from metraw.io.store import RawStore
+    from metraw.spec.property_model import PropertyModel, store_properties
 
     for r in rows:
         spath = Path(options.stores_pattern.format(point=r["point"], results=options.results))
@@ -432,8 +432,8 @@ def _channel_series(rows: list[dict[str, Any]], name: str) -> dict[str, list[tup
 def _grid_summary(params: dict[str, Any], grid: dict[str, Any], rows: list[dict[str, Any]], nominal: dict[str, Any],
                   names: list[str], required: float, seed: int):
     """(2-D GP, summary) of one ``target.grids`` entry from its measured points (`metraw.spec.tolerance.grid_region`)."""
-    from metraw.study.points import grid_axes, same_value
     from metraw.spec.tolerance import grid_region
+    from metraw.study.points import grid_axes, same_value
 
     axes, fixed = grid_axes(grid)
     if len(axes) != 2:

@@ -33,8 +33,8 @@ import numpy as np
 import yaml
 
 from metraw.atomic import atomic_path
-from metraw.raw.cfa import cfa_family
 from metraw.errors import MetrawError
+from metraw.raw.cfa import cfa_family
 from metraw.spec.property_model import WAVELENGTH_REF_M, PropertyModel, property_lines
 
 SPEC_VERSION = 1

@@ -23,12 +23,12 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from metraw.raw.cfa import cfa_family
 from metraw.errors import MetrawError
+from metraw.raw.cfa import cfa_family
 from metraw.raw.image import RawImage
+from metraw.spec.builder import BETTER, Choice, Limit, Specification, _plain
 from metraw.spec.property_model import (AIRY_SIGMA_PER_LAMBDA_D, WAVELENGTH_REF_M, decide, geometry_properties,
                                    median_signal_e, stated_haze_per_pixel_e)
-from metraw.spec.builder import BETTER, Choice, Limit, Specification, _plain
 
 #: A profile contradicts its pixels when |measured - claimed| exceeds this many combined
 #: standard uncertainties *and* this relative difference (guards against tiny uncertainties).

@@ -35,10 +35,10 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from metraw.physics.atmosphere import pixel_etendue_m2_sr
-from metraw.raw.cfa import channel_names, color_index
-from metraw.physics.daylight import lambertian_photon_radiance
 from metraw.errors import MetrawError
+from metraw.physics.atmosphere import pixel_etendue_m2_sr
+from metraw.physics.daylight import lambertian_photon_radiance
+from metraw.raw.cfa import channel_names, color_index
 from metraw.raw.image import RawImage
 
 #: The properties in the order of the model's axes.
