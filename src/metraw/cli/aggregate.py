@@ -15,7 +15,6 @@ figures draw the real points beside the synthetic ones. The GP, tolerances and s
 to the synthetic test IoU only: the real images are a check of transfer, not the basis of the spec.
 """
 
-
 from __future__ import annotations
 
 import dataclasses

@@ -1,4 +1,4 @@
-"""Specification vector and the runtime decision: PASS, NORMALISE or REJECT an image.
+"""The specification vector of a study (``build_spec``, ``Specification``) and the image properties it limits.
 
 The spec (``results/spec.yaml``, the form of the seed study's Fig. 2) lists per system parameter
 its optimal value, min, max and unit, from the Gaussian-process tolerances (`metraw.spec.tolerance`).
@@ -19,7 +19,7 @@ nominal (gsd from focal length, diffraction from diameter, smear from exposure, 
 three through the photon budget ~ D^2 t / f^2). They form a box; the joint-region share in
 aggregate.json says how safe the corners of that box are.
 
-The runtime decision on an image against a spec: `metraw.spec.check.check`.
+The runtime decision on an image against a spec (PASS, NORMALISE or REJECT): `metraw.spec.check`.
 """
 
 from __future__ import annotations
