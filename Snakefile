@@ -20,13 +20,13 @@ DVC_CHECK = {key: str(config.pop(key)) for key in ("dvc_point", "dvc_points", "d
 # One clear line and exit status 2 for a bad params.yaml (or --config override), before anything is written
 # (the output cache folder below included).
 from metraw.errors import MetrawError
-from metraw.points import validate_params, write_effective_params
-from metraw.sim_to_real import resolve_enabled
-from metraw.sources import source_files
+from metraw.study.points import validate_params, write_effective_params
+from metraw.study.sim_to_real import resolve_enabled
+from metraw.study.sources import source_files
 
 try:
     validate_params(config, "params.yaml (with --config overrides)")
-    # The files of a raws or photos source (metraw.sources): a missing or empty folder is one line here
+    # The files of a raws or photos source (metraw.study.sources): a missing or empty folder is one line here
     SOURCE_FILES = source_files(config, "params.yaml (with --config overrides)")
     # Sim-to-real benchmark (workflow/rules/sim_to_real.smk): on when params.yaml sim_to_real.enabled is true
     # (its real image folder then required) or auto and the folder exists; off when false or absent.

@@ -3,7 +3,7 @@
     nice -n 5 python benchmarks/calibration.py [--small]
 
 Synthetic truth: 5472 x 3648 RGGB, K = 0.3 DN/e-, read noise 5 e-, black 2048, 14-bit,
-full well 40000 e- (made with metraw.sensor). from_series: 12 flat levels x 2 frames + 2
+full well 40000 e- (made with metraw.raw.sensor). from_series: 12 flat levels x 2 frames + 2
 darks, 1 % PRNU (must cancel). from_image: one frame of a scene with smooth gradients, sharp
 edges and textured patches. Acceptance: series |dK| < 1 %, |d sigma_d| < 3 %; image 3 % / 10 %.
 Real data (data/real of the repository; SOURCE.txt in each folder): Canon 550D DNG (canon_dng) and
@@ -19,10 +19,10 @@ from pathlib import Path
 import numpy as np
 
 from metraw import calibrate
-from metraw.calibration_targets import flat_series, natural_scene_e
+from metraw.calibrate.targets import flat_series, natural_scene_e
 from metraw.errors import MetrawError
-from metraw.profile import CalibrationProfile
-from metraw.sensor import expose, rng_from_seed
+from metraw.raw.profile import CalibrationProfile
+from metraw.raw.sensor import expose, rng_from_seed
 
 REAL = Path(__file__).resolve().parents[1] / "data" / "real"
 K, RN = 0.3, 5.0

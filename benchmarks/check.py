@@ -4,10 +4,10 @@ usage: python benchmarks/check.py [--results results] [--spec results/spec.yaml]
                                   [--source data/source.zarr --source-n 24] [--json OUT.json]
 
 For each point of params.yaml, every image of its store (results/points/{point}/target.zarr: the test split) is
-checked against the spec (`metraw.spec.check`, the noise profile measured as the command does) and counted as
+checked against the spec (`metraw.spec.check.check`, the noise profile measured as the command does) and counted as
 PASS / NORMALISE / REJECT beside the point's measured IoU +- sd (results/points/{point}/metrics.json; sd: the
 test-image sampling error and the replicates' spread, as the aggregate uses it). NORMALISE images are brought to
-spec with their planned chain (`metraw.spec.apply_chain`) and the point's own model scores them before and after
+spec with their planned chain (`metraw.spec.check.apply_chain`) and the point's own model scores them before and after
 (pooled IoU, paired difference). The two agreement counts of issue #51:
 
 - REJECTed images at points whose IoU - 2 sd >= required_iou (the point meets the requirement): should be 0;
@@ -34,12 +34,12 @@ from normalise import paired_difference, pooled  # noqa: E402  (benchmarks/norma
 
 
 def check_point(point: str, results: Path, spec, required: float, seed: int) -> dict:
-    from metraw.cli.aggregate import _read_measured
+    from metraw.io.store import RawStore
     from metraw.segment.data import prepare
     from metraw.segment.evaluate import evaluate_images
     from metraw.segment.train import load_model
-    from metraw.spec import apply_chain, check
-    from metraw.store import RawStore
+    from metraw.spec.aggregate import _read_measured
+    from metraw.spec.check import apply_chain, check
 
     folder = results / "points" / point
     _, (iou, var) = _read_measured(folder / "metrics.json", "metrics file")
@@ -93,8 +93,8 @@ def main(argv: list[str] | None = None) -> int:
     import torch
 
     from metraw.errors import MetrawError
-    from metraw.points import load_params, parameter_points
-    from metraw.spec import Specification
+    from metraw.spec.builder import Specification
+    from metraw.study.points import load_params, parameter_points
 
     torch.set_num_threads(args.threads)
     results = Path(args.results)
@@ -146,9 +146,9 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _check_source(args, params, spec) -> dict:
+    from metraw.io.store import RawStore
     from metraw.segment.data import split_indices
-    from metraw.spec import check
-    from metraw.store import RawStore
+    from metraw.spec.check import check
 
     store = RawStore.open(args.source)
     training = params.get("training") or {}

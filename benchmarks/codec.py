@@ -221,10 +221,10 @@ from metraw import codec
 from metraw.calibrate import from_image
 from metraw.codec import prepare
 from metraw.codec.selfcheck import self_check
-from metraw.image import RawImage
 from metraw.io import read_raw
-from metraw.profile import CalibrationProfile
-from metraw.sensor import expose, rng_from_seed
+from metraw.raw.image import RawImage
+from metraw.raw.profile import CalibrationProfile
+from metraw.raw.sensor import expose, rng_from_seed
 
 REAL = Path(__file__).resolve().parents[1] / "data" / "real"
 REAL_NAMES = ("canon_dng", "micasense", "spacenet_pan")

@@ -28,8 +28,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from codec import REAL_NAMES, frames  # noqa: E402
 
 from metraw import codec  # noqa: E402
-from metraw.cfa import cell_size  # noqa: E402
 from metraw.codec import prepare  # noqa: E402
+from metraw.raw.cfa import cell_size  # noqa: E402
 
 NACT = 8   # activity contexts (``predictive.MAX_NACT``)
 NPH = 4    # folded dither-phase bins (``predictive.NPH``)

@@ -34,7 +34,7 @@ from metraw.atomic import atomic_path
 def measure(source, target, n: int, step: float, seed: int) -> dict[str, list[float]]:
     from metraw.cli.compress import measure_image
     from metraw.codec import encode
-    from metraw.emulate import emulate
+    from metraw.emulate.emulator import emulate
 
     ratios: dict[str, list[float]] = {}
     for i in range(n):
@@ -48,9 +48,9 @@ def measure(source, target, n: int, step: float, seed: int) -> dict[str, list[fl
 
 
 def main(argv: list[str] | None = None) -> int:
-    from metraw.points import NOMINAL, load_params, target_params
-    from metraw.store import RawStore
-    from metraw.target import TargetSystem
+    from metraw.emulate.target import TargetSystem
+    from metraw.io.store import RawStore
+    from metraw.study.points import NOMINAL, load_params, target_params
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--source", required=True)
@@ -108,7 +108,7 @@ def plot(rows: list[dict], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from metraw.figures import CHANNEL_COLOURS
+    from metraw.spec.figures import CHANNEL_COLOURS
 
     fig, ax = plt.subplots(figsize=(5.6, 3.8), layout="constrained")
     for smear, style in ((True, "o-"), (False, "s--")):

@@ -18,7 +18,7 @@ import numpy as np
 
 def daylight_frame(shape):
     """A synthetic daylight scene (metraw.scenes, 1024^2, urban) tiled to ``shape`` (CFA phase kept)."""
-    from metraw.image import RawImage
+    from metraw.raw.image import RawImage
     from metraw.scenes import generate_one
 
     tile = generate_one(0, 0, size_px=1024)
@@ -35,9 +35,9 @@ def naive_baseline(source, target, plan, rng):
     padding at the edges, area resampling onto the target grid, fresh Poisson + read noise."""
     from scipy.signal import fftconvolve
 
-    from metraw import optics
-    from metraw.emulate import _cell_planes, _detect
-    from metraw.sensor import readout
+    from metraw.emulate.emulator import _cell_planes, _detect
+    from metraw.physics import optics
+    from metraw.raw.sensor import readout
 
     cells = _cell_planes(source, plan)
     cell = plan.cell_m
@@ -78,10 +78,10 @@ def figure(path: str, size_px: int = 3072) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from metraw.emulate import emulate
-    from metraw.points import load_params
+    from metraw.emulate.emulator import emulate
+    from metraw.emulate.target import TargetSystem
     from metraw.scenes import generate_one
-    from metraw.target import TargetSystem
+    from metraw.study.points import load_params
 
     here = os.path.dirname(os.path.abspath(__file__))
     params = load_params(os.path.join(here, "..", "params.yaml"))
@@ -134,11 +134,12 @@ def main() -> None:
         return
     w, h = (int(v) for v in args.size.split("x"))
 
-    from metraw.accuracy import Accuracy
-    from metraw.emulate import emulate, expected_electrons, plan_emulation
-    from metraw.points import load_params
-    from metraw.sensor import rng_from_seed
-    from metraw.target import TargetSystem
+    from metraw.emulate.emulator import emulate, expected_electrons
+    from metraw.emulate.plan import plan_emulation
+    from metraw.emulate.target import TargetSystem
+    from metraw.physics.accuracy import Accuracy
+    from metraw.raw.sensor import rng_from_seed
+    from metraw.study.points import load_params
 
     here = os.path.dirname(os.path.abspath(__file__))
     target = TargetSystem.from_params(load_params(os.path.join(here, "..", "params.yaml")))

@@ -33,7 +33,7 @@ finetune() {  # name draw-workers
       || { log "evaluate $1 $p failed"; tail -3 $L/evaluate_$1_$p.log; return 1; }
     python3 -c "
 import json, math
-from metraw.cli.aggregate import iou_measurement
+from metraw.spec.aggregate import iou_measurement
 d = json.load(open('$OUT/metrics_$1_$p.json')); iou, var = iou_measurement(d, '$1 $p')
 print('RESULT iou $1 $p %.4f +- %.4f (replicate sd %s, %d replicates, %d test images), device %s'
       % (iou, math.sqrt(var), d.get('iou_replicate_sd'), d.get('n_replicates', 1), d['n_images'], d['device']))

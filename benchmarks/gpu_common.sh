@@ -30,7 +30,7 @@ torch.cuda.get_device_name(0) if torch.cuda.is_available() else '', 'numpy', num
 'zarr', zarr.__version__)" 2>&1 | tee -a "$OUT/progress.txt"
 WORK=${WORK:-/tmp/metraw_gpu}; rm -rf "$WORK"; D=$WORK/d; R=$WORK/r; mkdir -p $D $R  # stores and models (~2.5 GB)
 point() { python3 -c "
-from metraw.points import load_params, target_params
+from metraw.study.points import load_params, target_params
 t = target_params(load_params('params.yaml'), '$1')
 print(','.join(f'{k}={v}' for k, v in t.items() if not isinstance(v, (dict, list))))"; }
 

@@ -31,7 +31,7 @@ wait
 for f in $OUT/metrics_*.json; do
   python3 -c "
 import json, math
-from metraw.cli.aggregate import iou_measurement
+from metraw.spec.aggregate import iou_measurement
 d = json.load(open('$f')); name = '$f'.rsplit('metrics_', 1)[1][:-5]; iou, var = iou_measurement(d, name)
 print('RESULT iou %s %.4f +- %.4f (%d test images; precision %s, recall %s, object F1 %s)' % (name, iou,
       math.sqrt(var), d['n_images'], d['precision'], d['recall'], d.get('object_f1')))

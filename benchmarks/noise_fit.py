@@ -20,8 +20,8 @@ import numpy as np
 
 from metraw.calibrate import from_image
 from metraw.errors import MetrawError
-from metraw.image import RawImage
-from metraw.scenes import KINDS, default_camera, generate_one
+from metraw.raw.image import RawImage
+from metraw.scenes import KINDS, generate_one, scene_camera
 
 
 def scene(i: int, seed: int, size: int, cache: Path | None) -> RawImage:
@@ -30,7 +30,7 @@ def scene(i: int, seed: int, size: int, cache: Path | None) -> RawImage:
     path = cache / f"scene_s{seed}_n{size}_i{i}.npy"
     prof_path = path.with_suffix(".json")
     if path.exists() and prof_path.exists():
-        from metraw.profile import CalibrationProfile
+        from metraw.raw.profile import CalibrationProfile
         return RawImage(np.load(path), CalibrationProfile.from_json(prof_path.read_text()))
     img = generate_one(i, seed, size)
     cache.mkdir(parents=True, exist_ok=True)
@@ -53,7 +53,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0, help="dataset seed")
     ap.add_argument("--cache", type=Path, default=None, help="folder to keep generated scenes in")
     args = ap.parse_args(argv)
-    cam = default_camera()
+    cam = scene_camera()
     print(f"{args.n} embedded scenes of {args.size} px, seed {args.seed}; truth K = {cam.gain_dn_per_e} DN/e-, "
           f"read noise = {cam.read_noise_e} e-")
     print(f"{'i':>3} {'kind':<9}{'K':>8} {'+-':>7} {'z_K':>7}{'RN':>8} {'+-':>7} {'z_RN':>7}  note")

@@ -7,8 +7,8 @@ usage: python benchmarks/normalise.py --source data/source.zarr --spec results/s
 For each point (``name=value,...`` overrides of target.nominal in params.yaml) the test-split
 source images (``split_indices(n, test_fraction, split_seed)`` of params.yaml's training section,
 the first ``--n`` of them) are emulated exactly as ``metraw emulate`` does (image i with seed
-(emulation seed, i)), checked against the spec (`metraw.spec.check`), and, where the verdict is
-NORMALISE, brought to spec with the planned chain of raw functions (`metraw.spec.apply_chain`:
+(emulation seed, i)), checked against the spec (`metraw.spec.check.check`), and, where the verdict is
+NORMALISE, brought to spec with the planned chain of raw functions (`metraw.spec.check.apply_chain`:
 same-colour binning, photon redistribution, binomial thinning; the label mask follows the
 geometry). The nominal model (trained on the nominal point) segments the raw image as emulated
 ("before": the finer/sharper/brighter image fed straight to the model, the mismatch a deployed
@@ -17,7 +17,7 @@ are left out of "after" and of the paired difference). The reference row is the 
 nominal point's own emulated test images.
 
 IoU is the pooled ground-area IoU of `metraw.segment.evaluate`; "+-" is its sampling standard
-error over the draw of test images (ratio-estimator delta method, `metraw.cli.aggregate.
+error over the draw of test images (ratio-estimator delta method, `metraw.spec.aggregate.
 iou_measurement`). The paired difference after - before is computed on the same images with the
 same linearisation (per-image influence terms differenced before averaging), so its standard
 error is smaller than either IoU's when the two track each other.
@@ -39,7 +39,7 @@ import numpy as np
 
 def emulate_points(source, indices, target, mode: str, seed: int, accuracy=None):
     """Yield (index, emulated RawImage) as `metraw emulate` makes them (image i: seed (seed, i))."""
-    from metraw.emulate import emulate
+    from metraw.emulate.emulator import emulate
 
     for i in indices:
         rng = np.random.Generator(np.random.PCG64([seed, int(i)]))
@@ -48,7 +48,7 @@ def emulate_points(source, indices, target, mode: str, seed: int, accuracy=None)
 
 def pooled(metrics: dict[str, Any], where: str) -> tuple[float | None, float | None]:
     """(pooled IoU, its standard error) of an `evaluate_images` result; (None, None) when empty."""
-    from metraw.cli.aggregate import iou_measurement
+    from metraw.spec.aggregate import iou_measurement
 
     if not metrics.get("per_image") or metrics.get("iou") is None:
         return None, None
@@ -108,7 +108,7 @@ def describe_chain(chains: list[list[dict[str, Any]]]) -> str:
 def run_point(label: str, target, source, indices, spec, model, device, mode, seed, accuracy, verbose) -> dict[str, Any]:
     from metraw.segment.data import prepare
     from metraw.segment.evaluate import evaluate_images
-    from metraw.spec import apply_chain, check
+    from metraw.spec.check import apply_chain, check
 
     verdicts: Counter = Counter()
     chains, reasons = [], Counter()
@@ -186,14 +186,14 @@ def main(argv: list[str] | None = None) -> int:
 
     import torch
 
-    from metraw.accuracy import Accuracy
+    from metraw.emulate.target import TargetSystem, parse_point
     from metraw.errors import MetrawError
-    from metraw.points import load_params
+    from metraw.io.store import RawStore
+    from metraw.physics.accuracy import Accuracy
     from metraw.segment.data import split_indices
     from metraw.segment.train import load_model
-    from metraw.spec import Specification
-    from metraw.store import RawStore
-    from metraw.target import TargetSystem, parse_point
+    from metraw.spec.builder import Specification
+    from metraw.study.points import load_params
 
     torch.set_num_threads(args.threads)
     try:

@@ -136,12 +136,12 @@ def main(argv=None) -> int:
     if not args.source:
         ap.error("--source is required (unless --tables-from prints an earlier run's tables)")
 
-    from metraw.points import load_params, parameter_points, target_params
+    from metraw.emulate.target import TargetSystem
+    from metraw.io.store import RawStore
     from metraw.segment.data import split_indices
     from metraw.segment.onthefly import build_fields, fit_draws
     from metraw.segment.train import load_config
-    from metraw.store import RawStore
-    from metraw.target import TargetSystem
+    from metraw.study.points import load_params, parameter_points, target_params
 
     params = load_params(args.params)
     base = load_config(args.params)
@@ -214,9 +214,9 @@ def main(argv=None) -> int:
                 run("draws", "nominal", "on-the-fly", len(nominal_fields), dpe, seed, nominal_fields, nominal_test,
                     base.epochs)
     if "box" in sections:
-        from metraw.points import target_at
-        from metraw.cfa import cfa_family
+        from metraw.raw.cfa import cfa_family
         from metraw.segment.pretrain import box_fields, payload_keys, pretrain_settings, sample_box
+        from metraw.study.points import target_at
 
         settings = pretrain_settings(params)
         finetune_epochs = args.finetune_epochs or settings["finetune_epochs"]
@@ -245,7 +245,7 @@ def main(argv=None) -> int:
                 run("box", p, "scratch", len(tr), 1, seed, tr, te, base.epochs)
 
     if "ceiling" in sections:
-        from metraw.points import target_at
+        from metraw.study.points import target_at
 
         for label, overrides in CEILING:
             rung = TargetSystem.from_dict(target_at(params, overrides))
@@ -276,7 +276,7 @@ def main(argv=None) -> int:
 
 def speed(store, indices, target) -> None:
     """Median cost of the expected stage per scene and of one draw (raw; + codec + VST), one core."""
-    from metraw.draws import build_field
+    from metraw.emulate.draws import build_field
     from metraw.segment.data import prepare
     from metraw.segment.onthefly import through_codec
 

@@ -1,4 +1,4 @@
-"""Speed and accuracy of metraw.optics (run: nice -n 5 python benchmarks/optics.py).
+"""Speed and accuracy of metraw.physics.optics (run: nice -n 5 python benchmarks/optics.py).
 
 Prints: time to build the kernels the emulation needs, the error of the fast path against an
 independent dense spatial quadrature of the analytic annulus PSF, band-sampling error against a
@@ -13,8 +13,8 @@ import warnings
 import numpy as np
 from scipy.special import j1, roots_legendre
 
-from metraw import optics as o
-from metraw.accuracy import Accuracy, kernel_radius_px
+from metraw.physics import optics as o
+from metraw.physics.accuracy import Accuracy, kernel_radius_px
 
 LAM, D = 550e-9, 0.2
 LOD = LAM / D

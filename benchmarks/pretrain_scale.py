@@ -112,10 +112,10 @@ def main() -> None:
         ap.error("SOURCE, --out and --variants are needed (or --plot CSV PNG)")
     variants = parse_variants(args.variants)
 
-    from metraw.points import load_params, target_at
+    from metraw.emulate.target import TargetSystem
     from metraw.segment.pretrain import fit_box, prepare_box, pretrain_settings
     from metraw.segment.train import load_config, save_replicates
-    from metraw.target import TargetSystem
+    from metraw.study.points import load_params, target_at
 
     params = load_params(args.params)
     settings = pretrain_settings(params)

@@ -41,9 +41,9 @@ def main(argv=None) -> int:
     ap.add_argument("--margin", type=float, default=0.02, help="IoU the robust model may fall below a point's")
     args = ap.parse_args(argv)
 
-    from metraw.points import load_params
     from metraw.segment.evaluate import evaluate_store
     from metraw.segment.pretrain import fine_tuned_points, point_patterns
+    from metraw.study.points import load_params
 
     results = Path(args.results)
     params = load_params(args.params)

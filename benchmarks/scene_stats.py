@@ -24,7 +24,7 @@ def main() -> None:
     ap.add_argument("--store", default=None, help="read scenes from a store instead of generating")
     args = ap.parse_args()
     if args.store:
-        from metraw.store import RawStore
+        from metraw.io.store import RawStore
 
         store = RawStore.open(args.store)
         images = [store[i] for i in range(min(args.n, len(store)))]

@@ -23,8 +23,8 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
+    from metraw.io.store import RawStore
     from metraw.scenes import generate
-    from metraw.store import RawStore
 
     tmp = tempfile.mkdtemp(prefix="metraw-scenes-bench-")
     try:

@@ -1,12 +1,8 @@
-"""Segmenter benchmarks: source reference IoU, input-resolution choices on emulated targets,
-and the robust (on-the-fly emulation) model against per-point models.
+"""Segmenter benchmarks: source reference IoU and input-resolution choices on emulated targets (the robust model
+trained on fresh draws against per-point models: benchmarks/robust.py).
 
     nice -n 5 python benchmarks/segment.py source SRC.zarr [--profile default] [--n N]
     nice -n 5 python benchmarks/segment.py resolution SRC.zarr --n 60 --points nominal focal_length_m=0.8
-    nice -n 5 python benchmarks/segment.py robust SRC.zarr --n 60 --points ...
-    nice -n 5 python benchmarks/segment.py robust data/source.zarr --results results
-        (robust model over the box spanned by params.yaml's sweeps, against the workflow's
-         per-point models: their stores and metrics under results/points/)
 
 Prints tables (IoU pooled over the test split, mean per-image IoU +- standard error, times).
 Emulated stores are cached under --work (default /tmp/metraw_seg_bench).
@@ -25,7 +21,7 @@ import numpy as np
 
 def _subset(store_path: str, n: int | None, work: Path):
     """First n images of a store as their own store (so the split is over n images)."""
-    from metraw.store import RawStore
+    from metraw.io.store import RawStore
 
     src = RawStore.open(store_path)
     if n is None or n >= len(src):
@@ -39,9 +35,9 @@ def _subset(store_path: str, n: int | None, work: Path):
 
 
 def _emulated(source: Path, point: str, work: Path) -> Path:
-    from metraw.emulate import emulate
-    from metraw.store import RawStore
-    from metraw.target import TargetSystem, parse_point
+    from metraw.emulate.emulator import emulate
+    from metraw.emulate.target import TargetSystem, parse_point
+    from metraw.io.store import RawStore
 
     overrides = {} if point == "nominal" else parse_point(point)
     out = work / f"{source.stem}_{point.replace('=', '_')}.zarr"
@@ -58,10 +54,10 @@ def _emulated(source: Path, point: str, work: Path) -> Path:
 
 
 def _run(store: Path, config, label: str):
+    from metraw.io.store import RawStore
     from metraw.segment.data import prepare_store, split_indices
     from metraw.segment.evaluate import evaluate_images
     from metraw.segment.train import fit
-    from metraw.store import RawStore
 
     s = RawStore.open(store)
     tr, te = split_indices(len(s), config.test_fraction, config.split_seed)
@@ -96,7 +92,7 @@ def main() -> None:
     from metraw.segment.train import load_config
 
     ap = argparse.ArgumentParser()
-    ap.add_argument("what", choices=["source", "resolution", "robust"])
+    ap.add_argument("what", choices=["source", "resolution"])
     ap.add_argument("source")
     ap.add_argument("--n", type=int, default=None)
     ap.add_argument("--profile", default="default")
@@ -106,11 +102,6 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=None, help="override the profile's torch thread count")
     ap.add_argument("--work", default="/tmp/metraw_seg_bench")
     ap.add_argument("--json", default=None)
-    ap.add_argument("--results", default=None, help="robust: compare with the workflow's per-point results here")
-    ap.add_argument("--workers", type=int, default=2, help="robust: emulation worker processes")
-    ap.add_argument("--robust-model", default=None,
-                    help="robust: directory of the robust model: loaded if it exists, else trained and saved there")
-    ap.add_argument("--train-only", action="store_true", help="robust: train (and save) the robust model, then stop")
     args = ap.parse_args()
     torch.set_num_threads(2)
     work = Path(args.work)
@@ -126,109 +117,13 @@ def main() -> None:
     print(HEADER)
     if args.what == "source":
         rows.append(_run(source, config, "source")[0])
-    elif args.what == "resolution":
+    else:
         for point in args.points:
             store = _emulated(source, point, work)
             for g in args.grids:
                 rows.append(_run(store, replace(config, min_grid_px=g), f"{point} grid>={g}")[0])
-    elif args.results:
-        rows.extend(_robust_vs_workflow(Path(args.source), Path(args.results), config, args.workers,
-                                        args.robust_model, args.train_only))
-    else:
-        rows.extend(_robust(source, args.points, config, work))
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=2))
-
-
-def _robust(source: Path, points: list[str], config, work: Path):
-    """Per-point models vs one model trained on the fly over the box spanned by the points."""
-    from metraw.segment.data import prepare_store, split_indices
-    from metraw.segment.emulated import EmulatedDataset, fit_emulated
-    from metraw.segment.evaluate import evaluate_images
-    from metraw.segment.train import upsample_factor
-    from metraw.store import RawStore
-    from metraw.target import parse_point
-
-    rows = []
-    box: dict[str, list[float]] = {}
-    for p in points:
-        for k, v in ({} if p == "nominal" else parse_point(p)).items():
-            lo, hi = box.get(k, [v, v])
-            box[k] = [min(lo, v), max(hi, v)]
-    stores = {p: _emulated(source, p, work) for p in points}
-    per_point = {}
-    for p in points:
-        row, _ = _run(stores[p], config, f"per-point {p}")
-        per_point[p] = row
-    n = len(RawStore.open(source))
-    tr, te = split_indices(n, config.test_fraction, config.split_seed)
-    nominal_imgs = prepare_store(RawStore.open(stores[points[0]]), te[:1], False)
-    f = upsample_factor(nominal_imgs, config.min_grid_px)
-    from metraw.target import TargetSystem  # noqa: F401  (nominal comes from params.yaml)
-
-    ds = EmulatedDataset(source, tr, box, "params.yaml", crop_px=config.crop_px, seed=config.seed)
-    model, rec = fit_emulated(ds, config, workers=2, device="cpu", progress=False, upsample=f)
-    print(f"# robust model over box {box}: trained in {rec['training_time_s']:.1f} s (on-the-fly emulation)")
-    print(f"{'point':<34} {'per-point IoU':>13} {'robust IoU':>10}")
-    for p in points:
-        imgs = prepare_store(RawStore.open(stores[p]), te, False)
-        ev = evaluate_images(model, imgs, "cpu", False)
-        print(f"{p:<34} {per_point[p]['iou']:13.3f} {ev['iou']:10.3f}", flush=True)
-        rows.append({"point": p, "per_point_iou": per_point[p]["iou"], "robust_iou": ev["iou"],
-                     "robust_mean_iou": ev["mean_image_iou"], "robust_train_s": train_s})
-    return rows
-
-
-def _robust_vs_workflow(source: Path, results: Path, config, workers: int, model_dir=None, train_only=False):
-    """One model trained on the fly over the sweep box vs the workflow's per-point models.
-
-    The box spans each swept parameter's range (uniform draws, all parameters at once, so the
-    robust model also sees combinations the one-at-a-time sweep never ran). Both models are
-    scored on the same test split of every point's stored images.
-    """
-    from metraw.cli.aggregate import iou_measurement
-    from metraw.points import load_params, parameter_points
-    from metraw.segment.data import prepare_store, split_indices
-    from metraw.segment.emulated import EmulatedDataset, fit_emulated
-    from metraw.segment.evaluate import evaluate_images
-    from metraw.store import RawStore
-
-    params = load_params("params.yaml")
-    sweeps = params["target"]["sweeps"]
-    nominal = params["target"]["nominal"]
-    box = {k: [min(min(v), nominal[k]), max(max(v), nominal[k])] for k, v in sweeps.items()}
-    n = len(RawStore.open(source))
-    tr, te = split_indices(n, config.test_fraction, config.split_seed)
-    from metraw.segment.train import load_model, save_model
-
-    if model_dir and (Path(model_dir) / "model.pt").exists():
-        model, _, rec = load_model(model_dir, "cpu")
-    else:
-        # sources decoded once here and shared with the forked workers (~7 MB per 1024 px image)
-        ds = EmulatedDataset(source, tr, box, params, crop_px=config.crop_px, seed=config.seed).preload(progress=True)
-        model, rec = fit_emulated(ds, config, workers=workers, device="cpu", progress=False)
-        if model_dir:
-            save_model(model_dir, model, config, rec, te)
-    train_s = rec.get("training_time_s")  # absent when the model was loaded: train.json holds no timings
-    print(f"# robust model over box {box}: {rec['steps']} steps in "
-          f"{'n/a' if train_s is None else f'{train_s:.1f}'} s "
-          f"(on-the-fly emulation, {workers} workers)", flush=True)
-    if train_only:
-        return []
-    print(f"{'point':<24} {'per-point IoU':>16} {'robust IoU':>16} {'robust - per-point':>19}")
-    rows = []
-    for p in parameter_points(params):
-        metrics = json.loads((results / "points" / p / "metrics.json").read_text())
-        per, per_var = iou_measurement(metrics, p)
-        imgs = prepare_store(RawStore.open(results / "points" / p / "target.zarr"), te, False)
-        ev = evaluate_images(model, imgs, "cpu", False)
-        rob, rob_var = iou_measurement(ev, p)
-        print(f"{p:<24} {per:8.3f} +- {per_var ** 0.5:.3f} {rob:8.3f} +- {rob_var ** 0.5:.3f} {rob - per:+19.3f}",
-              flush=True)
-        rows.append({"point": p, "per_point_iou": per, "per_point_sd": per_var ** 0.5, "robust_iou": rob,
-                     "robust_sd": rob_var ** 0.5, "robust_train_s": train_s, "box": box,
-                     "robust_steps": rec["steps"], "n_test": len(ev["per_image"])})
-    return rows
 
 
 if __name__ == "__main__":

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import yaml
 
-from metraw.points import same_value
+from metraw.study.points import same_value
 
 NOMINAL_IOU, DIAMETER_05_IOU, MAX_SD, REQUIRED_IOU, LOO_SHARE = 0.30, 0.35, 0.015, 0.25, 0.85
 FOCAL_RANGE_M = (0.8, 2.0)
@@ -35,7 +35,7 @@ FOCAL_RANGE_M = (0.8, 2.0)
 
 def line(points: list[dict], nominal: dict, name: str) -> list[dict]:
     """The one-at-a-time line of ``name`` through the nominal (the nominal included), sorted by its value: every
-    other parameter nominal (``metraw.points.same_value``, as the aggregate's own lines)."""
+    other parameter nominal (``metraw.study.points.same_value``, as the aggregate's own lines)."""
     on_line = [p for p in points if all(same_value(p[k], nominal[k]) for k in nominal if k != name)]
     return sorted(on_line, key=lambda p: p[name])
 

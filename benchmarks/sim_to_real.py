@@ -130,9 +130,9 @@ def write_overlays(model, images, folder: Path, transforms: int) -> None:
 def table_for(level: str, real_store: Path, syn_store: Path, config, real_test: int, real_weight: int | None,
               seed: int, trainings: tuple[str, ...] = ("synthetic-only", "real-only", "mixed"),
               overlays: Path | None = None) -> list[dict]:
+    from metraw.io.store import RawStore
     from metraw.segment.data import prepare_store, split_indices
     from metraw.segment.train import COVER, crops_to_cover, fit, grid_factors
-    from metraw.store import RawStore
 
     real, syn = RawStore.open(real_store), RawStore.open(syn_store)
     r_train, r_test = real_split(len(real), real_test, seed)
@@ -207,9 +207,9 @@ def main() -> None:
     if not args.kit.is_dir():
         sys.exit(f"sim_to_real: no real data at {args.kit} (see data/real/README.md)")
 
+    from metraw.io.store import RawStore
     from metraw.scenes.stats import format_table, summarise
     from metraw.segment.train import TrainConfig, load_config
-    from metraw.store import RawStore
 
     levels = args.levels.split(",")
     paths = stores(args.work, args.params, args.kit, args.n_synthetic, args.kit_gsd_m, "nominal" in levels,

@@ -78,10 +78,10 @@ def stores(tmp_path_factory):
     (source store path, target store path, target) for the on-the-fly training tests."""
     import dataclasses
 
-    from metraw.emulate import emulate
+    from metraw.emulate.emulator import emulate
+    from metraw.emulate.target import TargetSystem
+    from metraw.io.store import RawStore
     from metraw.scenes import generate_one
-    from metraw.store import RawStore
-    from metraw.target import TargetSystem
 
     root = tmp_path_factory.mktemp("otf")
     params = Path(__file__).resolve().parents[1] / "params.yaml"

@@ -21,9 +21,9 @@ import numpy as np
 def codec() -> None:
     from metraw import codec as mcodec
     from metraw.codec import prepare
-    from metraw.image import RawImage
-    from metraw.profile import CalibrationProfile
-    from metraw.sensor import expose, rng_from_seed
+    from metraw.raw.image import RawImage
+    from metraw.raw.profile import CalibrationProfile
+    from metraw.raw.sensor import expose, rng_from_seed
 
     prepare.dither(0, 0, 16)
     for pattern in ("RGGB", "mono"):
@@ -50,9 +50,9 @@ def codec() -> None:
 def emulation() -> None:
     from pathlib import Path
 
-    from metraw.emulate import emulate
+    from metraw.emulate.emulator import emulate
+    from metraw.emulate.target import TargetSystem
     from metraw.scenes import generate_one
-    from metraw.target import TargetSystem
 
     target = TargetSystem.from_params(str(Path(__file__).resolve().parents[1] / "params.yaml"))
     for size in (96, 160):

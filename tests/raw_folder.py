@@ -64,8 +64,8 @@ def make_raw_folder(folder: Path, n_images: int = 4, size_px: int = 160, flat_px
     ``flats/`` (``FLAT_LEVELS_E`` x 2 frames) and ``darks/`` (2 frames), all of ``true_camera()``."""
     from PIL import Image
 
+    from metraw.raw.sensor import expose, rng_from_seed
     from metraw.scenes import generate_one
-    from metraw.sensor import expose, rng_from_seed
 
     camera = true_camera()
     folder.mkdir(parents=True, exist_ok=True)

@@ -11,14 +11,14 @@ import math
 import numpy as np
 import pytest
 
-from metraw.atmosphere import band_photon_radiance, path_radiance_electrons, pixel_etendue_m2_sr
-from metraw.daylight import C_LIGHT_M_PER_S, H_PLANCK_J_S
-from metraw.emulate import emulate
+from metraw.emulate.emulator import emulate
 from metraw.errors import MetrawError
-from metraw.image import RawImage
-from metraw.profile import CalibrationProfile
-from metraw.rawfunc import atmosphere
-from metraw.sensor import expose, rng_from_seed
+from metraw.physics.atmosphere import band_photon_radiance, path_radiance_electrons, pixel_etendue_m2_sr
+from metraw.physics.daylight import C_LIGHT_M_PER_S, H_PLANCK_J_S
+from metraw.physics.rawfunc import atmosphere
+from metraw.raw.image import RawImage
+from metraw.raw.profile import CalibrationProfile
+from metraw.raw.sensor import expose, rng_from_seed
 
 from test_emulate import colour_planes, flat_source, gsd_ratio_target, radiometric_e, target
 

@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 
 from metraw import calibrate
-from metraw.calibration_targets import flat_series, natural_scene_e
+from metraw.calibrate.targets import flat_series, natural_scene_e
 from metraw.errors import MetrawError
-from metraw.image import RawImage
-from metraw.profile import CalibrationProfile
-from metraw.sensor import expose, rng_from_seed
+from metraw.raw.image import RawImage
+from metraw.raw.profile import CalibrationProfile
+from metraw.raw.sensor import expose, rng_from_seed
 
 K_TRUE, RN_TRUE, BLACK = 0.3, 5.0, 2048.0
 PROFILE = CalibrationProfile(gain_dn_per_e=K_TRUE, black_level_dn=BLACK, read_noise_e=RN_TRUE,
@@ -213,7 +213,7 @@ def test_from_image_embedded_scenes_honest_or_refused(embedded_scenes):
 
 
 def test_noise_consistency_accepts_true_and_rejects_doubled_gain(embedded_scenes):
-    from metraw.spec import noise_consistency
+    from metraw.spec.check import noise_consistency
 
     measured = contradicted = 0
     for img in embedded_scenes[:5]:

@@ -16,9 +16,9 @@ from metraw import codec
 from metraw.codec import prepare
 from metraw.codec.selfcheck import self_check
 from metraw.errors import MetrawError
-from metraw.image import RawImage
-from metraw.profile import CalibrationProfile
-from metraw.sensor import expose, rng_from_seed
+from metraw.raw.image import RawImage
+from metraw.raw.profile import CalibrationProfile
+from metraw.raw.sensor import expose, rng_from_seed
 
 
 def _profile(**kw) -> CalibrationProfile:
@@ -175,7 +175,7 @@ def test_property_error_within_bound(gain, black, read, step, h, w, seed, patter
 
 def test_zarr_entry_point_without_import(tmp_path):
     from metraw.codec.zarr_codec import raw_codecs
-    from metraw.store import RawStore
+    from metraw.io.store import RawStore
 
     imgs = [_scene((48, 64), seed=s) for s in range(3)]
     with RawStore.create(tmp_path / "s.zarr", raw_codecs=raw_codecs(step=1.0)) as store:

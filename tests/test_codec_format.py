@@ -21,9 +21,9 @@ import pytest
 
 from metraw import codec
 from metraw.codec import container, prepare
-from metraw.image import RawImage
-from metraw.profile import CalibrationProfile
-from metraw.sensor import expose, rng_from_seed
+from metraw.raw.image import RawImage
+from metraw.raw.profile import CalibrationProfile
+from metraw.raw.sensor import expose, rng_from_seed
 
 HERE = Path(__file__).resolve().parent / "fixtures" / "codec"
 

@@ -16,9 +16,9 @@ import pytest
 from metraw import codec
 from metraw.codec import native, predictive
 from metraw.errors import MetrawError
-from metraw.image import RawImage
-from metraw.profile import CalibrationProfile
-from metraw.sensor import expose, rng_from_seed
+from metraw.raw.image import RawImage
+from metraw.raw.profile import CalibrationProfile
+from metraw.raw.sensor import expose, rng_from_seed
 
 needs_native = pytest.mark.skipif(native.LIB is None, reason="compiled codec loop not built or no AVX-512 on this CPU")
 

@@ -12,7 +12,7 @@ import pytest
 
 from metraw.cli import main
 from metraw.codec.prepare import error_bound_dn
-from metraw.store import RawStore
+from metraw.io.store import RawStore
 
 STEP = 2.0
 
@@ -30,7 +30,7 @@ def stores(tmp_path_factory):
 READ = """
 import json, sys
 import numpy as np, zarr
-from metraw.store import RawStore
+from metraw.io.store import RawStore
 s = RawStore.open(sys.argv[1])
 np.save(sys.argv[2], np.stack([im.data for im in s]))
 codecs = [c.to_dict()["name"] for c in zarr.open_group(sys.argv[1])["raw"].metadata.codecs]
@@ -103,8 +103,8 @@ def test_decoded_copy_holds_the_same_images_uncompressed(stores, tmp_path, capsy
     digest (a model trained on the copy recognises the original), and the original named as its origin."""
     import zarr
 
+    from metraw.io.store import read_shard_index
     from metraw.segment.train import store_digest
-    from metraw.store import read_shard_index
 
     _, coded = stores
     out = tmp_path / "copy.zarr"

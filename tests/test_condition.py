@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from metraw.emulate.target import TargetSystem
 from metraw.errors import MetrawError
-from metraw.target import TargetSystem
 
 PARAMS = Path(__file__).resolve().parents[1] / "params.yaml"
 
@@ -72,11 +72,11 @@ def test_a_conditioned_network_starts_as_the_plain_one_and_needs_its_condition()
 def test_a_conditioned_model_trains_saves_and_scores_and_refuses_images_without_geometry(stores, tmp_path):
     import torch
 
+    from metraw.io.store import RawStore
     from metraw.segment.data import prepare
     from metraw.segment.evaluate import evaluate_store, predict_logits
     from metraw.segment.onthefly import train_store_on_the_fly
     from metraw.segment.train import CHECKPOINT, TrainConfig, load_model
-    from metraw.store import RawStore
 
     src, tgt, _ = stores
     cfg = TrainConfig(epochs=2, learning_rate=3e-3, batch_size=2, crop_px=16, base_channels=4, depth=2, seed=0,

@@ -7,9 +7,9 @@ import pytest
 
 from metraw import CalibrationProfile, MetrawError, RawImage
 from metraw.atomic import atomic_path
-from metraw.cfa import color_index, fill_factor, pack_planes, plane_offsets, unpack_planes
-from metraw.sensor import expose, readout, rng_from_seed
-from metraw.vst import anscombe
+from metraw.raw.cfa import color_index, fill_factor, pack_planes, plane_offsets, unpack_planes
+from metraw.raw.sensor import expose, readout, rng_from_seed
+from metraw.raw.vst import anscombe
 
 
 def make_profile(**kw):
@@ -111,7 +111,7 @@ def test_readout_clips_at_full_well_and_adc():
 
 
 def _numpy_readout(counts_e, profile, rng, exposure_s=None):
-    """The EMVA readout as plain numpy expressions (``metraw.sensor.readout`` before it was compiled)."""
+    """The EMVA readout as plain numpy expressions (``metraw.raw.sensor.readout`` before it was compiled)."""
     charge = np.asarray(counts_e, dtype=np.float64)
     t = profile.exposure_s if exposure_s is None else exposure_s
     if profile.dark_current_e_per_s > 0 and t:

@@ -1,4 +1,4 @@
-"""Sampling-phase draws (metraw.draws): exactly the emulator's expected chain at that offset and flip,
+"""Sampling-phase draws (metraw.emulate.draws): exactly the emulator's expected chain at that offset and flip,
 with photon-exact noise."""
 
 from __future__ import annotations
@@ -9,11 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from metraw.draws import build_field
-from metraw.emulate import emulate, expected_electrons
+from metraw.emulate.draws import build_field
+from metraw.emulate.emulator import emulate, expected_electrons
+from metraw.emulate.target import TargetSystem
 from metraw.errors import MetrawError
-from metraw.image import RawImage
-from metraw.target import TargetSystem
+from metraw.raw.image import RawImage
 
 PARAMS = Path(__file__).resolve().parents[1] / "params.yaml"
 
@@ -76,7 +76,7 @@ def test_draw_noise_is_poisson_plus_read_noise(scene, target):
     prof = target.profile()
     e = np.stack([(field.draw(s, 1, 2, 0).data.astype(np.float64) - prof.black_level_dn) / prof.gain_dn_per_e
                   for s in range(n)])
-    from metraw.cfa import color_index
+    from metraw.raw.cfa import color_index
 
     haze = np.take([target.haze_for(c) for c in target.channels], color_index(target.cfa_pattern, e.shape[1:]))
     dark = prof.dark_current_e_per_s * (prof.exposure_s or 0.0)

@@ -13,13 +13,14 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from metraw.accuracy import Accuracy
-from metraw.emulate import emulate, expected_electrons, photon_electrons, plan_emulation, thinning_ratios
+from metraw.emulate.emulator import emulate, expected_electrons, photon_electrons
+from metraw.emulate.plan import plan_emulation, thinning_ratios
+from metraw.emulate.target import TargetSystem, parse_point
 from metraw.errors import MetrawError
-from metraw.image import FLAG_SATURATED, RawImage
-from metraw.profile import CalibrationProfile
-from metraw.sensor import expose, rng_from_seed
-from metraw.target import TargetSystem, parse_point
+from metraw.physics.accuracy import Accuracy
+from metraw.raw.image import FLAG_SATURATED, RawImage
+from metraw.raw.profile import CalibrationProfile
+from metraw.raw.sensor import expose, rng_from_seed
 
 SOURCE = dict(camera="test drone", cfa_pattern="RGGB", pixel_pitch_m=2.41e-6, focal_length_m=10.26e-3,
               aperture_diameter_m=3.664e-3, altitude_m=250.0, exposure_s=1.0e-3, optical_transmission=0.9,
@@ -263,7 +264,7 @@ def test_saturated_source_pixels_flag_the_target_pixels_they_feed():
 
 
 def test_scenes_that_differ_in_exposure_alone_share_the_plan_but_keep_their_own_thinning():
-    from metraw import emulate as emulate_module
+    from metraw.emulate import plan as emulate_module
 
     short = flat_source((600, 900), 800.0, seed=3, exposure_s=0.5e-3)
     long = RawImage(short.data, short.profile.replace(exposure_s=1.0e-3))
@@ -291,7 +292,7 @@ def test_very_large_sums_use_float64():
     src_g = colour_planes(src.electrons())["G1"].mean()
     assert abs(colour_planes(want)["G1"].mean() / radiometric_e(tgt, src_g, "G") - 1) < 1e-4
     # photon chain: integer counts of more than 2^31 photons in one cell would overflow int32
-    from metraw.rawfunc import stochastic_round, thin_counts
+    from metraw.physics.rawfunc import stochastic_round, thin_counts
 
     n = stochastic_round(np.array([3.0e12, 7.5]), rng_from_seed(0))
     assert n.dtype == np.int64 and n[0] == 3_000_000_000_000
@@ -349,7 +350,7 @@ def test_cli_emulate_writes_store_atomically(tmp_path, capsys):
     import yaml
 
     from metraw.cli import main
-    from metraw.store import RawStore
+    from metraw.io.store import RawStore
 
     params = tmp_path / "params.yaml"
     from pathlib import Path
@@ -410,11 +411,11 @@ def test_cli_emulate_writes_store_atomically(tmp_path, capsys):
 
 
 def test_expected_chain_matches_optics_kernel_for_a_point_source():
-    """One bright source cell: the Fourier chain equals metraw.optics.system_kernel (an independent
+    """One bright source cell: the Fourier chain equals metraw.physics.optics.system_kernel (an independent
     implementation, validated against the Airy formula) averaged over the cell (uniform photon positions),
     to <= 5e-4 of the peak (band sampling 1e-4 in each, gridding 2e-7)."""
-    from metraw import optics
-    from metraw.emulate import _cell_planes, _Fourier
+    from metraw.emulate.emulator import _cell_planes, _Fourier
+    from metraw.physics import optics
 
     data = np.full((600, 900), 256, np.uint16)
     ci, cj = 151, 223
@@ -442,7 +443,7 @@ def test_expected_chain_matches_optics_kernel_for_a_point_source():
 def test_axis_aligned_sinc_shortcut_is_the_grid_form_bit_for_bit():
     """``_sinc_along`` takes the vector form only where the other axis's factor is exactly zero (signed zeros
     included): it then equals the full grid's sines element for element, and elsewhere it is the full form."""
-    from metraw.emulate import _sinc_along
+    from metraw.emulate.plan import _sinc_along
 
     fy = np.fft.fftfreq(37, 0.31)[:, None]
     fx = np.fft.rfftfreq(40, 0.29)[None, :]
@@ -457,7 +458,7 @@ def test_axis_aligned_sinc_shortcut_is_the_grid_form_bit_for_bit():
 def test_plans_are_the_same_with_their_cached_arrays_and_without():
     """A plan made after others (its grid, OTF table and OTF on the grid taken from the caches) has the transfer
     functions of one made from empty caches, and the cached arrays cannot be written to."""
-    from metraw import emulate as E
+    from metraw.emulate import plan as E
 
     src = flat_source((400, 600), 5000.0)
     targets = [gsd_ratio_target(6.0), gsd_ratio_target(7.5), gsd_ratio_target(6.0, exposure_s=3e-4),

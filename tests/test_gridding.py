@@ -1,4 +1,4 @@
-"""Banded Gaussian gridding operators (metraw.gridding) against the dense matrix they stand for."""
+"""Banded Gaussian gridding operators (metraw.physics.gridding) against the dense matrix they stand for."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from metraw.errors import MetrawError
-from metraw.gridding import GaussianWindow
+from metraw.physics.gridding import GaussianWindow
 
 
 def _reference(pos, n_grid, periodic, half_width, sigma):

@@ -32,7 +32,7 @@ def test_module_imports(name):
 
 
 def test_the_params_schema_ships_inside_the_package():
-    # a non-editable install has no workflow/ beside it: metraw.points falls back to metraw/schemas/,
+    # a non-editable install has no workflow/ beside it: metraw.study.points falls back to metraw/schemas/,
     # a link to workflow/schemas/params.schema.yaml that setuptools copies into the wheel
     from pathlib import Path
 

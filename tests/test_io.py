@@ -10,13 +10,13 @@ import pytest
 import tifffile
 
 from metraw import CalibrationProfile, MetrawError, RawImage
-from metraw.image import FLAG_SATURATED
 from metraw.io import default_camera, noise_model_known, read_raw, srgb_to_linear, write_tiff
-from metraw.io._dn import unused_low_bits
+from metraw.io.dn import unused_low_bits
 from metraw.io.labels import box_area_fraction, boxes_to_pixels, read_yolo
-from metraw.daylight import neutral_response
 from metraw.io.processed import approximate_raw
-from metraw.sensor import rng_from_seed
+from metraw.physics.daylight import neutral_response
+from metraw.raw.image import FLAG_SATURATED
+from metraw.raw.sensor import rng_from_seed
 
 KSIG = 5.0  # tolerance in standard errors
 

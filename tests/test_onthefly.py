@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from metraw.errors import MetrawError
-from metraw.store import RawStore
+from metraw.io.store import RawStore
 
 PARAMS = Path(__file__).resolve().parents[1] / "params.yaml"
 
@@ -39,7 +39,7 @@ def test_on_the_fly_replicates_are_deterministic_and_scored(stores, tmp_path):
     from metraw.segment.onthefly import train_store_on_the_fly
     from metraw.segment.train import CHECKPOINT, TIMINGS, TRAIN_METRICS, replicate_dirs
 
-    from metraw.store import write_decoded_copy
+    from metraw.io.store import write_decoded_copy
 
     src, tgt, _ = stores
     # run b reads the source's decoded working copy (the workflow's rule decode_store): the same bytes, train.json
@@ -67,7 +67,7 @@ def test_on_the_fly_replicates_are_deterministic_and_scored(stores, tmp_path):
 
 
 def test_aggregate_adds_the_seed_spread_to_the_test_image_error():
-    from metraw.cli.aggregate import iou_measurement
+    from metraw.spec.aggregate import iou_measurement
 
     per_image = [{"tp": tp, "fp": 2.0, "fn": 1.0} for tp in (1.0, 3.0, 2.0, 4.0)]
     single = {"iou": 0.5, "per_image": per_image}
@@ -315,9 +315,9 @@ def test_box_points_change_one_parameter_log_uniform_in_its_range():
 
 
 def test_payload_batches_hold_one_payload_each_and_every_draw_once():
+    from metraw.raw.sensor import rng_from_seed
     from metraw.segment.onthefly import payload_batches
     from metraw.segment.pretrain import payload_keys, sample_box
-    from metraw.sensor import rng_from_seed
 
     box = {"focal_length_m": [0.8, 2.0], "exposure_s": [1e-4, 5e-4], "diameter_m": [0.1, 0.5]}
     overrides = sample_box(box, 1500, 4, seed=3)
@@ -387,7 +387,7 @@ def test_pretraining_draws_the_training_and_extra_scenes_and_is_deterministic(st
     assert rec["box"] == {"focal_length_m": [1.2, 2.0]} and rec["points_per_scene"] == 2
     assert rec["replicate_seeds"] == [0, 1]
     # trained across the box's ground sampling, not at one GSD: the range of the drawn payloads' packed GSDs
-    from metraw.cfa import cell_size
+    from metraw.raw.cfa import cell_size
     from metraw.segment.pretrain import sample_box
 
     drawn = [o["focal_length_m"] for per in sample_box(rec["box"], 6, 2, rec["config"]["seed"]) for o in per]

@@ -1,4 +1,4 @@
-"""Tests of metraw.optics against independent references (spatial quadrature of the analytic
+"""Tests of metraw.physics.optics against independent references (spatial quadrature of the analytic
 annulus PSF, scipy dblquad, radial encircled-energy integrals, shifted-PSF averages, POPPY)."""
 
 import math
@@ -9,9 +9,10 @@ from scipy.integrate import dblquad, quad
 from scipy.optimize import brentq
 from scipy.special import j0, j1, roots_hermite, roots_legendre
 
-from metraw import optics as o
-from metraw.accuracy import Accuracy, airy_flux_outside, kernel_radius_px
 from metraw.errors import MetrawError
+from metraw.physics import kernels
+from metraw.physics import optics as o
+from metraw.physics.accuracy import Accuracy, airy_flux_outside, kernel_radius_px
 
 LAM, D = 550e-9, 0.2
 LOD = LAM / D
@@ -244,21 +245,21 @@ def test_spider_vanes_symmetry_convergence_and_area():
 
 
 def test_smear_kernel_exact():
-    k = o.smear_kernel(3.0, 0.0, (5, 5))
+    k = kernels.smear_kernel(3.0, 0.0, (5, 5))
     np.testing.assert_allclose(k[2, 1:4], 1 / 3)
     assert k.sum() == pytest.approx(1.0)
-    k = o.smear_kernel(2.0, np.pi / 2, (5, 5))
+    k = kernels.smear_kernel(2.0, np.pi / 2, (5, 5))
     np.testing.assert_allclose(k[1:4, 2], [0.25, 0.5, 0.25])
     # oblique: fraction of a dense set of points on the segment in each pixel
     L, ang = 7.3, 0.61
-    k = o.smear_kernel(L, ang, (15, 15), center_offset_px=(0.2, -0.1))
+    k = kernels.smear_kernel(L, ang, (15, 15), center_offset_px=(0.2, -0.1))
     t = (np.arange(2_000_000) + 0.5) / 2_000_000 - 0.5
     x, y = 7 - 0.1 + t * L * math.cos(ang), 7 + 0.2 + t * L * math.sin(ang)
     h = np.zeros((15, 15))
     np.add.at(h, (np.floor(y + 0.5).astype(int), np.floor(x + 0.5).astype(int)), 1 / t.size)
     assert np.abs(k - h).max() < 2e-6
-    assert o.smear_kernel(0.0, 0.3, (3, 3))[1, 1] == 1.0
-    np.testing.assert_allclose(o.smear_kernel(0.0, 0.0, (2, 2)), 0.25)
+    assert kernels.smear_kernel(0.0, 0.3, (3, 3))[1, 1] == 1.0
+    np.testing.assert_allclose(kernels.smear_kernel(0.0, 0.0, (2, 2)), 0.25)
 
 
 def test_jitter_and_pixel_response_moments_and_compose():
@@ -266,22 +267,22 @@ def test_jitter_and_pixel_response_moments_and_compose():
     yy, xx = np.mgrid[:n, :n] - 20.0
     var = lambda k: float((k * xx**2).sum() / k.sum())
     s = 1.3
-    jk = o.jitter_kernel(s, n)
+    jk = kernels.jitter_kernel(s, n)
     assert jk.sum() == pytest.approx(1.0, abs=1e-12)
     assert var(jk) == pytest.approx(s * s + 1 / 12, rel=1e-9)  # pixel integration adds the box variance
-    pr = o.pixel_response_kernel(2.5, n, diffusion_sigma_px=1.5)
+    pr = kernels.pixel_response_kernel(2.5, n, diffusion_sigma_px=1.5)
     assert pr.sum() == pytest.approx(1.0, abs=1e-12)
     # Sheppard's 1/12 is exact to ~exp(-2 pi^2 sigma^2) for these smooth kernels
     assert var(pr) == pytest.approx(2.5**2 / 12 + 2.25 + 1 / 12, rel=1e-9)
-    box = o.pixel_response_kernel(2.5, 5)
+    box = kernels.pixel_response_kernel(2.5, 5)
     np.testing.assert_allclose(box.sum(axis=0), [0, 0.3, 0.4, 0.3, 0], atol=1e-15)
-    c = o.compose(jk, pr)
+    c = kernels.compose(jk, pr)
     assert c.shape == (81, 81) and c.sum() == pytest.approx(1.0, abs=1e-12)
     yy2, xx2 = np.mgrid[:81, :81] - 40.0
     assert float((c * xx2**2).sum()) == pytest.approx(s * s + 2.25 + 2.5**2 / 12 + 2 / 12, rel=1e-6)
-    np.testing.assert_allclose(o.compose(jk, pr, shape=n), o.compose(pr, jk)[20:61, 20:61], atol=1e-15)
+    np.testing.assert_allclose(kernels.compose(jk, pr, shape=n), kernels.compose(pr, jk)[20:61, 20:61], atol=1e-15)
     with pytest.raises(MetrawError):
-        o.compose(jk, pr, shape=40)
+        kernels.compose(jk, pr, shape=40)
 
 
 # ---------------------------------------------------------------- normalisation, errors, accuracy

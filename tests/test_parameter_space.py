@@ -17,10 +17,11 @@ import pytest
 import yaml
 
 from metraw.errors import MetrawError
-from metraw.points import (grid_point_name, load_params, parameter_points, swept_parameters, target_params,
+from metraw.spec.builder import Choice, Limit, Specification
+from metraw.spec.check import apply_chain, check, stated_haze_e
+from metraw.spec.tolerance import categorical_choice, grid_region
+from metraw.study.points import (grid_point_name, load_params, parameter_points, swept_parameters, target_params,
                            validate_params)
-from metraw.spec import Choice, Limit, Specification, apply_chain, check, stated_haze_e
-from metraw.tolerance import categorical_choice, grid_region
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -39,8 +40,8 @@ def base_params() -> dict:
 def test_every_workflow_configfile_merged_over_params_is_valid(configfile):
     from snakemake.utils import update_config
 
-    from metraw.points import validate_params
     from metraw.segment.pretrain import pretrain_settings
+    from metraw.study.points import validate_params
 
     params = yaml.safe_load((REPO / "params.yaml").read_text())
     update_config(params, yaml.safe_load(configfile.read_text()))  # what --configfile does to the config
@@ -230,11 +231,11 @@ def test_aggregate_runs_its_linear_algebra_on_one_blas_thread():
     code = """
 import json
 from threadpoolctl import threadpool_info
-from metraw.cli import aggregate
+from metraw.spec import aggregate
 blas = lambda: [p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"]
 seen = []
-aggregate._aggregate = lambda args: seen.append(blas()) or 0
-assert aggregate.run(None) == 0
+aggregate._aggregate = lambda options: seen.append(blas()) or 0
+assert aggregate.aggregate(None) == 0
 import scipy.linalg, sklearn.gaussian_process
 print(json.dumps({"inside": seen[0], "after": blas()}))
 """
@@ -304,7 +305,7 @@ def _spec(allowed=("RGGB",), haze=(20.0, 10.0, 30.0)) -> Specification:
 def hazy_image():
     from test_emulate import flat_source, gsd_ratio_target
 
-    from metraw.emulate import emulate
+    from metraw.emulate.emulator import emulate
 
     tgt = gsd_ratio_target(6.0, exposure_s=6.0e-4, ground_speed_m_per_s=0.0, path_radiance_w_m2_sr_m=3e7)
     return tgt, emulate(flat_source((300, 450), 10000.0, seed=1), tgt, seed=3)

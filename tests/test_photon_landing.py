@@ -1,4 +1,4 @@
-"""metraw.photon_landing: its random stream and direction against independent references.
+"""metraw.physics.photon_landing: its random stream and direction against independent references.
 
 The landing itself is tested against the expected chain in tests/test_emulate.py
 (test_mean_of_photon_draws_agrees_with_expected, with and without smear, jitter and rotation).
@@ -12,7 +12,7 @@ import numba as nb
 import numpy as np
 from scipy import stats
 
-from metraw.photon_landing import _direction, _disc, _next
+from metraw.physics.photon_landing import _direction, _disc, _next
 
 MASK64 = (1 << 64) - 1
 

@@ -13,13 +13,13 @@ import shutil
 import numpy as np
 import pytest
 
-from metraw.image import RawImage
+from metraw.raw.image import RawImage
+from metraw.raw.sensor import rng_from_seed
 from metraw.segment.data import canonical_pack
 from metraw.segment.evaluate import confusion, gsd_scale, predict_logits, resample_to_gsd
-from metraw.segment.predict import load_prediction, packed_window, sites_to_mosaic
 from metraw.segment.objects import MIN_OBJECT_AREA_M2, drop_small_objects
+from metraw.segment.predict import load_prediction, packed_window, sites_to_mosaic
 from metraw.segment.toy import toy_profile, toy_scene
-from metraw.sensor import rng_from_seed
 
 BOX = "box-approximate: union of axis-aligned YOLO boxes, area fraction per pixel"
 
@@ -103,7 +103,7 @@ def test_sites_to_mosaic_inverts_the_canonical_packing(pattern, shape):
         np.testing.assert_array_equal(back[-1, x0:x1], m[y1 - 1, x0:x1])
     if x1 < shape[1]:
         np.testing.assert_array_equal(back[y0:y1, -1], m[y0:y1, x1 - 1])
-    step = 2  # every mosaic packs in 2 x 2 cells (metraw.cfa.PACKED_CELL_PX)
+    step = 2  # every mosaic packs in 2 x 2 cells (metraw.raw.cfa.PACKED_CELL_PX)
     assert (y1 - y0) % step == 0 and (x1 - x0) % step == 0 and shape[0] - (y1 - y0) < 2 * step
 
 
@@ -114,7 +114,7 @@ def _profile(pattern: str = "RGGB", gsd_m: float = 0.05):
 
 
 def _store(path, sizes, seed, profile, labels=True, meta=None):
-    from metraw.store import RawStore
+    from metraw.io.store import RawStore
 
     rng = rng_from_seed(seed)
     with RawStore.create(path) as store:
@@ -203,7 +203,7 @@ def test_foreign_store_at_twice_the_gsd_is_resampled_by_two(data):
 
 
 def test_predict_writes_the_mosaic_grid_and_agrees_with_evaluate(data):
-    from metraw.store import RawStore
+    from metraw.io.store import RawStore
 
     out, fig_dir = data["root"] / "boxes_pred.zarr", data["root"] / "overlays"
     status, line, err = _cli("predict", data["boxes"], "--model", data["model"], "--out", out, "--overlay", fig_dir,
@@ -257,7 +257,7 @@ def test_transforms_default_to_the_models_and_can_be_set(data):
     for i, rec in enumerate(m1["per_image"]):  # one pass: predict's mask is what evaluate scored
         _, mask, info = load_prediction(out1, i)
         y0, y1, x0, x1 = info["packed_window"]
-        from metraw.store import RawStore
+        from metraw.io.store import RawStore
 
         counts = confusion(mask[y0:y1, x0:x1], RawStore.open(data["boxes"])[i].mask[y0:y1, x0:x1])
         assert counts == pytest.approx(tuple(rec[k] for k in ("tp", "fp", "fn")))

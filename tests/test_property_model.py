@@ -1,5 +1,5 @@
 """Image properties that do not move with the collected light unless the task does, and the IoU fit over them
-(metraw.property_model): the haze fraction of one scene behind two apertures, the runtime decision of a
+(metraw.spec.property_model): the haze fraction of one scene behind two apertures, the runtime decision of a
 property-model spec, and normalisation only toward what the fit says helps."""
 
 from __future__ import annotations
@@ -11,15 +11,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from metraw.emulate import emulate
+from metraw.emulate.emulator import emulate
+from metraw.emulate.target import TargetSystem
 from metraw.errors import MetrawError
-from metraw.daylight import C_LIGHT_M_PER_S, H_PLANCK_J_S, ground_irradiance_w_m2_m
-from metraw.property_model import (REFERENCE_SCENE, PropertyModel, decide, haze_fraction, image_properties,
-                                   reference_signal_e, stated_haze_per_pixel_e)
-from metraw.rawfunc import add_poisson, thin
+from metraw.physics.daylight import C_LIGHT_M_PER_S, H_PLANCK_J_S, ground_irradiance_w_m2_m
+from metraw.physics.rawfunc import add_poisson, thin
 from metraw.scenes import generate_one
-from metraw.spec import Specification, check
-from metraw.target import TargetSystem
+from metraw.spec.builder import Specification
+from metraw.spec.check import check
+from metraw.spec.property_model import (REFERENCE_SCENE, PropertyModel, decide, haze_fraction, image_properties,
+                                   reference_signal_e, stated_haze_per_pixel_e)
 
 PARAMS = Path(__file__).resolve().parents[1] / "params.yaml"
 

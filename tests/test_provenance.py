@@ -19,13 +19,13 @@ def test_code_digest_follows_every_source_file_and_nothing_else(tmp_path):
     (pkg / "__pycache__" / "spec.cpython-311.pyc").write_bytes(b"\0" * 16)
     (pkg / "codec" / "_simd.cpython-311-x86_64-linux-gnu.so").write_bytes(b"\x7fELF")
     assert code_digest(pkg) == first
-    spec = pkg / "tolerance.py"
+    spec = pkg / "spec" / "tolerance.py"
     spec.write_text(spec.read_text() + "\n# one more line\n")
     changed = code_digest(pkg)
     assert changed != first
-    (pkg / "tolerance.py").rename(pkg / "tolerance2.py")  # the same bytes under another name
+    (pkg / "spec" / "tolerance.py").rename(pkg / "spec" / "tolerance2.py")  # the same bytes under another name
     assert code_digest(pkg) not in (first, changed)
-    (pkg / "tolerance2.py").rename(pkg / "tolerance.py")
+    (pkg / "spec" / "tolerance2.py").rename(pkg / "spec" / "tolerance.py")
     assert code_digest(pkg) == changed
     (pkg / "schemas" / "params.schema.yaml").write_text("{}\n")  # data files that shape behaviour count
     assert code_digest(pkg) != changed

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from metraw.errors import MetrawError
-from metraw.image import FLAG_SATURATED, RawImage
-from metraw.profile import CalibrationProfile
-from metraw.rawfunc import add_poisson, bin_same_colour, redistribute, shoot, stochastic_round, thin, thin_counts
-from metraw.sensor import expose, rng_from_seed
+from metraw.physics.rawfunc import add_poisson, bin_same_colour, redistribute, shoot, stochastic_round, thin, thin_counts
+from metraw.raw.image import FLAG_SATURATED, RawImage
+from metraw.raw.profile import CalibrationProfile
+from metraw.raw.sensor import expose, rng_from_seed
 
 
 def profile(**changes) -> CalibrationProfile:

@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 
 from metraw.cli import main
-from metraw.scenes import default_camera, generate, generate_one
+from metraw.io.store import RawStore
+from metraw.physics.daylight import neutral_response, solar_toa_irradiance_w_m2_m
+from metraw.raw.sensor import rng_from_seed
+from metraw.scenes import generate, generate_one, scene_camera
 from metraw.scenes.layout import Scene, add_vehicle, make_scene, rect
-from metraw.daylight import neutral_response, solar_toa_irradiance_w_m2_m
 from metraw.scenes.radiance import electrons_per_reflectance
 from metraw.scenes.render import RenderSettings, render
-from metraw.sensor import rng_from_seed
-from metraw.store import RawStore
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -50,7 +50,7 @@ def test_bytes_do_not_depend_on_worker_count_or_start():
 def test_mask_is_exactly_the_rendered_car(angle_deg):
     """Untextured car of known reflectance on flat ground: each pixel's expected signal is
     ground + mask * (car - ground), so the mask and the rendered car are the same geometry."""
-    cam = default_camera()
+    cam = scene_camera()
     size = 160
     scene = _flat_scene(size * cam.gsd_m, refl=(0.1, 0.1, 0.1))
     car = scene.new_object((0.5, 0.5, 0.5), 1.5, texture=(0.0, 0.0), vehicle=True)
@@ -77,7 +77,7 @@ def test_shadowed_ground_gets_sky_view_and_bounce_light():
     """A flat ground half under a tall caster's shadow: the shadowed pixels get exactly
     rho (kd bounce sin(e) + ks V), the sunlit ones rho (kd sin(e) + ks), with the scene's own
     conditions (aerosol depth, sky view V, bounce) overriding the render settings."""
-    cam = default_camera()
+    cam = scene_camera()
     size = 64
     size_m = size * cam.gsd_m
     scene = _flat_scene(size_m, refl=(0.2, 0.2, 0.2))
@@ -97,7 +97,7 @@ def test_shadowed_ground_gets_sky_view_and_bounce_light():
 
 
 def test_tree_hides_car_from_the_mask():
-    cam = default_camera()
+    cam = scene_camera()
     size = 160
     scene = _flat_scene(size * cam.gsd_m)
     add_vehicle(scene, rng_from_seed(0), 4.7, 4.7, 0.0, vclass="car")
@@ -133,7 +133,7 @@ def test_street_furniture_lines_the_sidewalks_and_is_never_a_car(monkeypatch):
     assert offsets.min() >= kerb + 0.3 - 1e-9 and offsets.max() <= kerb + sidewalk - 0.3 + 1e-9
     assert all(np.sign(t[1]) == -np.sign(cy - 50.0) for _, cy, t in placed)  # arms reach over the road
     assert not any(scene.is_vehicle) and not scene.vehicles
-    cam = default_camera()
+    cam = scene_camera()
     size = 200
     street = Scene("urban", size * cam.gsd_m, 30.0, 45.0)
     layout.add_road(street, rng_from_seed(5), (street.size_m / 2,) * 2, 0.3, 3 * street.size_m, lanes=2,
@@ -146,7 +146,7 @@ def test_street_furniture_lines_the_sidewalks_and_is_never_a_car(monkeypatch):
 def test_flat_patch_noise_matches_profile():
     """Uniform ground, no texture, no blur: mean and variance of each colour plane match the
     EMVA model of the image's profile within 4 standard errors."""
-    cam = default_camera()
+    cam = scene_camera()
     size = 256
     scene = _flat_scene(size * cam.gsd_m)
     img, mean_e = render(scene, cam, size, rng_from_seed(3), RenderSettings(blur_px=0.0))
@@ -168,7 +168,7 @@ def test_daylight_photon_counts_are_physical():
     lam = np.linspace(200e-9, 10e-6, 200000)
     total = float(np.trapezoid(solar_toa_irradiance_w_m2_m(lam), lam))
     assert abs(total - 1361.0) < 0.02 * 1361.0  # solar constant
-    cam = default_camera()
+    cam = scene_camera()
     k = electrons_per_reflectance(cam, 45.0, 1e-3)
     e_grey = {c: 0.3 * (kd * math.sin(math.radians(45)) + ks) for c, (kd, ks) in k.items()}
     assert all(2000 < e < cam.full_well_e for e in e_grey.values())  # thousands of e- for bright ground
@@ -186,7 +186,7 @@ def test_neutral_response_matches_the_rendered_grey_surface():
     """The channel ratios of a grey surface in daylight equal those of the absolute radiometry, and the
     blue channel of the default camera gets about half the green one (a bluish sun is still redder than
     the QE ratio alone suggests: 0.40 / 0.55 = 0.73)."""
-    cam = default_camera()
+    cam = scene_camera()
     for elevation in (20.0, 45.0, 70.0):
         k = electrons_per_reflectance(cam, elevation, 1e-3)
         grey = {c: kd * math.sin(math.radians(elevation)) + ks for c, (kd, ks) in k.items()}
@@ -209,12 +209,12 @@ def test_car_geometry_is_realistic():
     assert 4.0 < np.median(lengths) < 4.8 and 1.7 < np.median(widths) < 1.9
 
 
-def test_default_camera_matches_params_yaml():
+def test_scene_camera_matches_params_yaml():
     params = ROOT / "params.yaml"
     import yaml
 
     src = yaml.safe_load(params.read_text())["source"]["camera"]
-    cam = default_camera()
+    cam = scene_camera()
     for key, value in src.items():
         assert getattr(cam, key) == value, key
 
@@ -345,7 +345,7 @@ def test_compiled_painting_is_the_numpy_scanline_bit_for_bit():
     _reference_paint(want, shapes, values)
     assert np.array_equal(got, want) and len(np.unique(got)) > 20
 
-    camera = default_camera()
+    camera = scene_camera()
     for i, kind in enumerate(("urban", "suburban", "rural")):
         scene = make_scene(kind, rng_from_seed(100 + i), 256 * camera.gsd_m)
         obj, caster_h, crowns = rasterise(scene, 256, camera.gsd_m, 2)
@@ -372,7 +372,7 @@ def test_colour_blur_is_scipy_gaussian_filter_bit_for_bit():
     CFA pattern, odd and even sizes, blurs whose radius reaches 1-6 pixels) and leaves the others alone."""
     from scipy import ndimage
 
-    from metraw.cfa import color_index
+    from metraw.raw.cfa import color_index
     from metraw.scenes.render import blur_at_colour, gaussian_weights
 
     rng = np.random.default_rng(8)
@@ -420,7 +420,7 @@ def test_lens_blur_of_a_shadow_edge_is_the_gaussian_filter_of_the_bands(blur_px)
     Gaussian filter of its band's two-level image, read at the pixel."""
     from scipy import ndimage
 
-    cam = default_camera()
+    cam = scene_camera()
     size = 16
     size_m = size * cam.gsd_m
     scene = _flat_scene(size_m, refl=(0.2, 0.2, 0.2))

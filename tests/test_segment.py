@@ -9,13 +9,13 @@ import re
 import numpy as np
 import pytest
 
-from metraw.cfa import pack_planes
 from metraw.errors import MetrawError
-from metraw.image import RawImage
+from metraw.raw.cfa import pack_planes
+from metraw.raw.image import RawImage
+from metraw.raw.sensor import expose, rng_from_seed
 from metraw.segment.data import canonical_pack, prepare, split_indices, vst_mosaic
 from metraw.segment.evaluate import confusion, iou, scores, summarise
 from metraw.segment.toy import toy_profile, toy_scene, toy_store
-from metraw.sensor import expose, rng_from_seed
 
 
 # ----------------------------------------------------------------- input representation
@@ -36,7 +36,7 @@ def test_vst_input_has_unit_noise_variance_on_flat_image(mean_e):
 
 def test_canonical_pack_restores_rggb_for_every_pattern_and_transform():
     # A mosaic whose value encodes its colour: R=0, G=1, B=2 -> packed planes must read R, G, G, B.
-    from metraw.cfa import color_index
+    from metraw.raw.cfa import color_index
 
     for pattern in ("RGGB", "BGGR", "GRBG", "GBRG"):
         ci = color_index(pattern, (10, 14)).astype(np.float32)
@@ -162,7 +162,7 @@ def test_a_car_outline_scores_one_against_its_box_only_as_a_box():
 
     class Fixed(torch.nn.Module):  # a "network" whose logits are the car outline
         def forward(self, x):
-            # packed as the mono mosaic is (2 x 2 cells, metraw.cfa.PACKED_CELL_PX)
+            # packed as the mono mosaic is (2 x 2 cells, metraw.raw.cfa.PACKED_CELL_PX)
             return torch.from_numpy(pack_planes(np.where(car, 8.0, -8.0).astype(np.float32), "RGGB"))[None]
 
     img = PreparedImage(np.zeros((48, 48), np.float32), box.astype(np.float16), "mono", 0, gsd_m=0.1)
@@ -249,9 +249,9 @@ def test_bfloat16_training_is_deterministic_learns_and_differs_from_float32(tiny
     import torch
 
     from metraw.errors import MetrawError
+    from metraw.io.store import RawStore
     from metraw.segment.data import prepare_store
     from metraw.segment.train import TrainConfig, fit
-    from metraw.store import RawStore
 
     images = prepare_store(RawStore.open(tiny_store), range(8), progress=False)
     runs = [fit(images, _cfg(epochs=4, precision=prec), device="cpu", progress=False)
@@ -269,9 +269,9 @@ def test_bfloat16_training_is_deterministic_learns_and_differs_from_float32(tiny
 def test_auto_precision_is_bfloat16_exactly_where_the_hardware_computes_it(tiny_store, monkeypatch):
     import torch
 
+    from metraw.io.store import RawStore
     from metraw.segment.data import prepare_store
     from metraw.segment.train import fit, fit_replicates, resolve_precision
-    from metraw.store import RawStore
 
     def hardware(avx512_bf16: bool, amx: bool = False, cuda_bf16: bool = False, capability: str = "AVX512"):
         monkeypatch.setattr(torch.backends.cpu, "get_cpu_capability", lambda: capability)
@@ -338,7 +338,7 @@ def test_training_reduces_loss_and_upsampling_keeps_native_grid(tiny_store):
     from metraw.segment.data import prepare_store
     from metraw.segment.train import fit
 
-    images = prepare_store(__import__("metraw.store", fromlist=["RawStore"]).RawStore.open(tiny_store), range(8),
+    images = prepare_store(__import__("metraw.io.store", fromlist=["RawStore"]).RawStore.open(tiny_store), range(8),
                            progress=False)
     model, rec = fit(images, _cfg(epochs=4, min_grid_px=96), device="cpu", progress=False)
     assert rec["upsample"] == 2  # 48 packed px -> factor 2 to reach 96
@@ -388,52 +388,6 @@ def test_image_without_mask_is_rejected():
     assert vst_mosaic(img).dtype == np.float32
 
 
-# ----------------------------------------------------------------- on-the-fly emulation
-@pytest.fixture(scope="module")
-def small_source(tmp_path_factory):
-    pytest.importorskip("metraw.emulate")
-    generate_one = pytest.importorskip("metraw.scenes").generate_one
-    from metraw.store import RawStore
-
-    path = tmp_path_factory.mktemp("segsrc") / "src.zarr"
-    with RawStore.create(path) as store:
-        for i in range(4):
-            store.append(generate_one(i, 0, 256))
-    return path
-
-
-def test_emulated_dataset_is_deterministic_and_trains_with_workers(small_source):
-    from pathlib import Path
-
-    from metraw.segment.emulated import EmulatedDataset, draw_point, fit_emulated
-
-    params = Path(__file__).resolve().parents[1] / "params.yaml"
-    box = {"focal_length_m": [1.2, 2.0], "exposure_s": {"values": [1e-4, 5e-4]}}
-    ds = EmulatedDataset(small_source, range(4), box, params, crop_px=16, seed=3)
-    x, y = ds[1]
-    x2, y2 = ds[1]
-    assert np.array_equal(x, x2) and np.array_equal(y, y2)
-    assert x.shape[0] == 4 and x.shape == y.shape and 0 <= y.min() and y.max() <= 1
-    _, point = ds.sample(1)
-    assert 1.2 <= point["focal_length_m"] <= 2.0 and point["exposure_s"] in (1e-4, 5e-4)
-    pts = [draw_point(box, rng_from_seed(i)) for i in range(200)]
-    f = np.array([p["focal_length_m"] for p in pts])
-    assert abs(f.mean() - 1.6) < 4 * 0.8 / math.sqrt(12 * 200)  # uniform mean within 4 standard errors
-    with pytest.raises(MetrawError):
-        EmulatedDataset(small_source, range(4), {"diameter_m": [0.5, 0.1]}, params)
-    model, rec = fit_emulated(ds, _cfg(epochs=1, batch_size=2), workers=2, device="cpu", progress=False)
-    assert rec["steps"] == 2 and np.isfinite(rec["loss_per_epoch"][0])
-    # preloaded sources (decoded once, shared with forked workers): the same items and the same training
-    import pickle
-
-    pre = EmulatedDataset(small_source, range(4), box, params, crop_px=16, seed=3).preload()
-    assert sorted(pre._preloaded) == [0, 1, 2, 3] and pickle.loads(pickle.dumps(pre))._preloaded == {}
-    xp, yp = pre[1]
-    assert np.array_equal(x, xp) and np.array_equal(y, yp)
-    _, rec_pre = fit_emulated(pre, _cfg(epochs=1, batch_size=2), workers=2, device="cpu", progress=False)
-    assert rec_pre["loss_per_epoch"] == rec["loss_per_epoch"]
-
-
 def test_pool_factor_follows_ground_sampling_and_keeps_the_grid():
     import torch
 
@@ -457,9 +411,9 @@ def test_pool_factor_follows_ground_sampling_and_keeps_the_grid():
 
 
 def test_cover_draws_enough_crops_to_see_each_image_once_per_epoch(tiny_store):
+    from metraw.io.store import RawStore
     from metraw.segment.data import PreparedImage, prepare_store
     from metraw.segment.train import TrainConfig, crops_to_cover, fit
-    from metraw.store import RawStore
 
     def image(h, w):
         return PreparedImage(np.zeros((h, w), np.float32), np.zeros((h, w), np.float16), "mono", 0)

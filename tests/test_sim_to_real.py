@@ -12,7 +12,7 @@ import pytest
 import yaml
 
 from metraw.errors import MetrawError
-from metraw.sim_to_real import GAP_TOLERANCE, REASONS, gap_note, resolve_enabled
+from metraw.study.sim_to_real import GAP_TOLERANCE, REASONS, gap_note, resolve_enabled
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -74,7 +74,7 @@ def _metrics(path: Path, rng, iou: float, n: int, labels: str | None = None) -> 
 def hand_made(tmp_path):
     """params.yaml with 4 points and, per point, synthetic metrics and real metrics (box-approximate labels):
     the real IoU is the synthetic one minus 0.02 at the nominal point, minus 0.2 elsewhere."""
-    from metraw.points import parameter_points
+    from metraw.study.points import parameter_points
 
     params = yaml.safe_load((REPO / "params.yaml").read_text())
     params["target"]["sweeps"] = {"focal_length_m": [1.2], "diameter_m": [0.35], "exposure_s": [300.0e-6]}
@@ -100,7 +100,7 @@ def _aggregate(root: Path, *extra: str) -> int:
 
 
 def test_aggregate_reports_real_columns_and_the_gap(hand_made, capsys):
-    from metraw.cli.aggregate import iou_measurement
+    from metraw.spec.aggregate import iou_measurement
 
     root, made, (src_syn, src_real) = hand_made
     assert _aggregate(root, "--real-metrics-pattern", "{results}/{point}/real_metrics.json",
@@ -150,7 +150,7 @@ def test_real_iou_of_replicate_models_is_their_mean_as_on_the_synthetic_side(han
     """With replicates the synthetic IoU is the replicates' mean; the real IoU and the gap must be measured alike
     (not the first replicate's IoU against the others' mean), for the points and for the source, and so must
     precision, recall and object F1."""
-    from metraw.cli.aggregate import iou_measurement
+    from metraw.spec.aggregate import iou_measurement
 
     root, made, (src_syn, src_real) = hand_made
     shifted = {}
@@ -190,7 +190,7 @@ def test_real_iou_of_replicate_models_is_their_mean_as_on_the_synthetic_side(han
 
 def test_iou_figures_draw_the_real_series(hand_made, monkeypatch):
     """The per-parameter IoU figures get a second series (the real points, their 2-sd bars) and a legend."""
-    from metraw import figures
+    from metraw.spec import figures
 
     root, _, _ = hand_made
     drawn = {}

@@ -7,11 +7,13 @@ import numpy as np
 import pytest
 
 from metraw.errors import MetrawError
-from metraw.image import RawImage
-from metraw.profile import CalibrationProfile
-from metraw.sensor import expose, rng_from_seed
-from metraw.spec import Limit, Specification, build_spec, check, apply_chain, WAVELENGTH_REF_M
-from metraw.tolerance import Tolerance
+from metraw.raw.image import RawImage
+from metraw.raw.profile import CalibrationProfile
+from metraw.raw.sensor import expose, rng_from_seed
+from metraw.spec.builder import Limit, Specification, build_spec
+from metraw.spec.check import check, apply_chain
+from metraw.spec.property_model import WAVELENGTH_REF_M
+from metraw.spec.tolerance import Tolerance
 
 H = 600e3
 PITCH = 2.4e-6
@@ -137,7 +139,7 @@ def test_normalise_finer_sharper_brighter_image_reaches_spec():
 
 def test_normalise_blur_kernel_adds_the_planned_variance():
     # a point-like source spreads to the Gaussian the plan asks for (second moment, sampling error bounded)
-    from metraw.spec import _gaussian_kernel
+    from metraw.spec.check import _gaussian_kernel
 
     k = _gaussian_kernel(2.0)
     r = np.arange(k.shape[0]) - k.shape[0] // 2
@@ -183,7 +185,7 @@ def test_check_flags_a_deliberately_wrong_profile_on_a_real_frame(tmp_path):
 def test_subcell_blur_kernels_carry_the_planned_variance():
     # photons move by whole cells: below one cell a sampled kernel of the nominal width would add
     # too little variance (a box shorter than a cell none); the plan's variance must be exact
-    from metraw.spec import _box_kernel, _gaussian_kernel
+    from metraw.spec.check import _box_kernel, _gaussian_kernel
 
     for sigma in (0.2, 0.363, 0.8, 3.0):
         k = _gaussian_kernel(sigma)
@@ -200,7 +202,7 @@ def test_subcell_blur_kernels_carry_the_planned_variance():
 def test_redistribute_adds_the_planned_blur_to_a_point_source():
     # a bright single-cell source through the planned sub-cell smear: the measured along-track
     # variance of the landing photons equals L^2/12 within k = 4 standard errors
-    from metraw.spec import apply_chain
+    from metraw.spec.check import apply_chain
 
     prof = make_image().profile.replace(read_noise_e=0.0)
     n_e = 4000
@@ -226,7 +228,7 @@ def test_redistribute_adds_the_planned_blur_to_a_point_source():
 def test_thinning_uses_the_light_ratio_of_the_geometry():
     # with the optimum system in the spec context, p = collected light ratio (per pixel, after
     # binning), not the scene-dependent ratio of medians: a 0.4 m mirror collects 4x the light
-    from metraw.spec import light_ratio
+    from metraw.spec.check import light_ratio
 
     spec = make_spec()
     spec.context["optimum"] = {"diameter_m": 0.2, "exposure_s": 180e-6, "pixel_pitch_m": PITCH,
@@ -267,7 +269,7 @@ def test_optimum_signal_above_the_sampled_range_is_clipped_and_thinning_targets_
 
 
 def _store_with(tmp_path, images):
-    from metraw.store import RawStore
+    from metraw.io.store import RawStore
 
     with RawStore.create(tmp_path / "s.zarr") as s:
         for im in images:

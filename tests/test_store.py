@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from metraw import CalibrationProfile, MetrawError, RawImage
-from metraw.image import FLAG_SATURATED
-from metraw.sensor import expose, rng_from_seed
-from metraw.store import RawStore
+from metraw.io.store import RawStore
+from metraw.raw.image import FLAG_SATURATED
+from metraw.raw.sensor import expose, rng_from_seed
 
 
 def images(n, shape=(40, 50), seed=0):

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from metraw.errors import MetrawError
-from metraw.tolerance import ResponseGP, joint_region, tolerance_interval
+from metraw.spec.tolerance import ResponseGP, joint_region, tolerance_interval
 
 
 def test_gp_recovers_smooth_function_with_calibrated_bands():
@@ -109,8 +109,8 @@ def _write_point(root, point, iou=0.7):
 
 
 def test_aggregate_errors_clearly_when_a_point_is_missing(tmp_path):
-    from metraw.cli.aggregate import load_point_results
-    from metraw.points import load_params, parameter_points
+    from metraw.spec.aggregate import load_point_results
+    from metraw.study.points import load_params, parameter_points
 
     params = load_params("params.yaml")
     points = list(parameter_points(params))
@@ -126,7 +126,7 @@ def test_aggregate_errors_clearly_when_a_point_is_missing(tmp_path):
 
 def test_pooled_iou_variance_matches_resampling():
     """The delta-method variance of the pooled IoU agrees with the spread over resampled test sets."""
-    from metraw.cli.aggregate import iou_measurement
+    from metraw.spec.aggregate import iou_measurement
 
     rng = np.random.default_rng(5)
     recs = _records(rng, 400, 0.6)

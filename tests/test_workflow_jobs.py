@@ -170,8 +170,8 @@ def test_generator_refuses_a_sweep_value_equal_to_nominal():
 @needs_tools
 @pytest.mark.parametrize("which", ["repo", "odd floats"])
 def test_dvc_stage_outputs_are_the_snakemake_point_paths(tmp_path, which):
-    """DVC's rendering of the templated stages names exactly the points metraw.points gives."""
-    from metraw.points import parameter_points
+    """DVC's rendering of the templated stages names exactly the points metraw.study.points gives."""
+    from metraw.study.points import parameter_points
 
     params = yaml.safe_load((REPO / "params.yaml").read_text()) if which == "repo" else tiny_params()
     if which == "odd floats":

@@ -60,7 +60,7 @@ def test_workflow_runs_from_dng_raws_and_recovers_the_camera(tmp_path):
     # the geometry is params' camera; the exposure is the DNGs' own tag (1 ms), not params' (also 1 ms here)
     assert camera["pixel_pitch_m"] == pytest.approx(2.41e-6) and camera["altitude_m"] == pytest.approx(250.0)
 
-    from metraw.store import RawStore
+    from metraw.io.store import RawStore
 
     store = RawStore.open(root / "data" / "source.zarr")
     assert len(store) == 4 and store.attrs["camera_profile"]["gain_dn_per_e"] == k

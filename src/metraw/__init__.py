@@ -7,8 +7,8 @@ tolerance derivation.
 """
 
 from metraw.errors import MetrawError
-from metraw.image import RawImage
-from metraw.profile import CalibrationProfile
+from metraw.raw.image import RawImage
+from metraw.raw.profile import CalibrationProfile
 
 __version__ = "0.1.0"
 __all__ = ["CalibrationProfile", "MetrawError", "RawImage", "__version__"]

@@ -14,10 +14,10 @@ import numpy as np
 import tifffile
 import yaml
 
-from metraw.image import RawImage
 from metraw.io import write_tiff
-from metraw.profile import CalibrationProfile
-from metraw.spec import Limit, Specification
+from metraw.raw.image import RawImage
+from metraw.raw.profile import CalibrationProfile
+from metraw.spec.builder import Limit, Specification
 
 REPO = Path(__file__).resolve().parents[2]
 

@@ -57,7 +57,7 @@ def model(tmp_path_factory, _store_template):
 def mraw_blob() -> bytes:
     """A valid .mraw blob (a 64 x 64 RGGB ramp, profile embedded)."""
     from metraw import codec
-    from metraw.image import RawImage
+    from metraw.raw.image import RawImage
 
     from ._inputs import PROFILE, ramp
 

@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from metraw.image import RawImage
 from metraw.io import default_camera
-from metraw.store import RawStore
+from metraw.io.store import RawStore
+from metraw.raw.image import RawImage
 
 from . import _inputs as make
 from ._check import refused

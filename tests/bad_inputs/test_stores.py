@@ -8,7 +8,7 @@ import json
 
 import pytest
 
-from metraw.store import read_shard_index
+from metraw.io.store import read_shard_index
 
 from . import _inputs as make
 from ._check import refused

@@ -1,13 +1,13 @@
 import re
 
-# Shared definitions: the parameter points come from params.yaml via metraw.points,
+# Shared definitions: the parameter points come from params.yaml via metraw.study.points,
 # never from a glob of existing outputs.
 
 from snakemake.exceptions import WorkflowError
 
-from metraw.points import parameter_points, target_params
+from metraw.study.points import parameter_points, target_params
 from metraw.provenance import code_digest
-from metraw.sources import calibration_method
+from metraw.study.sources import calibration_method
 from metraw.segment.pretrain import (draws_extra_scenes, fine_tuned_points, point_patterns, pretrain_settings,
                                      pretrained_patterns)
 
@@ -131,7 +131,7 @@ def pretrain_priority(wildcards):
 
 # rule source_camera (a raws source)
 def _calibrate_command(wildcards, input):
-    """The `metraw calibrate` arguments of the source's calibration method (metraw.sources)."""
+    """The `metraw calibrate` arguments of the source's calibration method (metraw.study.sources)."""
     if RAWS_METHOD == "photon_transfer":
         return (f"--flats {RAWS_CALIBRATION['flats']} --darks {RAWS_CALIBRATION['darks']}"
                 f" --frames-per-level {RAWS_CALIBRATION.get('frames_per_level', 2)}")

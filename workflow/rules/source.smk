@@ -1,4 +1,4 @@
-# Source data (params.yaml source.dataset, metraw.sources): the embedded synthetic drone scenes, a team's own
+# Source data (params.yaml source.dataset, metraw.study.sources): the embedded synthetic drone scenes, a team's own
 # calibrated camera raws with car masks, or processed photos with boxes or masks; raw array stored with the
 # noise-preserving codec (params.yaml codec), then a calibration check of the stored profiles.
 
@@ -29,7 +29,7 @@ if config["source"]["dataset"] == "synthetic":
             " --codec-step {params.codec[step]} --codec-seed {params.codec[seed]} 2> {log}"
 
 elif config["source"]["dataset"] == "raws":
-    # A team's own camera raws (metraw.sources): the camera calibrated first (photon transfer from flats and
+    # A team's own camera raws (metraw.study.sources): the camera calibrated first (photon transfer from flats and
     # darks, a given profile, or the single-frame fit of the raws), then the raws ingested with that camera's
     # noise model and geometry and their car masks.
     RAWS = config["source"]["raws"]

@@ -16,7 +16,7 @@ import numpy as np
 
 from metraw.calibrate import from_image
 from metraw.errors import MetrawError
-from metraw.store import RawStore
+from metraw.io.store import RawStore
 
 MAX_IMAGES = 8
 Z_LIMIT = 5.0

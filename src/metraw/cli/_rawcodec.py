@@ -51,7 +51,7 @@ class StoreCodec:
         if not self.lossy:
             return {}
         if self.decoded:
-            from metraw.store import uncompressed_raw_codecs
+            from metraw.io.store import uncompressed_raw_codecs
 
             return {"raw_codecs": uncompressed_raw_codecs}
         from metraw.codec.zarr_codec import raw_codecs

@@ -16,8 +16,8 @@ from pathlib import Path
 
 from metraw.atomic import atomic_path
 from metraw.errors import MetrawError
-from metraw.image import RawImage
-from metraw.store import RawStore
+from metraw.io.store import RawStore
+from metraw.raw.image import RawImage
 
 
 def add_input_arguments(p) -> None:
@@ -64,7 +64,7 @@ def load_image(args) -> RawImage:
 
         image = read_raw(path)
     if args.profile:
-        from metraw.profile import load_profile
+        from metraw.raw.profile import load_profile
 
         profile = load_profile(args.profile, base=image.profile)
         image = RawImage(image.data, profile, image.mask, image.flags, image.provenance, image.meta)
@@ -85,7 +85,7 @@ def format_decision(decision) -> str:
     lines += [f"  reason: {r}" for r in decision.reasons]
     for name, f in decision.properties.items():
         v = "unknown" if f["value"] is None else f"{f['value']:.4g}"
-        if name == "predicted_iou":  # the spec's property model (metraw.property_model)
+        if name == "predicted_iou":  # the spec's property model (metraw.spec.property_model)
             lines.append(f"  predicted IoU: {v} +- {f['sd']:.3f} (required {f['required']:g})")
         elif "sampled_min" in f:
             lines.append(f"  {name}: {v} {f['unit']} ({f['source']}), sampled [{f['sampled_min']:.4g}, "
@@ -106,7 +106,8 @@ def format_decision(decision) -> str:
 
 
 def run(args) -> int:
-    from metraw.spec import Specification, check
+    from metraw.spec.builder import Specification
+    from metraw.spec.check import check
 
     spec = Specification.load(args.spec)
     image = load_image(args)

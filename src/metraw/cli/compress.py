@@ -25,7 +25,7 @@ import numpy as np
 
 from metraw.atomic import atomic_path
 from metraw.errors import MetrawError
-from metraw.image import RawImage
+from metraw.raw.image import RawImage
 
 BITS_RAW = 16
 
@@ -86,7 +86,7 @@ def stored_raw(store, n: int) -> dict[str, Any]:
     all images (images smaller than the array are zero-padded)."""
     import zarr
 
-    from metraw.store import read_shard_index
+    from metraw.io.store import read_shard_index
 
     arr = zarr.open_group(str(store.path), mode="r")["raw"]
     per_shard = int(arr.shards[0]) if arr.shards else 1
@@ -106,8 +106,8 @@ def stored_raw(store, n: int) -> dict[str, Any]:
 
 def run(args) -> int:
     from metraw.codec import encode
+    from metraw.io.store import RawStore
     from metraw.progress import progress_bar
-    from metraw.store import RawStore
 
     if not (math.isfinite(args.step) and args.step > 0):
         raise MetrawError(f"--step must be a positive number of sigmas, got {args.step}")

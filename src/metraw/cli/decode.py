@@ -1,5 +1,5 @@
 """``metraw decode INPUT OUTPUT``: a ``.mraw`` file to a uint16 TIFF with the profile embedded, or a store
-(``.zarr``) to a working copy with its raw array uncompressed (``metraw.store.write_decoded_copy``)."""
+(``.zarr``) to a working copy with its raw array uncompressed (``metraw.io.store.write_decoded_copy``)."""
 
 from __future__ import annotations
 
@@ -40,7 +40,7 @@ def _decode_store(path: Path, args) -> int:
     import time
 
     from metraw import codec
-    from metraw.store import RawStore, write_decoded_copy
+    from metraw.io.store import RawStore, write_decoded_copy
 
     if args.threads < 1:
         raise MetrawError(f"--threads must be >= 1, got {args.threads}")

@@ -42,12 +42,12 @@ def register(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from metraw.accuracy import Accuracy
+    from metraw.emulate.target import TargetSystem, parse_point
     from metraw.errors import MetrawError
-    from metraw.points import load_params
+    from metraw.io.store import RawStore
+    from metraw.physics.accuracy import Accuracy
     from metraw.progress import progress_bar
-    from metraw.store import RawStore
-    from metraw.target import TargetSystem, parse_point
+    from metraw.study.points import load_params
 
     codec = StoreCodec(args)
     params = load_params(args.params)
@@ -133,8 +133,8 @@ class _Job:
     def __call__(self, i: int):
         import numpy as np
 
-        from metraw.emulate import emulate
-        from metraw.store import RawStore
+        from metraw.emulate.emulator import emulate
+        from metraw.io.store import RawStore
 
         if self._store is None:
             self._store = RawStore.open(self.source)

@@ -21,12 +21,12 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def load_image(path: str, profile_path: str | None, black: float | None, cfa: str | None):
+def load_or_calibrate(path: str, profile_path: str | None, black: float | None, cfa: str | None):
     """Read a raw image and give it a profile: from ``profile_path``, or calibrated from the image."""
-    from metraw.cfa import validate_pattern
-    from metraw.image import RawImage
     from metraw.io import read_raw
-    from metraw.profile import load_profile
+    from metraw.raw.cfa import validate_pattern
+    from metraw.raw.image import RawImage
+    from metraw.raw.profile import load_profile
 
     if not Path(path).is_file():
         raise MetrawError(f"input {path} does not exist")
@@ -57,7 +57,7 @@ def run(args) -> int:
 
     if Path(args.output).exists() and not args.overwrite:
         raise MetrawError(f"output {args.output} already exists (use --overwrite to replace it)")
-    image, res = load_image(args.input, args.profile, args.black, args.cfa)
+    image, res = load_or_calibrate(args.input, args.profile, args.black, args.cfa)
     from metraw import codec  # numba: imported once the input is read
     if res is not None:
         p = res.profile

@@ -56,7 +56,7 @@ def run(args) -> int:
     from metraw.errors import MetrawError
 
     path = Path(args.path)
-    from metraw.store import RawStore
+    from metraw.io.store import RawStore
 
     if RawStore.is_store(path):
         store = RawStore.open(path)

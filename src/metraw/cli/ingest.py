@@ -61,8 +61,8 @@ def run(args) -> int:
 
     from metraw.errors import MetrawError
     from metraw.io import image_files, load_camera, read_raw
+    from metraw.io.store import RawStore
     from metraw.progress import progress_bar
-    from metraw.store import RawStore
 
     t0 = time.perf_counter()
     codec = StoreCodec(args)

@@ -1,8 +1,8 @@
 """``metraw normalise``: apply the chain that brings a better-than-spec image to spec.
 
-Runs `metraw.spec.check`; a NORMALISE verdict's chain (binning to a coarser GSD, photon
+Runs `metraw.spec.check.check`; a NORMALISE verdict's chain (binning to a coarser GSD, photon
 redistribution through a blur kernel, binomial thinning of light) is applied with
-`metraw.rawfunc` and the result written atomically with its new profile and provenance: a metraw
+`metraw.physics.rawfunc` and the result written atomically with its new profile and provenance: a metraw
 raw TIFF when OUT ends in .tif/.tiff (`metraw.io.tiff.write_tiff`), else a one-image metraw store.
 PASS writes the image unchanged; REJECT writes nothing and exits with an error (status 2).
 """
@@ -29,8 +29,9 @@ def register(sub) -> None:
 
 def run(args) -> int:
     from metraw.cli.check import format_decision, load_image
-    from metraw.spec import Specification, apply_chain, check
-    from metraw.store import RawStore
+    from metraw.io.store import RawStore
+    from metraw.spec.builder import Specification
+    from metraw.spec.check import apply_chain, check
 
     spec = Specification.load(args.spec)
     image = load_image(args)

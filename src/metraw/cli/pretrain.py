@@ -47,12 +47,12 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from metraw.cfa import validate_pattern
+    from metraw.emulate.target import TargetSystem
     from metraw.errors import MetrawError
-    from metraw.points import load_params, target_at
+    from metraw.raw.cfa import validate_pattern
     from metraw.segment.pretrain import pretrain_settings, pretrain_stores
     from metraw.segment.train import load_config
-    from metraw.target import TargetSystem
+    from metraw.study.points import load_params, target_at
 
     params = load_params(args.params)
     config = load_config(args.params, args.profile)

@@ -35,9 +35,9 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from metraw.io.store import RawStore
     from metraw.progress import progress_bar
-    from metraw.scenes import default_camera, generate
-    from metraw.store import RawStore
+    from metraw.scenes import generate, scene_camera
 
     if args.n < 1:
         raise MetrawError(f"--n must be >= 1, got {args.n}")
@@ -54,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
 
         camera = load_camera(args.camera)
     else:
-        camera = default_camera()
+        camera = scene_camera()
     t0 = time.perf_counter()
     with RawStore.create(args.out, overwrite=args.overwrite, **codec.create_kwargs()) as store:
         store.set_attrs(generator="metraw.scenes", seed=args.seed, n=args.n, size_px=args.size, kinds=list(kinds),

@@ -16,10 +16,10 @@ def register(sub) -> None:
 
 def run(args) -> int:
     from metraw import codec
-    from metraw.cli.encode import load_image
+    from metraw.cli.encode import load_or_calibrate
     from metraw.codec.selfcheck import format_check, self_check
 
-    image, _ = load_image(args.input, args.profile, args.black, args.cfa)
+    image, _ = load_or_calibrate(args.input, args.profile, args.black, args.cfa)
     blob = codec.encode(image, step=args.step, seed=args.seed)
     decoded = codec.decode(blob)
     stats = self_check(image, decoded, args.step)

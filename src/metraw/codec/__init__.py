@@ -30,11 +30,11 @@ from concurrent.futures import ThreadPoolExecutor
 import numba as nb
 import numpy as np
 
-from metraw.cfa import plane_offsets, cell_size
 from metraw.codec import container, entropy, native, predictive, prepare
 from metraw.errors import MetrawError
-from metraw.image import RawImage
-from metraw.profile import CalibrationProfile
+from metraw.raw.cfa import plane_offsets, cell_size
+from metraw.raw.image import RawImage
+from metraw.raw.profile import CalibrationProfile
 
 __all__ = ["encode", "decode", "round_trip", "ProfileMismatchWarning", "measured_noise_sigma", "THREADS", "threads"]
 

@@ -1,12 +1,8 @@
-"""Lossless coding of integer symbol planes: integer Haar pyramid + interleaved static rANS.
-
-Transform: the S-transform (integer Haar lifting, h = a - b, l = b + floor(h / 2)) applied
-separably over ``levels`` levels. It is exactly invertible and, unlike longer wavelets, has
-unit coding gain on white noise (det 1, variance product preserved), so noise-dominated
-symbols lose nothing while smooth signal energy is packed into the low band.
+"""Lossless coding of integer streams with interleaved static rANS: the codec's escape section (the gaps between
+the escaped pixels of ``prepare.escape_mask`` and their DN values).
 
 Entropy coder: range-ANS (Duda 2013) with a static frequency table per context (one context
-per sub-band), 2^14 probability scale, 32-bit states and 16-bit renormalisation. ``lanes``
+per stream), 2^14 probability scale, 32-bit states and 16-bit renormalisation. ``lanes``
 independent states advance in lock step, so every step is one vectorised numpy operation
 over all lanes (encode and decode cost O(n / lanes) Python steps). Values outside a
 context's alphabet are coded as an escape symbol and stored verbatim.
@@ -24,75 +20,6 @@ PROB_BITS = 14
 PROB_SCALE = 1 << PROB_BITS
 RANS_L = 1 << 16
 MAX_ALPHABET = 4096
-
-
-# ----------------------------------------------------------------------------- Haar pyramid
-def _haar_fwd_axis(x: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray]:
-    x = np.moveaxis(x, axis, 0)
-    n = x.shape[0]
-    a, b = x[0:n - 1:2], x[1::2]
-    h = a - b
-    lo = b + (h >> 1)
-    if n % 2:
-        lo = np.concatenate([lo, x[n - 1:n]], axis=0)
-    return np.moveaxis(lo, 0, axis), np.moveaxis(h, 0, axis)
-
-
-def _haar_inv_axis(lo: np.ndarray, h: np.ndarray, axis: int) -> np.ndarray:
-    lo = np.moveaxis(lo, axis, 0)
-    h = np.moveaxis(h, axis, 0)
-    nb = h.shape[0]
-    n = nb + lo.shape[0]
-    out = np.empty((n,) + lo.shape[1:], dtype=lo.dtype)
-    b = lo[:nb] - (h >> 1)
-    out[1::2] = b
-    out[0:2 * nb:2] = h + b
-    if n % 2:
-        out[n - 1] = lo[nb]
-    return np.moveaxis(out, 0, axis)
-
-
-def haar_levels(shape: tuple[int, int], max_levels: int = 4, min_size: int = 8) -> int:
-    h, w = shape
-    levels = 0
-    while levels < max_levels and h >= min_size and w >= min_size:
-        h, w = (h + 1) // 2, (w + 1) // 2
-        levels += 1
-    return levels
-
-
-def haar_forward(plane: np.ndarray, levels: int) -> list[np.ndarray]:
-    """Sub-bands [LL_L, (LH, HL, HH)_L, ..., (LH, HL, HH)_1] of an int32 plane."""
-    bands: list[np.ndarray] = []
-    ll = plane.astype(np.int32)
-    for _ in range(levels):
-        lo, hi = _haar_fwd_axis(ll, 1)
-        ll_, lh = _haar_fwd_axis(lo, 0)
-        hl, hh = _haar_fwd_axis(hi, 0)
-        bands = [lh, hl, hh] + bands
-        ll = ll_
-    return [ll] + bands
-
-
-def band_shapes(shape: tuple[int, int], levels: int) -> list[tuple[int, int]]:
-    h, w = shape
-    out: list[tuple[int, int]] = []
-    for _ in range(levels):
-        hl_, hh_ = (h + 1) // 2, h // 2
-        wl, wh = (w + 1) // 2, w // 2
-        out = [(hh_, wl), (hl_, wh), (hh_, wh)] + out
-        h, w = hl_, wl
-    return [(h, w)] + out
-
-
-def haar_inverse(bands: list[np.ndarray], levels: int) -> np.ndarray:
-    ll = bands[0]
-    for i in range(levels):
-        lh, hl, hh = bands[1 + 3 * i: 4 + 3 * i]
-        lo = _haar_inv_axis(ll, lh, 0)
-        hi = _haar_inv_axis(hl, hh, 0)
-        ll = _haar_inv_axis(lo, hi, 1)
-    return ll
 
 
 # ----------------------------------------------------------------------------- frequency tables

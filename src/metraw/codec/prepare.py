@@ -1,7 +1,7 @@
 """Preparation: variance-stabilising transform, subtractive dither, escapes, unbiased inverse.
 
 Per pixel (DN ``y``, profile gain K, black b, read variance s^2 incl. ADC rounding, see
-``metraw.vst``), with c = 3/8 + s^2 and x = (y - b) / K photoelectrons:
+``metraw.raw.vst``), with c = 3/8 + s^2 and x = (y - b) / K photoelectrons:
 
     z = 2 sqrt(x + c)                     generalised Anscombe (unit noise sigma)
     k = round(z / q + u)                  u ~ U[-1/2, 1/2) from a counter-based hash of
@@ -28,8 +28,8 @@ import numba as nb
 import numpy as np
 
 from metraw.codec import native
-from metraw.profile import CalibrationProfile
-from metraw.vst import effective_read_variance_e2
+from metraw.raw.profile import CalibrationProfile
+from metraw.raw.vst import effective_read_variance_e2
 
 
 
@@ -99,7 +99,7 @@ def dither_grid(seed: int, start: int, rows: int, cols: int, row_step: int, col_
 
 
 def offset_e(profile: CalibrationProfile) -> float:
-    """c = 3/8 + s^2 [e-]: the transform's offset (``metraw.vst.anscombe``)."""
+    """c = 3/8 + s^2 [e-]: the transform's offset (``metraw.raw.vst.anscombe``)."""
     return 0.375 + effective_read_variance_e2(profile)
 
 

@@ -11,7 +11,7 @@ import math
 import numpy as np
 
 from metraw.codec import prepare
-from metraw.image import RawImage
+from metraw.raw.image import RawImage
 
 
 def rounded_uniform_var_dn2(a: np.ndarray) -> np.ndarray:

@@ -2,7 +2,7 @@
 
 Registered through the ``zarr.codecs`` entry point (pyproject.toml), so
 ``zarr.open_array(path)[:]`` decodes with metraw merely installed; importing this module also registers
-it directly, which ``metraw.store`` does where that entry point is absent (metraw run from a source tree,
+it directly, which ``metraw.io.store`` does where that entry point is absent (metraw run from a source tree,
 ``PYTHONPATH=src``), so its stores open there too. The configuration carries
 the step, the array's seed (each image is dithered with ``image_seed(seed, pixels)``, stored
 in its blob) and the calibration profile: one profile per array (the store's ``raw``
@@ -25,8 +25,8 @@ from zarr.core.buffer import Buffer, NDBuffer
 
 from metraw.codec.container import get_varint, put_varint
 from metraw.errors import MetrawError
-from metraw.image import RawImage
-from metraw.profile import CalibrationProfile
+from metraw.raw.image import RawImage
+from metraw.raw.profile import CalibrationProfile
 
 CODEC_NAME = "metraw.raw"
 

@@ -20,14 +20,14 @@ from pathlib import Path
 from typing import Any
 
 from metraw.errors import MetrawError
-from metraw.image import RawImage
 from metraw.io._unknown import noise_model_known, unknown_fields
 from metraw.io.camera import RAW_SUFFIXES, read_camera_raw
 from metraw.io.headerless import HEADERLESS_SUFFIXES, read_headerless
 from metraw.io.labels import is_label_file
 from metraw.io.processed import PROCESSED_SUFFIXES, approximate_raw, read_processed, srgb_to_linear
 from metraw.io.tiff import is_tiff, read_tiff, tiff_kind, write_tiff
-from metraw.profile import CalibrationProfile, check_claims, load_profile
+from metraw.raw.image import RawImage
+from metraw.raw.profile import CalibrationProfile, check_claims, load_profile
 
 __all__ = ["read_raw", "read_mraw", "write_tiff", "default_camera", "approximate_raw", "srgb_to_linear", "image_files",
            "noise_model_known", "unknown_fields", "SUPPORTED_SUFFIXES"]

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 
-from metraw.profile import CalibrationProfile
+from metraw.raw.profile import CalibrationProfile
 
 UNKNOWN_GAIN_DN_PER_E = 1.0
 UNKNOWN_READ_NOISE_E = 0.0

@@ -19,12 +19,12 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from metraw.cfa import BAYER_PATTERNS
 from metraw.errors import MetrawError
-from metraw.image import RawImage
-from metraw.io._dn import as_dn, bits_needed
 from metraw.io._unknown import UNKNOWN_GAIN_DN_PER_E, UNKNOWN_READ_NOISE_E, unknown_uncertainty
-from metraw.profile import CalibrationProfile
+from metraw.io.dn import as_dn, bits_needed
+from metraw.raw.cfa import BAYER_PATTERNS
+from metraw.raw.image import RawImage
+from metraw.raw.profile import CalibrationProfile
 
 #: File suffixes handed to LibRaw without sniffing.
 RAW_SUFFIXES = {".dng", ".cr2", ".cr3", ".crw", ".nef", ".nrw", ".arw", ".srf", ".sr2", ".orf", ".rw2",

@@ -16,10 +16,10 @@ from typing import Any
 import numpy as np
 
 from metraw.errors import MetrawError
-from metraw.image import RawImage
-from metraw.io._dn import as_dn, bits_needed
 from metraw.io._unknown import UNKNOWN_GAIN_DN_PER_E, UNKNOWN_READ_NOISE_E
-from metraw.profile import CalibrationProfile
+from metraw.io.dn import as_dn, bits_needed
+from metraw.raw.image import RawImage
+from metraw.raw.profile import CalibrationProfile
 
 HEADERLESS_SUFFIXES = {".raw", ".bin"}
 REQUIRED = ("width", "height", "dtype", "cfa_pattern", "black_level_dn")

@@ -101,7 +101,7 @@ def box_area_fraction(rects: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 
 def read_mask_image(path: Path, shape: tuple[int, int]) -> np.ndarray:
     """A label mask image (PNG/TIFF) -> car area fraction in [0, 1]: 0/1 as is, else / dtype max."""
-    from metraw.io.processed import decode_image
+    from metraw.io.pictures import decode_image
 
     m = decode_image(path)
     if m.ndim == 3:
@@ -138,7 +138,7 @@ def attach_labels(image, path: Path, labels: str = "auto", class_names: list[str
     ``meta['mask_kind']``), "auto" (whichever exists, else none) or "none". A required label file that is
     missing, or a mask of another size than the image, is a ``MetrawError`` naming the file.
     """
-    from metraw.image import RawImage
+    from metraw.raw.image import RawImage
 
     shape = image.shape
     yolo = path.with_suffix(".txt")

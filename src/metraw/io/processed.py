@@ -7,11 +7,11 @@ noise is no longer the sensor's. It can still feed the raw workflow as an approx
 2. remosaic: keep, at each pixel, the colour the stated CFA has there;
 3. undo the white balance and scale to the photoelectrons of a stated camera: the photo shows a neutral
    (grey) surface as R = G = B, while the camera's raw records it in the ratios of daylight seen through
-   the camera's bands and QE (``metraw.daylight.neutral_response``, sun at ``sun_elevation_deg``); so
+   the camera's bands and QE (``metraw.physics.daylight.neutral_response``, sun at ``sun_elevation_deg``); so
    linear 1.0 of channel c -> ``white_fraction * saturation_e * neutral_c`` (the largest channel reaches
    ``white_fraction`` of saturation). For the default camera at 45 degrees B/G = 0.51, where the QE ratio
    alone (0.73) would leave raws too blue compared with rendered daylight scenes;
-4. apply the camera's sensor model (``metraw.sensor.expose``: Poisson shot noise, dark current,
+4. apply the camera's sensor model (``metraw.raw.sensor.expose``: Poisson shot noise, dark current,
    read noise, gain, black level, ADC) with a seeded generator.
 
 The result is a valid raw image with a noise model for the *added* noise; the photo's own
@@ -26,35 +26,20 @@ from typing import Any
 
 import numpy as np
 
-from metraw.cfa import color_index
-from metraw.daylight import neutral_response
 from metraw.errors import MetrawError
-from metraw.image import RawImage
-from metraw.profile import CalibrationProfile
-from metraw.sensor import expose
+from metraw.io.labels import attach_labels
+from metraw.io.pictures import decode_image
+from metraw.physics.daylight import neutral_response
+from metraw.raw.cfa import color_index
+from metraw.raw.image import RawImage
+from metraw.raw.profile import CalibrationProfile
+from metraw.raw.sensor import expose
 
 PROCESSED_SUFFIXES = {".png", ".jpg", ".jpeg"}
 
 APPROXIMATE_REASON = ("made from a processed 8-bit RGB image: sRGB curve inverted, remosaicked and re-exposed "
                       "with the stated camera model; the photo's own demosaicing, tone mapping, compression "
                       "and noise are not undone")
-
-
-def decode_image(path: Path) -> np.ndarray:
-    """Decode PNG / JPEG / TIFF to an array (H, W[, C]); one clear error when the file is damaged."""
-    import imagecodecs
-
-    head = path.read_bytes()
-    try:
-        if head[:8] == b"\x89PNG\r\n\x1a\n":
-            return imagecodecs.png_decode(head)
-        if head[:3] == b"\xff\xd8\xff":
-            return imagecodecs.jpeg8_decode(head)
-        if head[:4] in (b"II*\x00", b"MM\x00*"):
-            return imagecodecs.tiff_decode(head)
-    except Exception as exc:  # imagecodecs raises codec-specific errors
-        raise MetrawError(f"{path}: corrupt or truncated image ({exc})") from None
-    raise MetrawError(f"{path}: unsupported image format (expected PNG, JPEG or TIFF)")
 
 
 def srgb_to_linear(values: np.ndarray) -> np.ndarray:
@@ -121,8 +106,6 @@ def read_processed(path: Path, camera: CalibrationProfile, *, labels: str = "aut
                    white_fraction: float = 1.0, gsd_m: float | None = None,
                    class_names: list[str] | None = None) -> RawImage:
     """Read a processed RGB image (+ labels) as an approximate raw (see module docstring)."""
-    from metraw.io.labels import attach_labels
-
     rgb = decode_image(path)
     image = approximate_raw(rgb, camera, seed_for(path, seed), white_fraction=white_fraction, gsd_m=gsd_m,
                             source=str(path))

@@ -22,11 +22,11 @@ import numpy as np
 
 from metraw.atomic import atomic_path
 from metraw.errors import MetrawError
-from metraw.image import FLAG_DEFECT, RawImage
-from metraw.io._dn import as_dn, bits_needed, unused_low_bits
 from metraw.io._unknown import (UNKNOWN_BLACK_LEVEL_DN, UNKNOWN_GAIN_DN_PER_E, UNKNOWN_READ_NOISE_E,
                                 unknown_uncertainty)
-from metraw.profile import CalibrationProfile
+from metraw.io.dn import as_dn, bits_needed, unused_low_bits
+from metraw.raw.image import FLAG_DEFECT, RawImage
+from metraw.raw.profile import CalibrationProfile
 
 METRAW_TIFF_KEY = "metraw_tiff"
 METRAW_TIFF_VERSION = 1

@@ -1,7 +1,7 @@
 """Embedded source dataset: synthetic drone raws of urban, suburban and rural scenes with exact car masks.
 
 ``generate(n, seed)`` yields ``RawImage`` objects as the source camera (Hasselblad L1D-20c on a
-DJI Mavic 2 Pro at 250 m, GSD ~5.9 cm, ``default_camera()``) would record them: geometry in
+DJI Mavic 2 Pro at 250 m, GSD ~5.9 cm, ``scene_camera()``) would record them: geometry in
 ``layout``, daylight radiometry in ``radiance``, rendering and sensor in ``render``.
 Scene ``i`` of seed ``s`` depends only on (s, i) (``numpy.random.SeedSequence(s, spawn_key=(i,))``),
 so any subset can be regenerated in any order, in any number of processes, bit for bit.
@@ -14,18 +14,19 @@ from typing import Iterator, Sequence
 import numpy as np
 
 from metraw.errors import MetrawError
-from metraw.image import RawImage
 from metraw.parallel import ordered_map
-from metraw.profile import CalibrationProfile
+from metraw.raw.image import RawImage
+from metraw.raw.profile import CalibrationProfile
+from metraw.raw.sensor import rng_from_seed
 from metraw.scenes.layout import KINDS, make_scene
 from metraw.scenes.render import RenderSettings, render
-from metraw.sensor import rng_from_seed
 
-__all__ = ["KINDS", "RenderSettings", "default_camera", "generate", "generate_one", "scene_seeds"]
+__all__ = ["KINDS", "RenderSettings", "generate", "generate_one", "scene_camera", "scene_seeds"]
 
 
-def default_camera() -> CalibrationProfile:
-    """The source camera of docs/emulation.md (same numbers as ``source.camera`` in params.yaml).
+def scene_camera() -> CalibrationProfile:
+    """The camera the synthetic scenes are rendered for: the source camera of docs/emulation.md (the numbers of
+    ``source.camera`` in params.yaml, which ``metraw.io.default_camera`` reads; tests/test_scenes.py keeps them equal).
 
     Hasselblad L1D-20c: 1" sensor, 2.41 um pitch, f = 10.26 mm at f/2.8 (D = 3.664 mm), 250 m
     altitude; 12-bit ADC, K = 0.25 DN/e-, black 256 DN, read noise 3 e-, full well 15000 e-;
@@ -53,7 +54,7 @@ def generate_one(index: int, seed: int, size_px: int = 1024, camera: Calibration
                  kinds: Sequence[str] = KINDS, settings: RenderSettings = RenderSettings(),
                  return_expected: bool = False):
     """Scene ``index`` of the dataset ``seed`` (kind ``kinds[index % len(kinds)]``)."""
-    camera = camera or default_camera()
+    camera = camera or scene_camera()
     if camera.gsd_m is None:
         raise MetrawError("the source camera profile needs pixel_pitch_m, altitude_m and focal_length_m (GSD)")
     if size_px < 16 or size_px % 2:

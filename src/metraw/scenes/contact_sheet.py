@@ -17,9 +17,9 @@ from typing import Sequence
 
 import numpy as np
 
-from metraw.cfa import plane_offsets
 from metraw.errors import MetrawError
-from metraw.image import RawImage
+from metraw.raw.cfa import plane_offsets
+from metraw.raw.image import RawImage
 
 
 def false_colour(img: RawImage) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""Conversion of daylight (``metraw.daylight``) to expected photoelectrons per pixel of a camera.
+"""Conversion of daylight (``metraw.physics.daylight``) to expected photoelectrons per pixel of a camera.
 
 Lambertian surfaces: radiance L = rho * E / pi. The 250 m air path between ground and drone is
 neglected (transmission > 0.99 at these wavelengths).
@@ -19,9 +19,9 @@ import math
 
 import numpy as np
 
-from metraw.atmosphere import pixel_etendue_m2_sr
-from metraw.daylight import C_LIGHT_M_PER_S, H_PLANCK_J_S, ground_irradiance_w_m2_m
-from metraw.profile import CalibrationProfile
+from metraw.physics.atmosphere import pixel_etendue_m2_sr
+from metraw.physics.daylight import C_LIGHT_M_PER_S, H_PLANCK_J_S, ground_irradiance_w_m2_m
+from metraw.raw.profile import CalibrationProfile
 
 
 def electrons_per_reflectance(camera: CalibrationProfile, sun_elevation_deg: float, exposure_s: float,

@@ -23,7 +23,7 @@ Steps (per scene):
    f/2.8 has sigma ~0.42 lambda N = 0.27 px at 550 nm; the rest stands for lens aberration and
    defocus, typical of a 1" drone camera). The label is not blurred: it is geometry.
 5. Sensor: expected photoelectrons from the radiometry in ``radiance`` with the scene's exposure,
-   RGGB mosaic (each pixel keeps its own band), then Poisson shot noise and ``metraw.sensor.readout``
+   RGGB mosaic (each pixel keeps its own band), then Poisson shot noise and ``metraw.raw.sensor.readout``
    (dark current, full well, read noise, gain, black level, ADC). Pixels whose photoelectron count
    reached full well are flagged ``FLAG_SATURATED``.
 
@@ -42,13 +42,13 @@ import numba as nb
 import numpy as np
 from scipy import ndimage
 
-from metraw.cfa import color_index
-from metraw.image import FLAG_SATURATED, RawImage
-from metraw.profile import CalibrationProfile
+from metraw.raw.cfa import color_index
+from metraw.raw.image import FLAG_SATURATED, RawImage
+from metraw.raw.profile import CalibrationProfile
+from metraw.raw.sensor import readout
 from metraw.scenes.layout import Scene
 from metraw.scenes.radiance import electrons_per_reflectance
 from metraw.scenes.raster import rasterise
-from metraw.sensor import readout
 
 #: Relative diffuse-sky irradiance on a surface in a cast shadow (sky partly hidden by the caster).
 SHADOW_SKY_VIEW = 0.75
@@ -262,7 +262,7 @@ def _flat_pixels(obj, caster_h, ss, h_eps, sun_cos, sky_view, tex_amp, refl, is_
 
 
 @nb.njit(cache=True, nogil=True)
-def _saturation_flags(counts, data, full_well, white):
+def _saturation_flags_at_readout(counts, data, full_well, white):
     """FLAG_SATURATED where the photoelectron count reached the full well or the DN the white level."""
     flags = np.zeros(counts.shape, np.uint8)
     for y in range(counts.shape[0]):
@@ -353,7 +353,7 @@ def render(scene: Scene, camera: CalibrationProfile, size_px: int, rng: np.rando
 
     counts = rng.poisson(mean_e)
     data = readout(counts, profile, rng)
-    flags = _saturation_flags(counts, data, float(profile.full_well_e or np.inf), profile.white_level_dn)
+    flags = _saturation_flags_at_readout(counts, data, float(profile.full_well_e or np.inf), profile.white_level_dn)
 
     vis = _seen(obj, len(heights))
     vehicles = [dict(v, visible_fraction=None) for v in scene.vehicles]

@@ -31,8 +31,8 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
-from metraw.cfa import cell_size, plane_offsets
-from metraw.image import RawImage
+from metraw.raw.cfa import cell_size, plane_offsets
+from metraw.raw.image import RawImage
 
 #: Frequency band [cycles/m] of the spectral-slope fit (10 m to 0.67 m periods).
 F_BAND_PER_M = (0.1, 1.5)

@@ -7,7 +7,7 @@
 - ``evaluate``: IoU / precision / recall per image and pooled (``evaluate_store``): a store's test split,
   or every image of a foreign store, resampled to the model's training ground sampling;
 - ``predict``: car probability and mask per image of any store (``metraw predict``), overlay figures;
-- ``emulated``: ``EmulatedDataset``, on-the-fly emulation as augmentation.
+- ``onthefly`` and ``pretrain``: training on fresh draws of the source scenes (``metraw.emulate.draws``).
 """
 
 from metraw.segment.data import prepare, split_indices, vst_mosaic
@@ -17,10 +17,3 @@ from metraw.segment.train import TrainConfig, load_config, load_model, train_sto
 __all__ = ["TrainConfig", "confusion", "evaluate_store", "iou", "load_config", "load_model",
            "prepare", "scores", "split_indices", "train_store", "vst_mosaic"]
 
-
-def __getattr__(name):
-    if name == "EmulatedDataset":
-        from metraw.segment.emulated import EmulatedDataset
-
-        return EmulatedDataset
-    raise AttributeError(name)

@@ -23,8 +23,8 @@ import math
 
 import numpy as np
 
-from metraw.cfa import PACKED_CELL_PX
 from metraw.errors import MetrawError
+from metraw.raw.cfa import PACKED_CELL_PX
 
 #: Names of the conditioning features, in the order of ``payload_condition``'s vector.
 CONDITION_FEATURES = ("log2_packed_gsd", "log2_psf_fwhm_px", "log2_etendue_exposure", "smear_px")

@@ -3,13 +3,13 @@
 Input representation (one per image, computed once and cached in memory):
 
 1. generalised Anscombe transform of the DN values with the image's own profile
-   (``metraw.vst.anscombe``): the noise of every pixel becomes ~N(0, 1) in these units, so the
+   (``metraw.raw.vst.anscombe``): the noise of every pixel becomes ~N(0, 1) in these units, so the
    network sees unit-variance noise at every parameter point;
 2. centring: subtract the image's median VST value (a constant: the noise stays unit variance;
    colour differences between planes are kept);
 3. packing: the mosaic is shifted by at most one pixel so that its CFA cell reads R G / G B,
    then packed into 4 planes (canonical site order R, G, G, B; a mono mosaic's 2 x 2 cells alike: four pixels
-   of one colour) at half resolution (``metraw.cfa.pack_planes``, ``metraw.cfa.PACKED_CELL_PX``).
+   of one colour) at half resolution (``metraw.raw.cfa.pack_planes``, ``metraw.raw.cfa.PACKED_CELL_PX``).
 
 Targets: the car area fraction of every mosaic pixel (the store's mask), packed exactly like the
 image, so the network predicts one value per CFA site: the segmentation lives on the mosaic
@@ -28,13 +28,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from metraw.cfa import PACKED_CELL_PX, PACKED_GEOMETRY, color_index, pack_planes
 from metraw.errors import MetrawError
-from metraw.image import RawImage
 from metraw.progress import progress_bar
+from metraw.raw.cfa import PACKED_CELL_PX, PACKED_GEOMETRY, color_index, pack_planes
+from metraw.raw.image import RawImage
+from metraw.raw.sensor import rng_from_seed
+from metraw.raw.vst import anscombe
 from metraw.segment.condition import payload_condition
-from metraw.sensor import rng_from_seed
-from metraw.vst import anscombe
 
 
 def split_indices(n_images: int, test_fraction: float, split_seed: int) -> tuple[np.ndarray, np.ndarray]:

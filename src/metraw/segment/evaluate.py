@@ -42,8 +42,8 @@ from typing import Any
 
 import numpy as np
 
-from metraw.cfa import PACKED_GEOMETRY, pack_planes, unpack_planes
 from metraw.errors import MetrawError
+from metraw.raw.cfa import PACKED_GEOMETRY, pack_planes, unpack_planes
 from metraw.segment.data import (TRANSFORM_SETS, PreparedImage, canonical_pack, canonical_window, check_transforms,
                                  undo_dihedral)
 from metraw.segment.objects import (MIN_OBJECT_AREA_M2, drop_small_objects, object_boxes, object_counts,
@@ -142,7 +142,7 @@ def gsd_scale(image_packed_gsd_m: float | None, train_packed_gsd_m: float | None
 def image_packed_gsd_m(image) -> float | None:
     """Packed GSD of a RawImage [m per packed pixel]: the profile's geometry, else its meta ``gsd_m``
     (processed photos ingested with ``--gsd-m``), times the packed cell's side; None when unknown."""
-    from metraw.cfa import PACKED_CELL_PX
+    from metraw.raw.cfa import PACKED_CELL_PX
 
     gsd = image.profile.gsd_m
     if not gsd:
@@ -311,7 +311,7 @@ def open_model(model_dir, device: str):
 def check_channels(ckpt: dict[str, Any], pattern: str, where: str, model_dir) -> None:
     """The model was trained on images of the image's sensor kind (mono or Bayer: the checkpoint's ``sensor``),
     and takes its four packed planes, else a one-line error."""
-    from metraw.cfa import cfa_family
+    from metraw.raw.cfa import cfa_family
 
     if ckpt.get("in_channels") != 4:
         raise MetrawError(f"the model in {model_dir} takes {ckpt.get('in_channels')} packed plane(s) (a mono model "
@@ -375,10 +375,10 @@ def evaluate_store(store_path, model_dir, device: str | None = None, progress: b
     ``transforms``: dihedral transforms averaged per prediction (``averaged_probability``); default the
     model's ``predict_transforms``.
     """
+    from metraw.io.store import RawStore
     from metraw.progress import progress_bar
     from metraw.segment.data import prepare
     from metraw.segment.train import TrainConfig, default_device, flush_denormals, replicate_dirs, set_determinism
-    from metraw.store import RawStore
 
     device = device or default_device()
     model, ckpt, record = open_model(model_dir, device)

@@ -3,7 +3,7 @@
 An emulated store holds one image per source scene; a network trained on those few hundred arrays
 of ~34 x 34 packed pixels overfits them (so the workflow's per-point stores hold only the test split:
 ``metraw emulate --images test``). Here each training scene gets its
-``metraw.draws.PhaseField`` (the expected stage, computed once, ~40 ms per 1024 px scene) and every
+``metraw.emulate.draws.PhaseField`` (the expected stage, computed once, ~40 ms per 1024 px scene) and every
 epoch draws, per scene, a new target raw: a random sampling phase of the target pixel grid on the
 ground (a whole CFA period in steps of GSD/K), a random flip of the scene, fresh photon and read
 noise. Each draw is exactly what the emulator would record (``tests/test_draws.py``); no
@@ -21,14 +21,14 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from metraw.cfa import PACKED_CELL_PX, cfa_family
-from metraw.draws import DEFAULT_OVERSAMPLE, PhaseField, build_field
+from metraw.emulate.draws import DEFAULT_OVERSAMPLE, PhaseField, build_field
+from metraw.emulate.target import TargetSystem
 from metraw.errors import MetrawError
 from metraw.parallel import fork_pool, ordered_ahead
+from metraw.raw.cfa import PACKED_CELL_PX, cfa_family
+from metraw.raw.sensor import rng_from_seed
 from metraw.segment.data import batch_crops, prepare
 from metraw.segment.train import TrainConfig, default_device, new_network, train_loop, training_packed_gsd_m
-from metraw.sensor import rng_from_seed
-from metraw.target import TargetSystem
 
 
 def build_fields(store, indices: Sequence[int], target, oversample: int = DEFAULT_OVERSAMPLE,
@@ -70,7 +70,7 @@ class _SceneFields:
         return {"stores": {}, "oversample": self.oversample}
 
     def __call__(self, item) -> list[PhaseField]:
-        from metraw.store import RawStore
+        from metraw.io.store import RawStore
 
         path, i, index, targets = item
         if path not in self.stores:
@@ -270,9 +270,9 @@ def train_store_on_the_fly(store_path, source_path, out_dir, config: TrainConfig
     directory (``metraw pretrain``): replicate r fine-tunes its replicate r (``config.epochs`` epochs). ``workers``:
     processes building the scenes' expected fields (``scene_fields``); ``draw_workers``: processes drawing from them
     during the training (``fit_draws``)."""
+    from metraw.io.store import RawStore
     from metraw.segment.data import source_indices, split_indices, split_positions
     from metraw.segment.train import fit_replicates, pretrained_states, save_replicates, store_digest
-    from metraw.store import RawStore
 
     store = RawStore.open(store_path)
     source = RawStore.open(source_path)

@@ -27,8 +27,8 @@ from typing import Any
 
 import numpy as np
 
-from metraw.cfa import PACKED_CELL_PX, PACKED_GEOMETRY, unpack_planes
 from metraw.errors import MetrawError
+from metraw.raw.cfa import PACKED_CELL_PX, PACKED_GEOMETRY, unpack_planes
 from metraw.segment.data import canonical_window, check_transforms
 from metraw.segment.evaluate import THRESHOLD
 from metraw.segment.objects import MIN_OBJECT_AREA_M2
@@ -98,10 +98,10 @@ def predict_store(store_path, model_dir, out_path, device: str | None = None, pr
     import zarr
 
     from metraw.atomic import atomic_path
+    from metraw.io.store import RawStore
     from metraw.progress import progress_bar
     from metraw.segment.evaluate import check_channels, label_kind, open_model
     from metraw.segment.train import TrainConfig, default_device, flush_denormals, set_determinism
-    from metraw.store import RawStore
 
     for path in (out_path, overlay):
         if path is not None and Path(path).exists() and not overwrite:

@@ -26,12 +26,12 @@ import time
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
-from metraw.cfa import cfa_family
-from metraw.draws import DEFAULT_OVERSAMPLE
+from metraw.emulate.draws import DEFAULT_OVERSAMPLE
+from metraw.emulate.target import TargetSystem
 from metraw.errors import MetrawError
+from metraw.raw.cfa import cfa_family
+from metraw.raw.sensor import rng_from_seed
 from metraw.segment.train import TrainConfig
-from metraw.sensor import rng_from_seed
-from metraw.target import TargetSystem
 
 #: ``training.pretrain`` of params.yaml, where it leaves a key out (measured settings: docs/training.md).
 #: ``batch_size`` None: the training profile's (the fine-tunings always keep the profile's). ``finetune_learning_rate``
@@ -51,14 +51,14 @@ def pretrain_settings(params: dict[str, Any]) -> dict[str, Any]:
 def fine_tuned_points(params: dict[str, Any]) -> list[str]:
     """The parameter points whose training fine-tunes a pretraining: with pretraining on, every point (each from the
     pretraining of its own CFA pattern, ``point_patterns``), else none. The workflow's rules and dvc.yaml ask here."""
-    from metraw.points import parameter_points
+    from metraw.study.points import parameter_points
 
     return list(parameter_points(params)) if pretrain_settings(params)["enabled"] else []
 
 
 def point_patterns(params: dict[str, Any]) -> dict[str, str]:
     """Point name -> its CFA pattern, the pretraining it fine-tunes (``pretrained_patterns``)."""
-    from metraw.points import parameter_points, target_params
+    from metraw.study.points import parameter_points, target_params
 
     return {p: target_params(params, p)["cfa_pattern"] for p in parameter_points(params)}
 
@@ -66,7 +66,7 @@ def point_patterns(params: dict[str, Any]) -> dict[str, str]:
 def pretrained_patterns(params: dict[str, Any]) -> list[str]:
     """The CFA patterns pretrained (one pretraining each; the nominal's first): those of the points, with pretraining
     on; none without."""
-    from metraw.points import NOMINAL
+    from metraw.study.points import NOMINAL
 
     if not pretrain_settings(params)["enabled"]:
         return []
@@ -141,8 +141,8 @@ def prepare_box(source_path, make_target: Callable[[dict[str, float]], TargetSys
     seeded with ``config.seed``; ``make_target`` turns an override into the full target), built by ``workers``
     processes. ``max_scenes``: only the first that many scenes (source first; the box points of a scene do not
     depend on how many follow it)."""
+    from metraw.io.store import RawStore
     from metraw.segment.data import split_indices
-    from metraw.store import RawStore
 
     if batches not in BATCHES:
         raise MetrawError(f"pretraining batches must be one of {', '.join(BATCHES)}, got {batches!r}")

@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from metraw.image import RawImage
-from metraw.profile import CalibrationProfile
-from metraw.sensor import expose, rng_from_seed
+from metraw.raw.image import RawImage
+from metraw.raw.profile import CalibrationProfile
+from metraw.raw.sensor import expose, rng_from_seed
 
 
 def toy_profile(pattern: str = "RGGB") -> CalibrationProfile:
@@ -46,7 +46,7 @@ def toy_scene(size_px: int, rng: np.random.Generator | int, profile: Calibration
 
 def toy_store(path, n_images: int, size_px: int, seed: int = 0, **kwargs) -> None:
     """Write ``n_images`` toy scenes into a new RawStore at ``path``."""
-    from metraw.store import RawStore
+    from metraw.io.store import RawStore
 
     rng = rng_from_seed(seed)
     with RawStore.create(path) as store:

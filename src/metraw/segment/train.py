@@ -28,11 +28,11 @@ from typing import Any
 
 import numpy as np
 
-from metraw.cfa import PACKED_CELL_PX, cfa_family
 from metraw.errors import MetrawError
 from metraw.parallel import prefetch
+from metraw.raw.cfa import PACKED_CELL_PX, cfa_family
+from metraw.raw.sensor import rng_from_seed
 from metraw.segment.data import PreparedImage, batch_crops, check_transforms, prepare_store, source_indices, split_indices
-from metraw.sensor import rng_from_seed
 
 CHECKPOINT = "model.pt"
 TRAIN_METRICS = "train.json"
@@ -430,7 +430,7 @@ def train_store(store_path: str | os.PathLike, out_dir: str | os.PathLike, confi
                 device: str | None = None, progress: bool | None = None, overwrite: bool = False
                 ) -> dict[str, Any]:
     """Train on the training split of a store; write ``model.pt`` and ``train.json`` into ``out_dir``."""
-    from metraw.store import RawStore
+    from metraw.io.store import RawStore
 
     store = RawStore.open(store_path)
     _, n_source = source_indices(store)

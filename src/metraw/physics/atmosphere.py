@@ -35,9 +35,9 @@ from __future__ import annotations
 
 import math
 
-from metraw.daylight import C_LIGHT_M_PER_S, H_PLANCK_J_S
 from metraw.errors import MetrawError
-from metraw.profile import CalibrationProfile
+from metraw.physics.daylight import C_LIGHT_M_PER_S, H_PLANCK_J_S
+from metraw.raw.profile import CalibrationProfile
 
 #: Reference wavelength of the path radiance's power law [m].
 PATH_RADIANCE_REF_M = 550e-9
@@ -47,7 +47,9 @@ def pixel_etendue_m2_sr(camera: CalibrationProfile) -> float:
     """A_aperture * Omega_pixel [m^2 sr] of one pixel (needs pitch, focal length, aperture)."""
     if None in (camera.pixel_pitch_m, camera.focal_length_m, camera.aperture_diameter_m):
         raise MetrawError("the camera profile needs pixel_pitch_m, focal_length_m and aperture_diameter_m")
-    area = math.pi * camera.aperture_diameter_m**2 / 4 * (1 - camera.obscuration_ratio**2)
+    from metraw.physics.optics import pupil_area_m2  # pi D^2 / 4 (1 - eps^2): bit for bit the same floats
+
+    area = pupil_area_m2(camera.aperture_diameter_m, camera.obscuration_ratio)
     return area * (camera.pixel_pitch_m / camera.focal_length_m) ** 2
 
 

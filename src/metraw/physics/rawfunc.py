@@ -15,12 +15,12 @@ from typing import Any
 
 import numpy as np
 
-from metraw.atmosphere import path_radiance_electrons
-from metraw.cfa import cell_size, channel_names, plane_offsets
 from metraw.errors import MetrawError
-from metraw.image import FLAG_SATURATED, RawImage
-from metraw.profile import CalibrationProfile
-from metraw.sensor import readout, rng_from_seed
+from metraw.physics.atmosphere import path_radiance_electrons
+from metraw.raw.cfa import cell_size, channel_names, plane_offsets
+from metraw.raw.image import FLAG_SATURATED, RawImage
+from metraw.raw.profile import CalibrationProfile
+from metraw.raw.sensor import readout, rng_from_seed
 
 __all__ = ["stochastic_round", "thin_counts", "shoot", "bin_same_colour", "thin", "redistribute",
            "add_poisson", "read_out"]
@@ -124,7 +124,7 @@ def _saturation_flags(image: RawImage) -> np.ndarray:
 def read_out(counts_e: np.ndarray, like: RawImage, profile: CalibrationProfile | None, rng, *,
              function: str, params: dict[str, Any], flags: np.ndarray | None = None,
              mask: Any = "keep") -> RawImage:
-    """Digitise photoelectron counts with `metraw.sensor.readout` into a derived RawImage.
+    """Digitise photoelectron counts with `metraw.raw.sensor.readout` into a derived RawImage.
 
     Pixels at or above the white level (or full well) are flagged saturated.
     """
@@ -238,7 +238,7 @@ def atmosphere(image: RawImage, transmission: float, path_radiance_w_m2_sr_m: fl
     exact) plus path radiance collected through the image's own optics (independent Poisson, exact).
 
     ``path_radiance_w_m2_sr_m``: spectral path radiance at 550 nm with spectral slope ``exponent``
-    (`metraw.atmosphere`); its photoelectrons per pixel follow from the profile's pitch, focal length,
+    (`metraw.physics.atmosphere`); its photoelectrons per pixel follow from the profile's pitch, focal length,
     aperture, exposure, optics transmission, QE and bands. Counts are estimated, thinned and read out
     again as in `thin`; the same deviation is reported (the source's read noise and rounding are thinned
     with the signal: excess variance <= T^2 (sigma_d^2 + 1/4) e-^2; none for a noiseless integer source).

@@ -16,10 +16,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from metraw.atmosphere import path_radiance_electrons
-from metraw.cfa import channel_names, validate_pattern
 from metraw.errors import MetrawError
-from metraw.profile import DEFAULT_BANDS_M, CalibrationProfile
+from metraw.physics.atmosphere import path_radiance_electrons
+from metraw.raw.cfa import channel_names, validate_pattern
+from metraw.raw.profile import DEFAULT_BANDS_M, CalibrationProfile
 
 
 @dataclass(frozen=True)
@@ -30,14 +30,14 @@ class TargetSystem:
     diameter), ``focal_length_m``, ``optical_transmission``, ``jitter_rms_rad`` (line-of-sight
     jitter, 1-sigma per axis). Orbit: ``altitude_m``, ``ground_speed_m_per_s`` and
     ``track_angle_rad`` (direction of ground motion, from the source's column axis).
-    Atmosphere (`metraw.atmosphere`): ``atmospheric_transmission`` (one way, ground to payload, on the
+    Atmosphere (`metraw.physics.atmosphere`): ``atmospheric_transmission`` (one way, ground to payload, on the
     scene's light); ``path_radiance_w_m2_sr_m`` (spectral path radiance at 550 nm) with its spectral
     slope ``path_radiance_exponent`` (L ~ lambda^-a), collected through the target's own optics,
     exposure and pixel; ``haze_e``: further path-radiance photoelectrons per pixel given directly (a
     number for every channel, or a mapping per channel; 0 when the radiance is used). Detector: ``pixel_pitch_m``, ``cfa_pattern``,
     ``exposure_s``, ``qe_per_channel``, ``read_noise_e``, ``gain_dn_per_e``, ``black_level_dn``,
     ``adc_bits``, ``full_well_e``, ``dark_current_e_per_s``, ``band_edges_m`` (pass band per
-    channel; default `metraw.profile.DEFAULT_BANDS_M`).
+    channel; default `metraw.raw.profile.DEFAULT_BANDS_M`).
     """
 
     altitude_m: float
@@ -129,7 +129,9 @@ class TargetSystem:
     @property
     def aperture_area_m2(self) -> float:
         """Collecting area of the annular aperture [m^2]."""
-        return math.pi / 4.0 * self.diameter_m**2 * (1.0 - self.obscuration_ratio**2)
+        from metraw.physics.optics import pupil_area_m2
+
+        return pupil_area_m2(self.diameter_m, self.obscuration_ratio)
 
     @property
     def smear_m(self) -> float:
@@ -141,7 +143,7 @@ class TargetSystem:
 
     def haze_for(self, channel: str) -> float:
         """Mean path-radiance photoelectrons per pixel of ``channel`` in one exposure: the radiance
-        collected through the target's optics (`metraw.atmosphere.path_radiance_electrons`) plus ``haze_e``."""
+        collected through the target's optics (`metraw.physics.atmosphere.path_radiance_electrons`) plus ``haze_e``."""
         return self._direct_haze(channel) + self._path_e[channel]
 
     def path_radiance_electrons(self) -> dict[str, float]:
@@ -212,7 +214,7 @@ class TargetSystem:
                     overrides: dict[str, Any] | None = None) -> "TargetSystem":
         """``target.nominal`` of params.yaml (a dict already loaded, or a path), updated by ``overrides``."""
         if params is None or isinstance(params, (str, Path)):
-            from metraw.points import load_params
+            from metraw.study.points import load_params
 
             params = load_params(params or "params.yaml")
         try:
@@ -240,15 +242,15 @@ def parse_point(text: str) -> dict[str, Any]:
         if name not in known:
             raise MetrawError(f"--point: unknown target field {name!r}; known: {', '.join(sorted(known))}")
         if ":" in value:
-            out[name] = tuple(_number(v, name) for v in value.split(":"))
+            out[name] = tuple(_parse_number(v, name) for v in value.split(":"))
         elif name in ("cfa_pattern", "name"):
             out[name] = value
         else:
-            out[name] = _number(value, name)
+            out[name] = _parse_number(value, name)
     return out
 
 
-def _number(text: str, name: str) -> float | int:
+def _parse_number(text: str, name: str) -> float | int:
     try:
         v = float(text)
     except ValueError:

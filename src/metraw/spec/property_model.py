@@ -20,9 +20,9 @@ satellite are judged alike), and each moves with the collected light only where 
   scene.)
 
 ``PropertyModel`` holds the run's points (the median of each property over the point's test images, the point's
-measured IoU and its standard error) and fits a `metraw.tolerance.ResponseGP` over the property axes (log axes
+measured IoU and its standard error) and fits a `metraw.spec.tolerance.ResponseGP` over the property axes (log axes
 for the scale properties). It is stored in spec.yaml and refitted, deterministically, when a spec is loaded.
-The runtime decision it supports (`metraw.spec.check`): PASS when the predicted IoU at the image's own
+The runtime decision it supports (`metraw.spec.check.check`): PASS when the predicted IoU at the image's own
 properties meets the requirement, REJECT when it does not; NORMALISE only toward what the fit says helps.
 """
 
@@ -35,15 +35,15 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from metraw.atmosphere import pixel_etendue_m2_sr
-from metraw.cfa import channel_names, color_index
-from metraw.daylight import lambertian_photon_radiance
 from metraw.errors import MetrawError
-from metraw.image import RawImage
+from metraw.physics.atmosphere import pixel_etendue_m2_sr
+from metraw.physics.daylight import lambertian_photon_radiance
+from metraw.raw.cfa import channel_names, color_index
+from metraw.raw.image import RawImage
 
 #: The properties in the order of the model's axes.
 PROPERTIES = ("gsd_m", "diffraction_m", "smear_m", "reference_signal_e", "haze_fraction")
-#: Working axis of each property (`metraw.tolerance.Axis`): log for scale quantities.
+#: Working axis of each property (`metraw.spec.tolerance.Axis`): log for scale quantities.
 AXIS_KINDS = {"gsd_m": "log", "diffraction_m": "log", "smear_m": "linear", "reference_signal_e": "log",
               "haze_fraction": "linear"}
 UNITS = {"gsd_m": "m", "diffraction_m": "m", "smear_m": "m", "reference_signal_e": "e-", "haze_fraction": ""}
@@ -58,7 +58,7 @@ WAVELENGTH_REF_M = 550e-9
 #: Gaussian sigma of the Airy core in units of lambda/D (best-fit Gaussian to the Airy disc).
 AIRY_SIGMA_PER_LAMBDA_D = 0.42
 #: The reference ground of ``reference_signal_e`` and ``haze_fraction``: a horizontal grey Lambertian surface of this
-#: reflectance under the sun at this elevation in clear air (`metraw.daylight.lambertian_photon_radiance`).
+#: reflectance under the sun at this elevation in clear air (`metraw.physics.daylight.lambertian_photon_radiance`).
 REFERENCE_SCENE = {"reflectance": 0.2, "sun_elevation_deg": 45.0, "aerosol_depth_550": 0.12}
 
 
@@ -214,7 +214,7 @@ class PropertyModel:
     @property
     def gp(self):
         if self._gp is None:
-            from metraw.tolerance import Axis, ResponseGP
+            from metraw.spec.tolerance import Axis, ResponseGP
 
             X = np.array([[float(r[n]) for n in self.names] for r in self.points])
             axes = [Axis(n, AXIS_KINDS[n], float(X[:, j].min()), float(X[:, j].max()))
@@ -245,7 +245,7 @@ class PropertyModel:
         sampled range), others held at the image's values, that maximises the predicted IoU, when it beats the
         image's own prediction (``here``: its (mean, sd), when the caller has it) by more than ``HELPS_SIGMA``
         predictive sd; else None."""
-        from metraw.tolerance import Axis
+        from metraw.spec.tolerance import Axis
 
         have = float(props[name])
         lo, hi = self.sampled_range(name)
@@ -270,7 +270,7 @@ class PropertyModel:
         """Argmax of the predicted IoU along ``name`` over its sampled range, the others at ``at``; when it beats
         the prediction at ``at`` by no more than ``HELPS_SIGMA`` predictive sd the line is flat within the fit's
         error and its optimal value is ``at``'s own (``flat``: True), so no image is told to move for nothing."""
-        from metraw.tolerance import Axis
+        from metraw.spec.tolerance import Axis
 
         lo, hi = self.sampled_range(name)
         grid = Axis(name, AXIS_KINDS[name], lo, hi).from_unit(np.linspace(0.0, 1.0, n_grid))
@@ -313,7 +313,7 @@ def plan_moves(image: RawImage, model: PropertyModel, props: Mapping[str, float]
     argmax in its degrade-only direction, others at the image's values; [] when no move helps. ``here``: the
     image's own predicted (mean, sd), when the caller has it."""
     here = here or model.predict(props)
-    from metraw.cfa import cell_size
+    from metraw.raw.cfa import cell_size
 
     chain: list[dict[str, Any]] = []
     step = cell_size(image.profile.cfa_pattern)
@@ -391,7 +391,7 @@ def decide(image: RawImage, model: PropertyModel,
 
 
 def store_properties(store) -> dict[str, float | None]:
-    """The median of each property over the images of a `metraw.store.RawStore` (a point's test images); None
+    """The median of each property over the images of a `metraw.io.store.RawStore` (a point's test images); None
     for a property some image cannot state."""
     per_image = [image_properties(store[i]) for i in range(len(store))]
     if not per_image:

@@ -7,7 +7,7 @@ point's synthetic-trained model on all of them (``metraw evaluate --split all``)
 what does not need the workflow: whether the benchmark is on (``resolve_enabled``), the per-point
 real columns and sim-to-real gap (``real_columns``) and the summary of ``aggregate.json``
 (``summary``). The measurements themselves (IoU and its delta-method variance) come from
-``metraw.cli.aggregate.iou_measurement``; the GP, tolerances and spec stay on the synthetic IoU.
+``metraw.spec.aggregate.iou_measurement``; the GP, tolerances and spec stay on the synthetic IoU.
 """
 
 from __future__ import annotations

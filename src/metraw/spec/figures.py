@@ -24,7 +24,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from metraw.atomic import atomic_path
-from metraw.tolerance import ResponseGP, Tolerance
+from metraw.spec.tolerance import ResponseGP, Tolerance
 
 LABELS = {"focal_length_m": "focal length [m]", "diameter_m": "mirror diameter [m]", "exposure_s": "exposure time [s]",
           "pixel_pitch_m": "pixel pitch [m]", "haze_e": "haze [e-]",
@@ -141,7 +141,7 @@ def grid_map(model: ResponseGP, summary: Mapping[str, Any], path: str | Path, *,
              title: str = "") -> None:
     """Left: measured IoU at the grid points (cells in grid order, value and 2 sd written in each; a
     frame marks points whose measured lower bound meets ``required``). Right: the 2-D GP's lower 2-sigma
-    band on the mesh of ``summary`` (`metraw.tolerance.grid_region`), the region meeting ``required``
+    band on the mesh of ``summary`` (`metraw.spec.tolerance.grid_region`), the region meeting ``required``
     outlined, the measured points marked."""
     plt = _plt()
     a, b = summary["axes"]
@@ -248,7 +248,7 @@ def _finish_bars(fig, ax, path: str | Path, name: str, labels: Sequence[str], yl
 
 def quicklook(image) -> np.ndarray:
     """A display image (grey, 0..1) of a raw: electrons averaged over each CFA cell, 1-99 % stretch."""
-    from metraw.cfa import cell_size
+    from metraw.raw.cfa import cell_size
 
     e = image.electrons()
     s = cell_size(image.profile.cfa_pattern)

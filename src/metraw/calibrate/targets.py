@@ -1,6 +1,6 @@
 """Synthetic calibration targets with known truth: flat/dark series and a natural-looking scene.
 
-Expected photoelectron maps [e-] for ``metraw.sensor.expose``; used by the calibration tests
+Expected photoelectron maps [e-] for ``metraw.raw.sensor.expose``; used by the calibration tests
 and benchmark to check that ``metraw.calibrate`` recovers a known gain and read noise.
 """
 
@@ -10,8 +10,8 @@ from typing import Sequence
 
 import numpy as np
 
-from metraw.profile import CalibrationProfile
-from metraw.sensor import expose, rng_from_seed
+from metraw.raw.profile import CalibrationProfile
+from metraw.raw.sensor import expose, rng_from_seed
 
 
 def flat_series(profile: CalibrationProfile, shape: tuple[int, int], levels_e: Sequence[float],

@@ -18,8 +18,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from metraw.cfa import channel_names, validate_pattern
 from metraw.errors import MetrawError
+from metraw.raw.cfa import channel_names, validate_pattern
 
 SCHEMA_VERSION = 1
 

@@ -24,8 +24,8 @@ import numpy as np
 
 from metraw.atomic import atomic_path
 from metraw.errors import MetrawError
-from metraw.image import RawImage
-from metraw.profile import CalibrationProfile
+from metraw.raw.image import RawImage
+from metraw.raw.profile import CalibrationProfile
 
 STORE_VERSION = 1
 #: Target bytes of uncompressed raw data per shard file.

@@ -8,9 +8,9 @@ from typing import Any
 
 import numpy as np
 
-from metraw.cfa import color_index, split_planes
 from metraw.errors import MetrawError
-from metraw.profile import CalibrationProfile
+from metraw.raw.cfa import color_index, split_planes
+from metraw.raw.profile import CalibrationProfile
 
 #: Bits of ``RawImage.flags``.
 FLAG_SATURATED = 1  #: the pixel (or a source pixel feeding it) reached saturation
@@ -73,7 +73,7 @@ class RawImage:
         return color_index(self.cfa_pattern, self.shape)
 
     def planes(self) -> list[np.ndarray]:
-        """Views of the CFA sub-lattices (see ``metraw.cfa.plane_offsets``)."""
+        """Views of the CFA sub-lattices (see ``metraw.raw.cfa.plane_offsets``)."""
         return split_planes(self.data, self.cfa_pattern)
 
     def electrons(self) -> np.ndarray:

@@ -114,8 +114,8 @@ def write_effective_params(params: dict[str, Any], path: str | Path) -> Path:
 
 def _schema_path() -> Path:
     here = Path(__file__).resolve()
-    for candidate in (here.parents[2] / "workflow" / "schemas" / "params.schema.yaml",
-                      here.parent / "schemas" / "params.schema.yaml"):
+    for candidate in (here.parents[3] / "workflow" / "schemas" / "params.schema.yaml",
+                      here.parents[1] / "schemas" / "params.schema.yaml"):
         if candidate.is_file():
             return candidate
     raise MetrawError("params schema not found (workflow/schemas/params.schema.yaml)")
@@ -174,7 +174,7 @@ def _check_categorical(parameter: str, values: list, nominal: dict[str, Any]) ->
     """A CFA sweep compares sensors: a Bayer phase other than the nominal's, or two Bayer phases in one sweep,
     is the same sensor shifted by a pixel, not another design point (the nominal value itself is allowed:
     like any sweep value equal to nominal, it is the nominal point)."""
-    from metraw.cfa import cfa_family
+    from metraw.raw.cfa import cfa_family
 
     if parameter != "cfa_pattern":
         return

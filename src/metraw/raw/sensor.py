@@ -12,7 +12,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from metraw.profile import CalibrationProfile
+from metraw.raw.profile import CalibrationProfile
 
 
 def rng_from_seed(seed: int | np.random.Generator) -> np.random.Generator:

@@ -16,7 +16,7 @@ A draw then
    smear across track and are not drawn;
 3. lays the target CFA on the chosen pixels (each pixel detects its own colour's arrivals),
    then one Poisson draw per pixel, haze (Poisson), dark current, read noise, gain, black, ADC
-   (`metraw.sensor.readout`) - exactly ``emulate(mode="expected")`` of the flipped scene with
+   (`metraw.raw.sensor.readout`) - exactly ``emulate(mode="expected")`` of the flipped scene with
    ``frame_offset_m = GSD (a / K - 1 + 1 / (2K))`` and a frame 2 pixels smaller than the full one.
 
 Labels: the car fraction per target pixel, source cells assigned by centre (as
@@ -35,14 +35,15 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from metraw.accuracy import DEFAULT_ACCURACY, Accuracy
-from metraw.cfa import color_index
-from metraw.emulate import _cell_mask, _cell_planes, _detect, _Fourier, _saturated_cells, plan_emulation
+from metraw.emulate.emulator import _cell_mask, _cell_planes, _detect, _Fourier, _saturated_cells
+from metraw.emulate.plan import plan_emulation
+from metraw.emulate.target import TargetSystem
 from metraw.errors import MetrawError
-from metraw.gridding import GaussianWindow
-from metraw.image import FLAG_SATURATED, RawImage
-from metraw.sensor import readout, rng_from_seed
-from metraw.target import TargetSystem
+from metraw.physics.accuracy import DEFAULT_ACCURACY, Accuracy
+from metraw.physics.gridding import GaussianWindow
+from metraw.raw.cfa import color_index
+from metraw.raw.image import FLAG_SATURATED, RawImage
+from metraw.raw.sensor import readout, rng_from_seed
 
 __all__ = ["PhaseField", "build_field", "DEFAULT_OVERSAMPLE"]
 

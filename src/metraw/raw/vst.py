@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from metraw.profile import CalibrationProfile
+from metraw.raw.profile import CalibrationProfile
 
 
 def effective_read_variance_e2(profile: CalibrationProfile) -> float:

@@ -23,7 +23,7 @@ import math
 import numpy as np
 
 from metraw.errors import MetrawError
-from metraw.profile import CalibrationProfile
+from metraw.raw.profile import CalibrationProfile
 
 H_PLANCK_J_S = 6.62607015e-34
 C_LIGHT_M_PER_S = 299792458.0
