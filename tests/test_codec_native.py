@@ -1,9 +1,10 @@
-"""The compiled decoder loop (metraw.codec.native, C with AVX-512 lanes) against the numba loop: same values.
+"""The compiled codec loops (metraw.codec.native: C, one extension with AVX-512, AVX2 and portable paths chosen at
+run time) against the numba loops: same bytes and values, on every compiled path this host runs (``native.AVAILABLE``).
 
 Both loops decode the same streams; the compiled one takes streams of 8 or 16 lanes. The cases cover the steady
 part's edges (plane widths around the first steady column 3 (L - 1) + 1, heights that leave a short last group),
-Bayer and mono, steps 0.5 / 1 / 2, 8-bit and 16-bit symbol tables, escapes, and corrupt streams. Skipped where the
-extension is not built or the CPU has no AVX-512.
+Bayer and mono, steps 0.5 / 1 / 2, 8-bit and 16-bit symbol tables, escapes, and corrupt streams. Skipped only where
+the extension is not built.
 """
 
 from __future__ import annotations
@@ -20,7 +21,16 @@ from metraw.image import RawImage
 from metraw.profile import CalibrationProfile
 from metraw.sensor import expose, rng_from_seed
 
-needs_native = pytest.mark.skipif(native.LIB is None, reason="compiled codec loop not built or no AVX-512 on this CPU")
+@pytest.fixture(params=native.AVAILABLE or ("none",))
+def compiled(request):
+    """Each compiled path this host runs, in turn (the test runs once per path)."""
+    if request.param == "none":
+        pytest.skip("compiled codec loops not built")
+    with native.path_in_use(request.param):
+        yield request.param
+
+
+needs_native = pytest.mark.usefixtures("compiled")
 
 PROF = CalibrationProfile(gain_dn_per_e=0.5, black_level_dn=100, read_noise_e=3, white_level_dn=16000, adc_bits=14)
 
@@ -311,32 +321,79 @@ def test_compiled_loop_rejects_corrupt_streams_like_the_numba_loop(monkeypatch):
     assert errors >= 6   # most damage is caught
 
 
-def test_environment_switches_the_compiled_loop_off():
-    """METRAW_NATIVE=0: the codec decodes with its numba loop (for comparisons and for a suspected fault)."""
-    import os
+def test_environment_chooses_the_path():
+    """METRAW_NATIVE=0: the codec runs its numba loops (for comparisons and for a suspected fault); a path's name: that
+    path; unset or auto: the best this host runs; a path the host lacks: a warning and the best."""
     import subprocess
     import sys
 
-    env = dict(os.environ, METRAW_NATIVE="0")
-    out = subprocess.run([sys.executable, "-c", "from metraw.codec import native; print(native.LIB)"], env=env,
-                         capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == "None"
+    def run(value):
+        env = dict(os.environ, METRAW_NATIVE=value)
+        out = subprocess.run([sys.executable, "-W", "always", "-c",
+                              "from metraw.codec import native; print(native.PATH, native.LIB is None)"],
+                             env=env, capture_output=True, text=True, check=True)
+        return out.stdout.split(), out.stderr
+
+    assert run("0")[0] == ["numba", "True"]
+    best = native.AVAILABLE[0] if native.AVAILABLE else "numba"
+    assert run("auto")[0][0] == best
+    for path in native.AVAILABLE:
+        assert run(path)[0] == [path, "False"]
+    for path in set(native.PATHS) - set(native.AVAILABLE):
+        got, err = run(path)
+        assert got[0] == best and "not a path this build" in err
 
 
-def test_the_compiled_loops_are_built_where_a_compiler_and_avx512_are():
-    """An install on a machine with a C compiler and an AVX-512 CPU (as CI's) builds and loads the extension: a
-    broken build configuration would otherwise only show as a slower codec."""
+def test_paths_give_the_same_bytes_and_values_on_the_benchmark_frames():
+    """Every compiled path and numba: the same stream and decoded values on the benchmark's real frames (data/real)
+    at steps 1 and 2, and on a synthetic frame where those are absent."""
+    from pathlib import Path
+
+    from metraw.calibrate import from_image
+    from metraw.io import read_raw
+
+    real = Path(__file__).resolve().parents[1] / "data" / "real"
+    images = []
+    for rel in ("canon_dng/colorchart.dng", "micasense/IMG_0000_1.tif", "spacenet_pan/pan1.tif"):
+        if (real / rel).exists():
+            img = read_raw(real / rel)
+            try:
+                res = from_image(img)
+            except MetrawError:   # a frame calibrate refuses: the others still compare the paths
+                continue
+            images.append(RawImage(img.data >> res.unused_low_bits if res.unused_low_bits else img.data, res.profile))
+    images.append(_image(520, 700, "RGGB", 3000.0, seed=5))
+    for img in images:
+        for step in (1.0, 2.0):
+            blobs, decoded = {}, {}
+            for path in native.AVAILABLE + ("numba",):
+                with native.path_in_use(path):
+                    blobs[path] = codec.encode(img, step, 0)
+                    decoded[path] = codec.decode(blobs[path]).data
+            ref = blobs["numba"]
+            assert all(b == ref for b in blobs.values()), [p for p, b in blobs.items() if b != ref]
+            for d in decoded.values():
+                np.testing.assert_array_equal(d, decoded["numba"])
+
+
+def test_the_compiled_loops_are_built_where_a_compiler_is():
+    """An install on a machine with a C compiler (as CI's) builds and loads the extension, with the paths the CPU
+    reports: a broken build configuration would otherwise only show as a slower codec."""
     import platform
     import shutil
     from pathlib import Path
 
     cpuinfo = Path("/proc/cpuinfo")
     flags = cpuinfo.read_text().split() if cpuinfo.exists() else []
-    if not (shutil.which("cc") and platform.machine() == "x86_64" and "avx512f" in flags and "avx512dq" in flags):
-        pytest.skip("no C compiler or no AVX-512 here: the numba loops are expected")
-    if os.environ.get("METRAW_NATIVE", "1").strip() == "0":
-        pytest.skip("METRAW_NATIVE=0: the numba loops are asked for")
-    assert native.LIB is not None, "metraw.codec._simd was not built or not loaded (pip install -e . builds it)"
+    if not shutil.which("cc"):
+        pytest.skip("no C compiler here: the numba loops are expected")
+    assert native._LIB is not None, "metraw.codec._simd was not built or not loaded (pip install -e . builds it)"
+    assert "portable" in native.AVAILABLE
+    if platform.machine() == "x86_64":
+        assert ("avx2" in native.AVAILABLE) == all(f in flags for f in ("avx2", "fma", "bmi2"))
+        assert ("avx512" in native.AVAILABLE) == all(f in flags for f in ("avx512f", "avx512dq"))
+    if os.environ.get("METRAW_NATIVE", "").strip() not in ("0", "numba"):
+        assert native.LIB is not None
 
 
 def test_a_library_of_another_interface_version_is_left_unused(monkeypatch):
@@ -351,8 +408,8 @@ def test_a_library_of_another_interface_version_is_left_unused(monkeypatch):
     monkeypatch.setattr(native, "ABI", native.ABI + 1)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        lib = native._load()
-    assert lib is None
+        lib, paths = native._open()
+    assert lib is None and paths == ()
     assert len(caught) == 1 and "pip install -e ." in str(caught[0].message)
 def test_a_library_lacking_a_function_is_left_unused(monkeypatch):
     """A library of the right interface number that lacks a function the code calls (a broken build) is not used: one
@@ -373,7 +430,7 @@ def test_a_library_lacking_a_function_is_left_unused(monkeypatch):
     monkeypatch.setattr(native.ctypes, "CDLL", lambda path: lib)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        assert native._load() is None
+        assert native._open() == (None, ())
     assert len(caught) == 1 and "lacks a function" in str(caught[0].message)
 
 

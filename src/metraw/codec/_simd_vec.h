@@ -1,0 +1,298 @@
+/* metraw.codec._simd, the kernels of _simd.c and _simd_prepare.c once more in GCC / Clang vector extensions: 8 lanes
+ * of 64 bits (the decoder's lanes, the encoder's pixels) or of 32 (the dither hash), written once and compiled per
+ * target by the file that includes this one: _simd_avx2.c (AVX2, FMA, BMI2: each vector two 256-bit registers) and
+ * _simd_portable.c (any CPU; SSE2 on x86-64, NEON on ARM, or scalar code). The includer defines VEC_PATH (the
+ * functions' suffix) and, for AVX2, VEC_AVX2. Same values as the AVX-512 kernels and the numba loops, to the bit:
+ * integer arithmetic wraps (-fwrapv), float64 one IEEE operation at a time (-ffp-contract=off: no fused multiply-add),
+ * and rounding to integers by adding 1.5 2^52 (round to nearest even, exact for |z| < 2^51: symbols, DN and rANS
+ * quotients are far below it). Gathers and scatters are element loops (the compiler picks the instructions). */
+#include "_simd.h"
+
+#define VCAT2(a, b) a##_##b
+#define VCAT(a, b) VCAT2(a, b)
+#define VN(name) VCAT(name, VEC_PATH)
+
+typedef i64 vi __attribute__((vector_size(64)));
+typedef u64 vu __attribute__((vector_size(64)));
+typedef double vd __attribute__((vector_size(64)));
+typedef int32_t vs32 __attribute__((vector_size(32)));
+typedef uint32_t vu32 __attribute__((vector_size(32)));
+
+#if defined(__clang__) || (defined(__GNUC__) && __GNUC__ >= 12)
+#define SHUF(a, b, ...) __builtin_shufflevector(a, b, __VA_ARGS__)
+#else
+#define SHUF(a, b, ...) __builtin_shuffle(a, b, (vi){__VA_ARGS__})
+#endif
+/* lanes shifted up by one (two) across a pair: [a7, b0 .. b6] ([a6, a7, b0 .. b5]) (AVX-512's valignq) */
+#define UP1(b, a) SHUF(a, b, 7, 8, 9, 10, 11, 12, 13, 14)
+#define UP2(b, a) SHUF(a, b, 6, 7, 8, 9, 10, 11, 12, 13)
+
+#define MAGIC 0x1.8p52                  /* 1.5 2^52: its units are integers */
+#define MAGIC_BITS 0x4338000000000000LL
+
+INLINE vi vset(i64 a) { return (vi){a, a, a, a, a, a, a, a}; }
+INLINE vi vabs(vi a) { const vi s = a >> 63; return (a ^ s) - s; }
+INLINE vi vsel(vi m, vi a, vi b) { return (a & m) | (b & ~m); }   /* m: -1 (a) or 0 (b) per lane */
+INLINE vd vseld(vi m, vd a, vd b) { return (vd)(((vi)a & m) | ((vi)b & ~m)); }
+INLINE vi vmax(vi a, vi b) { return vsel(a > b, a, b); }
+/* int64 |a| < 2^51 to double, exactly */
+INLINE vd vi2d(vi a) { return (vd)(a + MAGIC_BITS) - MAGIC; }
+/* rint(z) (nearest, ties to even) as int64, |z| < 2^51 */
+INLINE vi vrint(vd z) { return (vi)(z + MAGIC) - MAGIC_BITS; }
+/* floor(z) as int64, |z| < 2^51 */
+INLINE vi vfloor(vd z) { const vi r = vrint(z); return r + (vi)(vi2d(r) > z); }
+INLINE vd vmind(vd a, vd b) { return vseld((vi)(a < b), a, b); }
+INLINE vd vmaxd(vd a, vd b) { return vseld((vi)(a > b), a, b); }
+INLINE vd vsqrt(vd x)
+{
+#ifdef VEC_AVX2
+    union { vd v; __m256d h[2]; } a = {x};
+    a.h[0] = _mm256_sqrt_pd(a.h[0]);
+    a.h[1] = _mm256_sqrt_pd(a.h[1]);
+    return a.v;
+#else
+    for (int j = 0; j < 8; j++) x[j] = __builtin_sqrt(x[j]);
+    return x;
+#endif
+}
+/* n <= 8 values from p (zeros past n) and to p */
+#define LOADN(T, V, p, n) ({ V v_ = {0}; if ((n) == 8) { memcpy(&v_, (p), sizeof v_); } \
+                             else { memcpy(&v_, (p), (size_t)(n) * sizeof(T)); } v_; })
+#define STOREN(T, p, v, n) do { __typeof__(v) s_ = (v); memcpy((p), &s_, (size_t)(n) * sizeof(T)); } while (0)
+
+/* ---- the dither and the transforms (_simd_prepare.c): 8 pixels a step ---- */
+
+/* the 24-bit dither hash (lowbias32 keyed by k1, k2, mod 2^32) of pixels index, index + col_step, ... */
+INLINE vu32 dither24(u64 k1, u64 k2, i64 index, i64 col_step)
+{
+    const vu32 lane = {0, 1, 2, 3, 4, 5, 6, 7};
+    vu32 x = (uint32_t)index + lane * (uint32_t)col_step;
+    x = x * 0x9E3779B9u + (uint32_t)k1;
+    x ^= x >> 16;
+    x *= 0x7FEB352Du;
+    x ^= x >> 15;
+    x *= 0x846CA68Bu;
+    x ^= (uint32_t)k2;
+    x ^= x >> 16;
+    return x >> 8;
+}
+
+/* u = x 2^-24 - 1/2 (exact) */
+INLINE vd dither_value(vu32 x) { return __builtin_convertvector((vs32)x, vd) * (1.0 / 16777216.0) - 0.5; }
+
+typedef struct { double black, inv_k, c, xmax, inv_step; } fwd_t;
+
+/* rint(2 sqrt(min(max((y - black) / K + c, 0), xmax)) / q + u), one IEEE operation at a time */
+INLINE vi forward8(vd y, vd u, const fwd_t *f)
+{
+    vd x = (y - f->black) * f->inv_k + f->c;
+    x = vmind(vmaxd(x, (vd){0}), (vd){0} + f->xmax);
+    vd z = 2.0 * vsqrt(x);
+    z = z * f->inv_step + u;
+    return vrint(z);
+}
+
+/* n <= 8 DN at stride cs as int32 */
+INLINE vs32 load_dn(const uint16_t *d, i64 cs, i64 n)
+{
+    vs32 v = {0};
+    for (i64 k = 0; k < n; k++) v[k] = d[k * cs];
+    return v;
+}
+
+void VN(metraw_dither_grid)(u64 k1, u64 k2, i64 start, i64 rows, i64 cols, i64 row_step, i64 col_step, double *out)
+{
+    for (i64 i = 0; i < rows; i++)
+        for (i64 j = 0; j < cols; j += 8) {
+            const vd u = dither_value(dither24(k1, k2, start + i * row_step + j * col_step, col_step));
+            STOREN(double, out + i * cols + j, u, cols - j < 8 ? cols - j : 8);
+        }
+}
+
+void VN(metraw_forward)(const uint16_t *data, i64 rows, i64 cols, i64 row_stride, i64 col_stride, double black,
+                        double inv_k, double c, double xmax, double inv_step, const double *u, int32_t *out)
+{
+    const fwd_t f = {black, inv_k, c, xmax, inv_step};
+    for (i64 i = 0; i < rows; i++)
+        for (i64 j = 0; j < cols; j += 8) {
+            const i64 n = cols - j < 8 ? cols - j : 8;
+            const vd y = __builtin_convertvector(load_dn(data + i * row_stride + j * col_stride, col_stride, n), vd);
+            const vi s = forward8(y, LOADN(double, vd, u + i * cols + j, n), &f);
+            STOREN(int32_t, out + i * cols + j, __builtin_convertvector(s, vs32), n);
+        }
+}
+
+/* the encoder's plane buffer in one pass (plane_buffer_avx512): floor(u 2^16) = (x >> 8) - 2^15 exactly */
+i64 VN(metraw_plane_buffer)(const uint16_t *data, i64 rows, i64 cols, i64 row_stride, i64 col_stride, u64 k1, u64 k2,
+                            i64 start, i64 row_step, i64 col_step, double black, double inv_k, double c, double xmax,
+                            double inv_step, i64 *p)
+{
+    const fwd_t f = {black, inv_k, c, xmax, inv_step};
+    const vi lane = {0, 1, 2, 3, 4, 5, 6, 7};
+    const i64 ws = cols + 4;
+    vi sum = {0};
+    for (i64 i = 0; i < rows; i++) {
+        i64 *row = p + (i + 2) * ws;
+        for (i64 j = 0; j < cols; j += 8) {
+            const i64 n = cols - j < 8 ? cols - j : 8;
+            const vd y = __builtin_convertvector(load_dn(data + i * row_stride + j * col_stride, col_stride, n), vd);
+            const vu32 x = dither24(k1, k2, start + i * row_step + j * col_step, col_step);
+            const vi s = forward8(y, dither_value(x), &f);
+            const vi s32 = __builtin_convertvector(__builtin_convertvector(s, vs32), vi);   /* as stored */
+            sum += s32 & (lane < n);
+            const vi fu = __builtin_convertvector((vs32)(x >> 8), vi) - (1 << 15);
+            STOREN(i64, row + 2 + j, (s32 << 16) - fu, n);
+        }
+        if (i > 0) row[0] = row[1] = p[(i + 1) * ws + 2];
+        row[cols + 2] = row[cols + 3] = row[cols + 1];
+    }
+    i64 total = 0;
+    for (int j = 0; j < 8; j++) total += sum[j];
+    return total;
+}
+
+void VN(metraw_dither_fixed)(u64 k1, u64 k2, i64 start, i64 rows, i64 cols, i64 row_step, i64 col_step, int32_t *out)
+{
+    for (i64 i = 0; i < rows; i++)
+        for (i64 j = 0; j < cols; j += 8) {
+            const vu32 x = dither24(k1, k2, start + i * row_step + j * col_step, col_step);
+            STOREN(int32_t, out + i * cols + j, (vs32)(x >> 8) - (1 << 15), cols - j < 8 ? cols - j : 8);
+        }
+}
+
+/* rint(K ((s - u) q / 2)^2 + offset) clipped to 0 .. 65535 (clipping before rounding: the same, the bounds being
+ * integers) */
+void VN(metraw_inverse_dn)(const int32_t *sym, i64 rows, i64 cols, u64 k1, u64 k2, i64 start, i64 row_step,
+                           i64 col_step, double half_step, double k, double offset, uint16_t *out, i64 out_row_stride,
+                           i64 out_col_stride)
+{
+    for (i64 i = 0; i < rows; i++) {
+        uint16_t *o = out + i * out_row_stride;
+        for (i64 j = 0; j < cols; j += 8) {
+            const i64 n = cols - j < 8 ? cols - j : 8;
+            const vd u = dither_value(dither24(k1, k2, start + i * row_step + j * col_step, col_step));
+            const vd s = __builtin_convertvector(LOADN(int32_t, vs32, sym + i * cols + j, n), vd);
+            const vd zh = (s - u) * half_step;
+            const vd v = vmind(vmaxd(k * (zh * zh) + offset, (vd){0}), (vd){0} + 65535.0);
+            const vi dn = vrint(v);
+            if (out_col_stride == 1) {
+                for (i64 q = 0; q < n; q++) o[j + q] = (uint16_t)dn[q];
+            } else {
+                for (i64 q = 0; q < n; q++) o[(j + q) * out_col_stride] = (uint16_t)dn[q];
+            }
+        }
+    }
+}
+
+/* ---- the coder's loops (_simd.c) ---- */
+
+/* predictive._front: s 2^16 - floor(u 2^16), the pads as front_avx512 */
+void VN(metraw_front)(const int32_t *s, const double *u, i64 h, i64 w, i64 c0s, i64 *p)
+{
+    const i64 ws = w + 4;
+    for (i64 k = 0; k < 2 * ws; k++) p[k] = c0s;
+    for (i64 y = 0; y < h; y++) {
+        i64 *row = p + (y + 2) * ws;
+        for (i64 x = 0; x < w; x += 8) {
+            const i64 n = w - x < 8 ? w - x : 8;
+            const vi sv = __builtin_convertvector(LOADN(int32_t, vs32, s + y * w + x, n), vi);
+            const vi fu = vfloor(LOADN(double, vd, u + y * w + x, n) * 65536.0);
+            STOREN(i64, row + 2 + x, (sv << 16) - fu, n);
+        }
+        row[0] = row[1] = y > 0 ? p[(y + 1) * ws + 2] : c0s;
+        row[w + 2] = row[w + 3] = row[w + 1];
+    }
+}
+
+/* predictive._index: idx = r + amax, or the escape 2 amax + 1 where |r| > amax; then the counts */
+void VN(metraw_index)(const int32_t *r, const int32_t *t, i64 n, i64 amax, i64 nt, int32_t *idx, i64 *counts)
+{
+    const i64 alpha = 2 * amax + 2;
+    const int32_t a = (int32_t)amax, e = (int32_t)(alpha - 1);
+    for (i64 i = 0; i < n; i += 8) {
+        const i64 m = n - i < 8 ? n - i : 8;
+        const vs32 v = LOADN(int32_t, vs32, r + i, m);
+        const vs32 out = (v > a) | (v < -a);
+        STOREN(int32_t, idx + i, ((v + a) & ~out) | (((vs32){0} + e) & out), m);
+    }
+    index_counts(t, idx, n, alpha, nt, counts);
+}
+
+/* the causal neighbours of 8 pixels (names as in decoder._pixel) */
+typedef struct { vi W, WW, N, NW, NE, NE2, NW2, NN, NNW, NNE, NNW2, NNE2; } vnbr_t;
+
+/* a coefficient of each lane's context: tab8[C[j]] */
+INLINE vi lookup8(const i64 *tab8, vi C)
+{
+    vi r;
+    for (int j = 0; j < 8; j++) r[j] = tab8[C[j]];
+    return r;
+}
+
+/* activity context (to *Cp) and prediction W + ((sum_i k_i n_i - W sum_i k_i) >> 12) + bias (vpredict of _simd.c);
+ * T: the 7 thresholds, ct[8 k + c]: tap k's coefficient of context c */
+INLINE vi vpredict(const vi *T, const i64 *ct, const vnbr_t *n, vi *Cp)
+{
+    const vi act = vabs(n->W - n->NW) + vabs(n->N - n->NW) + vabs(n->N - n->NE) + vabs(n->W - n->WW)
+                 + vabs(n->N - n->NN);
+    const vi C = -((act > T[0]) + (act > T[1]) + (act > T[2]) + (act > T[3]) + (act > T[4]) + (act > T[5])
+                   + (act > T[6]));
+    *Cp = C;
+#define KN(k, v) (lookup8(ct + 8 * (k), C) * (v))
+    const vi a = KN(0, n->N) + KN(1, n->NW) + KN(2, n->NE) + KN(3, n->WW) + KN(4, n->NN) + KN(5, n->NW2)
+               + KN(6, n->NNW) + KN(7, n->NNE) + KN(8, n->NE2) + KN(9, n->NNW2) + KN(10, n->NNE2) - KN(11, n->W);
+#undef KN
+    return n->W + (a >> 12) + lookup8(ct + 8 * 12, C);
+}
+
+/* the 7 thresholds (padded with INT64_MAX past nthr) and the coefficients by tap, then context */
+INLINE void model_tables(const i64 *thr, i64 nthr, const i64 *coef13, vi *T, i64 *ct)
+{
+    for (int k = 0; k < 7; k++) T[k] = vset(k < nthr ? thr[k] : INT64_MAX);
+    for (int k = 0; k < 13; k++)
+        for (int c = 0; c < 8; c++) ct[8 * k + c] = coef13[c * 13 + k];
+}
+
+i64 VN(metraw_residuals)(const i64 *pf, i64 h, i64 w, const i64 *thr, i64 nthr, const i64 *coef13, i64 tab0,
+                         i64 pshift, int32_t *r_out, int32_t *t_out)
+{
+    const i64 ws = w + 4;
+    vi T[7];
+    i64 ct[13 * 8];
+    model_tables(thr, nthr, coef13, T, ct);
+    const vi lane = {0, 1, 2, 3, 4, 5, 6, 7};
+    const int psh = (int)pshift, csh = (int)(2 - pshift);
+    vi rmax = {0};
+    for (i64 y = 0; y < h; y++) {
+        const i64 *row = pf + (y + 2) * ws + 2;
+        for (i64 x = 0; x < w; x += 8) {
+            const i64 m = w - x < 8 ? w - x : 8;
+            const i64 *b = row + x;
+#define LD(o) LOADN(i64, vi, b + (o), m)
+            const vnbr_t n = {.W = LD(-1), .WW = LD(-2), .N = LD(-ws), .NW = LD(-ws - 1), .NE = LD(-ws + 1),
+                              .NE2 = LD(-ws + 2), .NW2 = LD(-ws - 2), .NN = LD(-2 * ws), .NNW = LD(-2 * ws - 1),
+                              .NNE = LD(-2 * ws + 1), .NNW2 = LD(-2 * ws - 2), .NNE2 = LD(-2 * ws + 2)};
+            const vi P = LD(0);
+#undef LD
+            vi C;
+            const vi acc = vpredict(T, ct, &n, &C);
+            const vi sv = (P + 32767) >> 16;
+            const vi mh = acc + ((sv << 16) - P) + (1 << 15);
+            vi r = sv - (mh >> 16);
+            vi fr = mh & 0xFFFF;
+            const vi f = 1 - (fr >> 15);
+            const vi nf = -f;
+            fr ^= nf & 0xFFFF;
+            r = (r ^ nf) + f;
+            const vi t = tab0 + (C << csh) + (((fr >> 13) & 3) >> psh);
+            STOREN(int32_t, r_out + y * w + x, __builtin_convertvector(r, vs32), m);
+            STOREN(int32_t, t_out + y * w + x, __builtin_convertvector(t, vs32), m);
+            rmax = vmax(rmax, vabs(r) & (lane < m));
+        }
+    }
+    i64 out = 0;
+    for (int j = 0; j < 8; j++) out = rmax[j] > out ? rmax[j] : out;
+    return out;
+}
+
+#include "_simd_vec_lanes.h"
