@@ -31,7 +31,40 @@ typedef uint32_t vu32 __attribute__((vector_size(32)));
 #define MAGIC_BITS 0x4338000000000000LL
 
 INLINE vi vset(i64 a) { return (vi){a, a, a, a, a, a, a, a}; }
-INLINE vi vabs(vi a) { const vi s = a >> 63; return (a ^ s) - s; }
+/* a >> k (arithmetic) from logical shifts and a compare: targets without a 64-bit arithmetic shift (SSE2, AVX2) would
+ * otherwise take each lane apart */
+INLINE vi vsra(vi a, int k) { const vi s = a < 0; return (vi)((vu)(a ^ s) >> k) ^ s; }
+INLINE vi vabs(vi a) { const vi s = a < 0; return (a ^ s) - s; }
+/* products mod 2^64 from 32 x 32 -> 64-bit multiplies (pmuludq), which SSE2 and AVX2 have, unlike 64-bit ones:
+ * vmulu32 where both factors are below 2^32, vmul for any */
+#if defined(VEC_AVX2)
+typedef union { vi v; __m256i h[2]; } vsplit_t;
+INLINE vi vmulu32(vi a, vi b)
+{
+    vsplit_t x = {a}, y = {b}, r;
+    for (int k = 0; k < 2; k++) r.h[k] = _mm256_mul_epu32(x.h[k], y.h[k]);
+    return r.v;
+}
+#elif METRAW_X86
+typedef union { vi v; __m128i h[4]; } vsplit_t;
+INLINE vi vmulu32(vi a, vi b)
+{
+    vsplit_t x = {a}, y = {b}, r;
+    for (int k = 0; k < 4; k++) r.h[k] = _mm_mul_epu32(x.h[k], y.h[k]);
+    return r.v;
+}
+#else
+INLINE vi vmulu32(vi a, vi b) { return (vi)(((vu)a & 0xFFFFFFFFULL) * ((vu)b & 0xFFFFFFFFULL)); }
+#endif
+INLINE vi vmul(vi a, vi b)
+{
+#if METRAW_X86
+    const vi ah = (vi)((vu)a >> 32), bh = (vi)((vu)b >> 32);
+    return vmulu32(a, b) + ((vmulu32(ah, b) + vmulu32(a, bh)) << 32);
+#else
+    return a * b;
+#endif
+}
 INLINE vi vsel(vi m, vi a, vi b) { return (a & m) | (b & ~m); }   /* m: -1 (a) or 0 (b) per lane */
 INLINE vd vseld(vi m, vd a, vd b) { return (vd)(((vi)a & m) | ((vi)b & ~m)); }
 INLINE vi vmax(vi a, vi b) { return vsel(a > b, a, b); }
@@ -238,11 +271,11 @@ INLINE vi vpredict(const vi *T, const i64 *ct, const vnbr_t *n, vi *Cp)
     const vi C = -((act > T[0]) + (act > T[1]) + (act > T[2]) + (act > T[3]) + (act > T[4]) + (act > T[5])
                    + (act > T[6]));
     *Cp = C;
-#define KN(k, v) (lookup8(ct + 8 * (k), C) * (v))
+#define KN(k, v) vmul(lookup8(ct + 8 * (k), C), v)
     const vi a = KN(0, n->N) + KN(1, n->NW) + KN(2, n->NE) + KN(3, n->WW) + KN(4, n->NN) + KN(5, n->NW2)
                + KN(6, n->NNW) + KN(7, n->NNE) + KN(8, n->NE2) + KN(9, n->NNW2) + KN(10, n->NNE2) - KN(11, n->W);
 #undef KN
-    return n->W + (a >> 12) + lookup8(ct + 8 * 12, C);
+    return n->W + vsra(a, 12) + lookup8(ct + 8 * 12, C);
 }
 
 /* the 7 thresholds (padded with INT64_MAX past nthr) and the coefficients by tap, then context */
@@ -276,15 +309,15 @@ i64 VN(metraw_residuals)(const i64 *pf, i64 h, i64 w, const i64 *thr, i64 nthr, 
 #undef LD
             vi C;
             const vi acc = vpredict(T, ct, &n, &C);
-            const vi sv = (P + 32767) >> 16;
+            const vi sv = vsra(P + 32767, 16);
             const vi mh = acc + ((sv << 16) - P) + (1 << 15);
-            vi r = sv - (mh >> 16);
+            vi r = sv - vsra(mh, 16);
             vi fr = mh & 0xFFFF;
-            const vi f = 1 - (fr >> 15);
+            const vi f = 1 - (vi)((vu)fr >> 15);
             const vi nf = -f;
             fr ^= nf & 0xFFFF;
             r = (r ^ nf) + f;
-            const vi t = tab0 + (C << csh) + (((fr >> 13) & 3) >> psh);
+            const vi t = tab0 + (C << csh) + (vi)((((vu)fr >> 13) & 3) >> psh);
             STOREN(int32_t, r_out + y * w + x, __builtin_convertvector(r, vs32), m);
             STOREN(int32_t, t_out + y * w + x, __builtin_convertvector(t, vs32), m);
             rmax = vmax(rmax, vabs(r) & (lane < m));

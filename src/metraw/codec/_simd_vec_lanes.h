@@ -16,12 +16,12 @@ INLINE vi vstep(const vmodel_t *m, const vnbr_t *n, vi UV, vi *Xp, vi *POSp, vi 
 {
     vi C;
     const vi mh = vpredict(m->T, m->ct, n, &C) + (UV + (1 << 15));
-    const vi sh = mh >> 16;
+    const vi sh = vsra(mh, 16);
     const vi fr = mh & 0xFFFF;
-    const vi f = 1 - (fr >> 15);
+    const vi f = 1 - (vi)((vu)fr >> 15);
     const vi nf = -f;
     const vi fold = fr ^ (nf & 0xFFFF);
-    const vi t = m->tab0 + (C << m->cshift) + (((fold >> 13) & 3) >> m->pshift);
+    const vi t = m->tab0 + (C << m->cshift) + (vi)((((vu)fold >> 13) & 3) >> m->pshift);
     vi X = *Xp;
     const vi slot = X & ((1 << PROB_BITS) - 1);
     const vi li = (t << PROB_BITS) + slot;
@@ -30,12 +30,12 @@ INLINE vi vstep(const vmodel_t *m, const vnbr_t *n, vi UV, vi *Xp, vi *POSp, vi 
         for (int j = 0; j < 8; j++) s[j] = ((const int16_t *)m->lut)[li[j]];
     else
         for (int j = 0; j < 8; j++) s[j] = ((const uint8_t *)m->lut)[li[j]];
-    const vi fi = t * m->alpha + s;
+    const vi fi = vmulu32(t, vset(m->alpha)) + s;
     vi fc;
     for (int j = 0; j < 8; j++) fc[j] = m->fcum[fi[j]];
-    X = (vi)((vu)(fc >> 16) * ((vu)X >> PROB_BITS)) + (slot - (fc & 0xFFFF));
+    X = vmulu32((vi)((vu)fc >> 16), (vi)((vu)X >> PROB_BITS)) + (slot - (fc & 0xFFFF));
     const vi need = (vi)((vu)X < (vu){0} + RANS_L);
-    const vi pos = *POSp & ~(*POSp >> 63);   /* >= 0 */
+    const vi pos = *POSp & ~(*POSp < 0);   /* >= 0 */
     vi wd;
     for (int j = 0; j < 8; j++) wd[j] = m->words[pos[j]];
     *Xp = vsel(need, (X << 16) | wd, X);
@@ -156,7 +156,7 @@ INLINE void rans_lanes(const int NV, const int32_t *ent, const u64 *fc, const i6
             NW[v] -= emit;
             const vu Xs = (vu)vsel(emit, (vi)(X[v] >> 16), (vi)X[v]);
             const vu q = vtrunc(vu2d(Xs) * R + 1.52587890625e-05);
-            const vu rem = Xs - (q & 0xFFFFFFFFULL) * F;
+            const vu rem = Xs - (vu)vmulu32((vi)q, (vi)F);
             X[v] = (q << PROB_BITS) + rem + C;
             if (k > 0) {
                 const vi inrow = I[v] > E[v];
