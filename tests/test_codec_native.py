@@ -335,13 +335,23 @@ def test_environment_chooses_the_path():
         return out.stdout.split(), out.stderr
 
     assert run("0")[0] == ["numba", "True"]
-    best = native.AVAILABLE[0] if native.AVAILABLE else "numba"
-    assert run("auto")[0][0] == best
+    best = native.auto_path(native.AVAILABLE)
+    assert run("auto")[0][0] == best and run("")[0][0] == best
     for path in native.AVAILABLE:
         assert run(path)[0] == [path, "False"]
     for path in set(native.PATHS) - set(native.AVAILABLE):
         got, err = run(path)
         assert got[0] == best and "not a path this build" in err
+
+
+def test_auto_selection_picks_only_paths_faster_than_numba():
+    """Auto-selection runs the first of ``native.AUTO`` the host has, else numba: a compiled path that is slower than
+    the numba loops on its CPU (the portable build anywhere) is never picked unless METRAW_NATIVE names it."""
+    assert native.auto_path(("avx512", "avx2", "portable")) == "avx512"
+    assert native.auto_path(()) == "numba"
+    assert native.auto_path(("portable",)) == "numba"
+    assert native.auto_path(("avx2", "portable")) == ("avx2" if "avx2" in native.AUTO else "numba")
+    assert set(native.AUTO) <= set(native.PATHS)
 
 
 def test_paths_give_the_same_bytes_and_values_on_the_benchmark_frames():

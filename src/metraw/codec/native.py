@@ -17,9 +17,9 @@ as numpy and libjpeg-turbo do; ``PATHS`` best first):
   ``prepare._dither_grid_kernel``, ``prepare._forward_kernel``, ``decoder.fixed_dither``,
   ``prepare._inverse_dn_kernel``).
 
-``PATH`` names the path that runs: the best of ``AVAILABLE`` (the compiled paths this build has and this CPU runs),
-or the one ``METRAW_NATIVE`` asks for (``avx512``, ``avx2``, ``portable``, or ``0`` / ``numba``; unset, empty, ``1``
-or ``auto``: the best). ``use(path)`` switches in-process (tests, benchmarks). Every path runs the same arithmetic, so
+``PATH`` names the path that runs: the first of ``AUTO`` (the paths measured faster than numba) in ``AVAILABLE`` (the
+compiled paths this build has and this CPU runs), else numba; or the one ``METRAW_NATIVE`` asks for (``avx512``,
+``avx2``, ``portable``, or ``0`` / ``numba``; unset, empty, ``1`` or ``auto``: that first one). ``use(path)`` switches in-process (tests, benchmarks). Every path runs the same arithmetic, so
 the streams and decoded values are the same (tests compare them on every path the host has); only the speed differs.
 The compiled decoder takes streams of ``LANE_COUNTS`` lanes (today's encoder writes 16); others take the numba loop.
 C sources: ``_simd_driver.c`` (the scalar parts and the schedules every path shares), the files above, ``_simd.h``.
@@ -48,6 +48,11 @@ READ_PAST_END_BYTES = 4
 ABI = 4
 #: The compiled paths, best first, and their bits in ``metraw_simd_paths()`` (``_simd.h``).
 PATHS = ("avx512", "avx2", "portable")
+#: The compiled paths auto-selection may pick, best first: those measured faster than the numba loops (1-thread CPU,
+#: encode and decode, ``benchmarks/codec.py --native``). The vector-extension builds of 8 x 64-bit lanes (64-byte
+#: vectors) ran 2-4x slower than numba on AVX2 (GCC splits them into scalar lanes and stack traffic), so a CPU
+#: without AVX-512 runs numba unless METRAW_NATIVE names a path.
+AUTO = ("avx512",)
 _PATH_BITS = {"portable": 1, "avx2": 2, "avx512": 4}
 #: The functions every path exports as ``metraw_<name>_<path>``.
 _NAMES = ("decode_plane", "residuals", "rans_encode", "dither_grid", "forward", "plane_buffer", "dither_fixed",
@@ -109,12 +114,18 @@ def _declare(lib: ctypes.CDLL, path: str) -> types.SimpleNamespace:
     return types.SimpleNamespace(**fns)
 
 
+def auto_path(available: tuple[str, ...]) -> str:
+    """The path auto-selection runs: the first of ``AUTO`` among ``available``, else numba (a compiled path that is
+    not in ``AUTO`` runs only when METRAW_NATIVE asks for it)."""
+    return next((p for p in AUTO if p in available), "numba")
+
+
 def _requested(available: tuple[str, ...]) -> str:
-    """The path METRAW_NATIVE asks for, or the best available (a path this host lacks: one warning, the best)."""
+    """The path METRAW_NATIVE asks for, or ``auto_path`` (also for a path this host lacks, with one warning)."""
     want = os.environ.get("METRAW_NATIVE", "").strip().lower()
     if want in ("0", "numba"):
         return "numba"
-    best = available[0] if available else "numba"
+    best = auto_path(available)
     if want in ("", "1", "auto"):
         return best
     if want not in available:
