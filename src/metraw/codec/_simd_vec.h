@@ -12,49 +12,51 @@
 #define VCAT(a, b) VCAT2(a, b)
 #define VN(name) VCAT(name, VEC_PATH)
 
-typedef i64 vi __attribute__((vector_size(64)));
-typedef u64 vu __attribute__((vector_size(64)));
-typedef double vd __attribute__((vector_size(64)));
-typedef int32_t vs32 __attribute__((vector_size(32)));
-typedef uint32_t vu32 __attribute__((vector_size(32)));
+/* VL lanes of 64 bits a vector, the width of one register of the target (AVX2: 4 in a 256-bit register; otherwise 2,
+ * 128 bits: SSE2, NEON): a wider generic vector has no machine mode there, so GCC keeps it in memory and takes much
+ * of it apart lane by lane (2.5-4x slower than the numba loops, measured 2026-11-28). 8 pixels or lanes of the AVX-512
+ * kernels are 8 / VL vectors here. */
+#if defined(VEC_AVX2)
+#define VL 4
+#else
+#define VL 2
+#endif
+typedef i64 vi __attribute__((vector_size(8 * VL)));
+typedef u64 vu __attribute__((vector_size(8 * VL)));
+typedef double vd __attribute__((vector_size(8 * VL)));
+typedef int32_t vs32 __attribute__((vector_size(4 * VL)));
+typedef uint32_t vu32 __attribute__((vector_size(4 * VL)));
 
 #if defined(__clang__) || (defined(__GNUC__) && __GNUC__ >= 12)
 #define SHUF(a, b, ...) __builtin_shufflevector(a, b, __VA_ARGS__)
 #else
 #define SHUF(a, b, ...) __builtin_shuffle(a, b, (vi){__VA_ARGS__})
 #endif
-/* lanes shifted up by one (two) across a pair: [a7, b0 .. b6] ([a6, a7, b0 .. b5]) (AVX-512's valignq) */
-#define UP1(b, a) SHUF(a, b, 7, 8, 9, 10, 11, 12, 13, 14)
-#define UP2(b, a) SHUF(a, b, 6, 7, 8, 9, 10, 11, 12, 13)
+#if VL == 4
+#define IOTA {0, 1, 2, 3}
+#else
+#define IOTA {0, 1}
+#endif
 
 #define MAGIC 0x1.8p52                  /* 1.5 2^52: its units are integers */
 #define MAGIC_BITS 0x4338000000000000LL
 
-INLINE vi vset(i64 a) { return (vi){a, a, a, a, a, a, a, a}; }
+INLINE vi vset(i64 a) { return (vi){0} + a; }
 /* a >> k (arithmetic) from logical shifts and a compare: targets without a 64-bit arithmetic shift (SSE2, AVX2) would
  * otherwise take each lane apart */
 INLINE vi vsra(vi a, int k) { const vi s = a < 0; return (vi)((vu)(a ^ s) >> k) ^ s; }
 INLINE vi vabs(vi a) { const vi s = a < 0; return (a ^ s) - s; }
 /* products mod 2^64 from 32 x 32 -> 64-bit multiplies (pmuludq), which SSE2 and AVX2 have, unlike 64-bit ones:
- * vmulu32 where both factors are below 2^32, vmul for any */
+ * vmulu32 of the low 32 bits of each factor, vmul of any */
 #if defined(VEC_AVX2)
-typedef union { vi v; __m256i h[2]; } vsplit_t;
-INLINE vi vmulu32(vi a, vi b)
-{
-    vsplit_t x = {a}, y = {b}, r;
-    for (int k = 0; k < 2; k++) r.h[k] = _mm256_mul_epu32(x.h[k], y.h[k]);
-    return r.v;
-}
+INLINE vi vmulu32(vi a, vi b) { return (vi)_mm256_mul_epu32((__m256i)a, (__m256i)b); }
+INLINE vi vsel(vi m, vi a, vi b) { return (vi)_mm256_blendv_epi8((__m256i)b, (__m256i)a, (__m256i)m); }
 #elif METRAW_X86
-typedef union { vi v; __m128i h[4]; } vsplit_t;
-INLINE vi vmulu32(vi a, vi b)
-{
-    vsplit_t x = {a}, y = {b}, r;
-    for (int k = 0; k < 4; k++) r.h[k] = _mm_mul_epu32(x.h[k], y.h[k]);
-    return r.v;
-}
+INLINE vi vmulu32(vi a, vi b) { return (vi)_mm_mul_epu32((__m128i)a, (__m128i)b); }
+INLINE vi vsel(vi m, vi a, vi b) { return (a & m) | (b & ~m); }   /* m: -1 (a) or 0 (b) per lane */
 #else
 INLINE vi vmulu32(vi a, vi b) { return (vi)(((vu)a & 0xFFFFFFFFULL) * ((vu)b & 0xFFFFFFFFULL)); }
+INLINE vi vsel(vi m, vi a, vi b) { return (a & m) | (b & ~m); }
 #endif
 INLINE vi vmul(vi a, vi b)
 {
@@ -65,8 +67,7 @@ INLINE vi vmul(vi a, vi b)
     return a * b;
 #endif
 }
-INLINE vi vsel(vi m, vi a, vi b) { return (a & m) | (b & ~m); }   /* m: -1 (a) or 0 (b) per lane */
-INLINE vd vseld(vi m, vd a, vd b) { return (vd)(((vi)a & m) | ((vi)b & ~m)); }
+INLINE vd vseld(vi m, vd a, vd b) { return (vd)vsel(m, (vi)a, (vi)b); }
 INLINE vi vmax(vi a, vi b) { return vsel(a > b, a, b); }
 /* int64 |a| < 2^51 to double, exactly */
 INLINE vd vi2d(vi a) { return (vd)(a + MAGIC_BITS) - MAGIC; }
@@ -78,27 +79,51 @@ INLINE vd vmind(vd a, vd b) { return vseld((vi)(a < b), a, b); }
 INLINE vd vmaxd(vd a, vd b) { return vseld((vi)(a > b), a, b); }
 INLINE vd vsqrt(vd x)
 {
-#ifdef VEC_AVX2
-    union { vd v; __m256d h[2]; } a = {x};
-    a.h[0] = _mm256_sqrt_pd(a.h[0]);
-    a.h[1] = _mm256_sqrt_pd(a.h[1]);
-    return a.v;
+#if defined(VEC_AVX2)
+    return (vd)_mm256_sqrt_pd((__m256d)x);
+#elif METRAW_X86
+    return (vd)_mm_sqrt_pd((__m128d)x);
 #else
-    for (int j = 0; j < 8; j++) x[j] = __builtin_sqrt(x[j]);
+    for (int j = 0; j < VL; j++) x[j] = __builtin_sqrt(x[j]);
     return x;
 #endif
 }
-/* n <= 8 values from p (zeros past n) and to p */
-#define LOADN(T, V, p, n) ({ V v_ = {0}; if ((n) == 8) { memcpy(&v_, (p), sizeof v_); } \
+
+/* gathers: base[idx[j]] of 32-bit (sign- or zero-extended), 16-bit and 8-bit elements (AVX2: 32-bit gathers, so the
+ * 16- and 8-bit tables must be readable 2 and 3 bytes past their ends, as for the AVX-512 kernels) and 64-bit ones */
+#if defined(VEC_AVX2)
+#define G32(base, idx, scale) _mm256_i64gather_epi32((const int *)(const void *)(base), (__m256i)(idx), scale)
+INLINE vi gather_s32(const int32_t *b, vi idx) { return (vi)_mm256_cvtepi32_epi64(G32(b, idx, 4)); }
+INLINE vi gather_u32(const uint32_t *b, vi idx) { return (vi)_mm256_cvtepu32_epi64(G32(b, idx, 4)); }
+INLINE vi gather_u16(const uint16_t *b, vi idx)
+{ return (vi)_mm256_cvtepu16_epi64(_mm_shuffle_epi8(G32(b, idx, 2), _mm_setr_epi8(0, 1, 4, 5, 8, 9, 12, 13, -1, -1, -1, -1, -1, -1, -1, -1))); }
+INLINE vi gather_s16(const int16_t *b, vi idx)
+{ return (vi)_mm256_cvtepi16_epi64(_mm_shuffle_epi8(G32(b, idx, 2), _mm_setr_epi8(0, 1, 4, 5, 8, 9, 12, 13, -1, -1, -1, -1, -1, -1, -1, -1))); }
+INLINE vi gather_u8(const uint8_t *b, vi idx)
+{ return (vi)_mm256_cvtepu8_epi64(_mm_shuffle_epi8(G32(b, idx, 1), _mm_setr_epi8(0, 4, 8, 12, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1))); }
+INLINE vi gather_64(const u64 *b, vi idx) { return (vi)_mm256_i64gather_epi64((const long long *)b, (__m256i)idx, 8); }
+#else
+#define GATHER_LOOP(T) { vi r; for (int j = 0; j < VL; j++) r[j] = (i64)(T)b[idx[j]]; return r; }
+INLINE vi gather_s32(const int32_t *b, vi idx) GATHER_LOOP(int32_t)
+INLINE vi gather_u32(const uint32_t *b, vi idx) GATHER_LOOP(uint32_t)
+INLINE vi gather_u16(const uint16_t *b, vi idx) GATHER_LOOP(uint16_t)
+INLINE vi gather_s16(const int16_t *b, vi idx) GATHER_LOOP(int16_t)
+INLINE vi gather_u8(const uint8_t *b, vi idx) GATHER_LOOP(uint8_t)
+INLINE vi gather_64(const u64 *b, vi idx) GATHER_LOOP(u64)
+#endif
+
+/* n <= VL values from p (zeros past n) and to p */
+#define LOADN(T, V, p, n) ({ V v_ = {0}; if ((n) == VL) { memcpy(&v_, (p), sizeof v_); } \
                              else { memcpy(&v_, (p), (size_t)(n) * sizeof(T)); } v_; })
 #define STOREN(T, p, v, n) do { __typeof__(v) s_ = (v); memcpy((p), &s_, (size_t)(n) * sizeof(T)); } while (0)
+#define LOADV(V, p) ({ V v_; memcpy(&v_, (p), sizeof v_); v_; })
 
-/* ---- the dither and the transforms (_simd_prepare.c): 8 pixels a step ---- */
+/* ---- the dither and the transforms (_simd_prepare.c): VL pixels a step ---- */
 
 /* the 24-bit dither hash (lowbias32 keyed by k1, k2, mod 2^32) of pixels index, index + col_step, ... */
 INLINE vu32 dither24(u64 k1, u64 k2, i64 index, i64 col_step)
 {
-    const vu32 lane = {0, 1, 2, 3, 4, 5, 6, 7};
+    const vu32 lane = IOTA;
     vu32 x = (uint32_t)index + lane * (uint32_t)col_step;
     x = x * 0x9E3779B9u + (uint32_t)k1;
     x ^= x >> 16;
@@ -125,7 +150,7 @@ INLINE vi forward8(vd y, vd u, const fwd_t *f)
     return vrint(z);
 }
 
-/* n <= 8 DN at stride cs as int32 */
+/* n <= VL DN at stride cs as int32 */
 INLINE vs32 load_dn(const uint16_t *d, i64 cs, i64 n)
 {
     vs32 v = {0};
@@ -136,9 +161,9 @@ INLINE vs32 load_dn(const uint16_t *d, i64 cs, i64 n)
 void VN(metraw_dither_grid)(u64 k1, u64 k2, i64 start, i64 rows, i64 cols, i64 row_step, i64 col_step, double *out)
 {
     for (i64 i = 0; i < rows; i++)
-        for (i64 j = 0; j < cols; j += 8) {
+        for (i64 j = 0; j < cols; j += VL) {
             const vd u = dither_value(dither24(k1, k2, start + i * row_step + j * col_step, col_step));
-            STOREN(double, out + i * cols + j, u, cols - j < 8 ? cols - j : 8);
+            STOREN(double, out + i * cols + j, u, cols - j < VL ? cols - j : VL);
         }
 }
 
@@ -147,8 +172,8 @@ void VN(metraw_forward)(const uint16_t *data, i64 rows, i64 cols, i64 row_stride
 {
     const fwd_t f = {black, inv_k, c, xmax, inv_step};
     for (i64 i = 0; i < rows; i++)
-        for (i64 j = 0; j < cols; j += 8) {
-            const i64 n = cols - j < 8 ? cols - j : 8;
+        for (i64 j = 0; j < cols; j += VL) {
+            const i64 n = cols - j < VL ? cols - j : VL;
             const vd y = __builtin_convertvector(load_dn(data + i * row_stride + j * col_stride, col_stride, n), vd);
             const vi s = forward8(y, LOADN(double, vd, u + i * cols + j, n), &f);
             STOREN(int32_t, out + i * cols + j, __builtin_convertvector(s, vs32), n);
@@ -161,13 +186,13 @@ i64 VN(metraw_plane_buffer)(const uint16_t *data, i64 rows, i64 cols, i64 row_st
                             double inv_step, i64 *p)
 {
     const fwd_t f = {black, inv_k, c, xmax, inv_step};
-    const vi lane = {0, 1, 2, 3, 4, 5, 6, 7};
+    const vi lane = IOTA;
     const i64 ws = cols + 4;
     vi sum = {0};
     for (i64 i = 0; i < rows; i++) {
         i64 *row = p + (i + 2) * ws;
-        for (i64 j = 0; j < cols; j += 8) {
-            const i64 n = cols - j < 8 ? cols - j : 8;
+        for (i64 j = 0; j < cols; j += VL) {
+            const i64 n = cols - j < VL ? cols - j : VL;
             const vd y = __builtin_convertvector(load_dn(data + i * row_stride + j * col_stride, col_stride, n), vd);
             const vu32 x = dither24(k1, k2, start + i * row_step + j * col_step, col_step);
             const vi s = forward8(y, dither_value(x), &f);
@@ -180,16 +205,16 @@ i64 VN(metraw_plane_buffer)(const uint16_t *data, i64 rows, i64 cols, i64 row_st
         row[cols + 2] = row[cols + 3] = row[cols + 1];
     }
     i64 total = 0;
-    for (int j = 0; j < 8; j++) total += sum[j];
+    for (int j = 0; j < VL; j++) total += sum[j];
     return total;
 }
 
 void VN(metraw_dither_fixed)(u64 k1, u64 k2, i64 start, i64 rows, i64 cols, i64 row_step, i64 col_step, int32_t *out)
 {
     for (i64 i = 0; i < rows; i++)
-        for (i64 j = 0; j < cols; j += 8) {
+        for (i64 j = 0; j < cols; j += VL) {
             const vu32 x = dither24(k1, k2, start + i * row_step + j * col_step, col_step);
-            STOREN(int32_t, out + i * cols + j, (vs32)(x >> 8) - (1 << 15), cols - j < 8 ? cols - j : 8);
+            STOREN(int32_t, out + i * cols + j, (vs32)(x >> 8) - (1 << 15), cols - j < VL ? cols - j : VL);
         }
 }
 
@@ -201,8 +226,8 @@ void VN(metraw_inverse_dn)(const int32_t *sym, i64 rows, i64 cols, u64 k1, u64 k
 {
     for (i64 i = 0; i < rows; i++) {
         uint16_t *o = out + i * out_row_stride;
-        for (i64 j = 0; j < cols; j += 8) {
-            const i64 n = cols - j < 8 ? cols - j : 8;
+        for (i64 j = 0; j < cols; j += VL) {
+            const i64 n = cols - j < VL ? cols - j : VL;
             const vd u = dither_value(dither24(k1, k2, start + i * row_step + j * col_step, col_step));
             const vd s = __builtin_convertvector(LOADN(int32_t, vs32, sym + i * cols + j, n), vd);
             const vd zh = (s - u) * half_step;
@@ -226,8 +251,8 @@ void VN(metraw_front)(const int32_t *s, const double *u, i64 h, i64 w, i64 c0s, 
     for (i64 k = 0; k < 2 * ws; k++) p[k] = c0s;
     for (i64 y = 0; y < h; y++) {
         i64 *row = p + (y + 2) * ws;
-        for (i64 x = 0; x < w; x += 8) {
-            const i64 n = w - x < 8 ? w - x : 8;
+        for (i64 x = 0; x < w; x += VL) {
+            const i64 n = w - x < VL ? w - x : VL;
             const vi sv = __builtin_convertvector(LOADN(int32_t, vs32, s + y * w + x, n), vi);
             const vi fu = vfloor(LOADN(double, vd, u + y * w + x, n) * 65536.0);
             STOREN(i64, row + 2 + x, (sv << 16) - fu, n);
@@ -242,8 +267,8 @@ void VN(metraw_index)(const int32_t *r, const int32_t *t, i64 n, i64 amax, i64 n
 {
     const i64 alpha = 2 * amax + 2;
     const int32_t a = (int32_t)amax, e = (int32_t)(alpha - 1);
-    for (i64 i = 0; i < n; i += 8) {
-        const i64 m = n - i < 8 ? n - i : 8;
+    for (i64 i = 0; i < n; i += VL) {
+        const i64 m = n - i < VL ? n - i : VL;
         const vs32 v = LOADN(int32_t, vs32, r + i, m);
         const vs32 out = (v > a) | (v < -a);
         STOREN(int32_t, idx + i, ((v + a) & ~out) | (((vs32){0} + e) & out), m);
@@ -251,55 +276,99 @@ void VN(metraw_index)(const int32_t *r, const int32_t *t, i64 n, i64 amax, i64 n
     index_counts(t, idx, n, alpha, nt, counts);
 }
 
-/* the causal neighbours of 8 pixels (names as in decoder._pixel) */
+/* the causal neighbours of VL pixels (names as in decoder._pixel) */
 typedef struct { vi W, WW, N, NW, NE, NE2, NW2, NN, NNW, NNE, NNW2, NNE2; } vnbr_t;
 
+/* the model's tables: T the 7 activity thresholds (padded with INT64_MAX); ct[8 k + c] tap k's coefficient of context
+ * c (taps 0-11, then 12: the bias; 8 contexts, unused ones zero); AVX2: lo[k], hi[k] the low and high 32 bits of tap
+ * k's 8 coefficients as 8 dwords, of which vpermd picks each lane's by its context */
+typedef struct {
+    vi T[7];
+    i64 ct[13 * 8];
+#if defined(VEC_AVX2)
+    __m256i lo[13], hi[13];
+#endif
+} vtab_t;
+
+INLINE void model_tables(const i64 *thr, i64 nthr, const i64 *coef13, vtab_t *vt)
+{
+    for (int k = 0; k < 7; k++) vt->T[k] = vset(k < nthr ? thr[k] : INT64_MAX);
+    for (int k = 0; k < 13; k++)
+        for (int c = 0; c < 8; c++) vt->ct[8 * k + c] = coef13[c * 13 + k];
+#if defined(VEC_AVX2)
+    for (int k = 0; k < 13; k++) {
+        int32_t lo[8], hi[8];
+        for (int c = 0; c < 8; c++) {
+            lo[c] = (int32_t)(uint32_t)vt->ct[8 * k + c];
+            hi[c] = (int32_t)(uint32_t)((u64)vt->ct[8 * k + c] >> 32);
+        }
+        vt->lo[k] = _mm256_loadu_si256((const __m256i *)lo);
+        vt->hi[k] = _mm256_loadu_si256((const __m256i *)hi);
+    }
+#endif
+}
+
+#if !defined(VEC_AVX2)
 /* a coefficient of each lane's context: tab8[C[j]] */
 INLINE vi lookup8(const i64 *tab8, vi C)
 {
     vi r;
-    for (int j = 0; j < 8; j++) r[j] = tab8[C[j]];
+    for (int j = 0; j < VL; j++) r[j] = tab8[C[j]];
     return r;
 }
+#endif
 
-/* activity context (to *Cp) and prediction W + ((sum_i k_i n_i - W sum_i k_i) >> 12) + bias (vpredict of _simd.c);
- * T: the 7 thresholds, ct[8 k + c]: tap k's coefficient of context c */
-INLINE vi vpredict(const vi *T, const i64 *ct, const vnbr_t *n, vi *Cp)
+/* activity context (to *Cp) and prediction W + ((sum_i k_i n_i - W sum_i k_i) >> 12) + bias (vpredict of _simd.c),
+ * mod 2^64 */
+INLINE vi vpredict(const vtab_t *m, const vnbr_t *n, vi *Cp)
 {
+    const vi *T = m->T;
     const vi act = vabs(n->W - n->NW) + vabs(n->N - n->NW) + vabs(n->N - n->NE) + vabs(n->W - n->WW)
                  + vabs(n->N - n->NN);
     const vi C = -((act > T[0]) + (act > T[1]) + (act > T[2]) + (act > T[3]) + (act > T[4]) + (act > T[5])
                    + (act > T[6]));
     *Cp = C;
+#if defined(VEC_AVX2)
+    /* sum k n = sum lo(k) lo(n) + 2^32 sum (lo(k) hi(n) + hi(k) lo(n)) mod 2^64: 3 pmuludq a tap, one shift in all.
+     * C's high dword is 0: vpermd puts context C's dword in each lane's low half (pmuludq reads only that) */
+    const __m256i ci = (__m256i)C;
+#define LO(k) ((vi)_mm256_permutevar8x32_epi32(m->lo[k], ci))
+#define HI(k) ((vi)_mm256_permutevar8x32_epi32(m->hi[k], ci))
+    vi lo = {0}, cr = {0};
+#define TAP(k, v, op) do { const vi x_ = (v), kl_ = LO(k); lo op vmulu32(x_, kl_); \
+                           cr op vmulu32((vi)((vu)x_ >> 32), kl_) + vmulu32(x_, HI(k)); } while (0)
+    TAP(0, n->N, +=); TAP(1, n->NW, +=); TAP(2, n->NE, +=); TAP(3, n->WW, +=); TAP(4, n->NN, +=);
+    TAP(5, n->NW2, +=); TAP(6, n->NNW, +=); TAP(7, n->NNE, +=); TAP(8, n->NE2, +=); TAP(9, n->NNW2, +=);
+    TAP(10, n->NNE2, +=); TAP(11, n->W, -=);
+#undef TAP
+    const vi a = lo + (cr << 32);
+    const vi bias = (vi)((vu)LO(12) & 0xFFFFFFFFULL) | (HI(12) << 32);
+#undef LO
+#undef HI
+#else
+    const i64 *ct = m->ct;
 #define KN(k, v) vmul(lookup8(ct + 8 * (k), C), v)
     const vi a = KN(0, n->N) + KN(1, n->NW) + KN(2, n->NE) + KN(3, n->WW) + KN(4, n->NN) + KN(5, n->NW2)
                + KN(6, n->NNW) + KN(7, n->NNE) + KN(8, n->NE2) + KN(9, n->NNW2) + KN(10, n->NNE2) - KN(11, n->W);
 #undef KN
-    return n->W + vsra(a, 12) + lookup8(ct + 8 * 12, C);
-}
-
-/* the 7 thresholds (padded with INT64_MAX past nthr) and the coefficients by tap, then context */
-INLINE void model_tables(const i64 *thr, i64 nthr, const i64 *coef13, vi *T, i64 *ct)
-{
-    for (int k = 0; k < 7; k++) T[k] = vset(k < nthr ? thr[k] : INT64_MAX);
-    for (int k = 0; k < 13; k++)
-        for (int c = 0; c < 8; c++) ct[8 * k + c] = coef13[c * 13 + k];
+    const vi bias = lookup8(ct + 8 * 12, C);
+#endif
+    return n->W + vsra(a, 12) + bias;
 }
 
 i64 VN(metraw_residuals)(const i64 *pf, i64 h, i64 w, const i64 *thr, i64 nthr, const i64 *coef13, i64 tab0,
                          i64 pshift, int32_t *r_out, int32_t *t_out)
 {
     const i64 ws = w + 4;
-    vi T[7];
-    i64 ct[13 * 8];
-    model_tables(thr, nthr, coef13, T, ct);
-    const vi lane = {0, 1, 2, 3, 4, 5, 6, 7};
+    vtab_t vt;
+    model_tables(thr, nthr, coef13, &vt);
+    const vi lane = IOTA;
     const int psh = (int)pshift, csh = (int)(2 - pshift);
     vi rmax = {0};
     for (i64 y = 0; y < h; y++) {
         const i64 *row = pf + (y + 2) * ws + 2;
-        for (i64 x = 0; x < w; x += 8) {
-            const i64 m = w - x < 8 ? w - x : 8;
+        for (i64 x = 0; x < w; x += VL) {
+            const i64 m = w - x < VL ? w - x : VL;
             const i64 *b = row + x;
 #define LD(o) LOADN(i64, vi, b + (o), m)
             const vnbr_t n = {.W = LD(-1), .WW = LD(-2), .N = LD(-ws), .NW = LD(-ws - 1), .NE = LD(-ws + 1),
@@ -308,7 +377,7 @@ i64 VN(metraw_residuals)(const i64 *pf, i64 h, i64 w, const i64 *thr, i64 nthr, 
             const vi P = LD(0);
 #undef LD
             vi C;
-            const vi acc = vpredict(T, ct, &n, &C);
+            const vi acc = vpredict(&vt, &n, &C);
             const vi sv = vsra(P + 32767, 16);
             const vi mh = acc + ((sv << 16) - P) + (1 << 15);
             vi r = sv - vsra(mh, 16);
@@ -324,7 +393,7 @@ i64 VN(metraw_residuals)(const i64 *pf, i64 h, i64 w, const i64 *thr, i64 nthr, 
         }
     }
     i64 out = 0;
-    for (int j = 0; j < 8; j++) out = rmax[j] > out ? rmax[j] : out;
+    for (int j = 0; j < VL; j++) out = rmax[j] > out ? rmax[j] : out;
     return out;
 }
 

@@ -1,21 +1,20 @@
 /* metraw.codec._simd, vector-extension kernels (included by _simd_vec.h): the decoder's steady part and the encoder's
- * rANS lanes, as steady and rans_lanes of _simd.c (see there: lane j of a group in element j, histories shifted
- * across lanes), with 8-lane vectors of whatever width the target has. */
+ * rANS lanes, as steady and rans_lanes of _simd.c (see there), with lanes of a group VL to a vector (8 or 16 lanes:
+ * 8 / VL or 16 / VL vectors). */
 
 typedef struct {
-    vi T[7];
-    i64 ct[13 * 8];
+    vtab_t tb;
     i64 tab0, alpha, amax, pshift, cshift;
     const void *lut; int lut16;
     const uint32_t *fcum; const uint16_t *words; const int32_t *esc;
 } vmodel_t;
 
-/* one step of 8 lanes (vstep of _simd.c); reads are kept inside the arrays in corrupt streams (positions clamped:
+/* one step of VL lanes (vstep of _simd.c); reads are kept inside the arrays in corrupt streams (positions clamped:
  * such a lane is rejected at the end of the steady part all the same) */
 INLINE vi vstep(const vmodel_t *m, const vnbr_t *n, vi UV, vi *Xp, vi *POSp, vi *EPOSp, vi EEND)
 {
     vi C;
-    const vi mh = vpredict(m->T, m->ct, n, &C) + (UV + (1 << 15));
+    const vi mh = vpredict(&m->tb, n, &C) + (UV + (1 << 15));
     const vi sh = vsra(mh, 16);
     const vi fr = mh & 0xFFFF;
     const vi f = 1 - (vi)((vu)fr >> 15);
@@ -25,86 +24,82 @@ INLINE vi vstep(const vmodel_t *m, const vnbr_t *n, vi UV, vi *Xp, vi *POSp, vi 
     vi X = *Xp;
     const vi slot = X & ((1 << PROB_BITS) - 1);
     const vi li = (t << PROB_BITS) + slot;
-    vi s;
-    if (m->lut16)
-        for (int j = 0; j < 8; j++) s[j] = ((const int16_t *)m->lut)[li[j]];
-    else
-        for (int j = 0; j < 8; j++) s[j] = ((const uint8_t *)m->lut)[li[j]];
+    const vi s = m->lut16 ? gather_s16((const int16_t *)m->lut, li) : gather_u8((const uint8_t *)m->lut, li);
     const vi fi = vmulu32(t, vset(m->alpha)) + s;
-    vi fc;
-    for (int j = 0; j < 8; j++) fc[j] = m->fcum[fi[j]];
+    const vi fc = gather_u32(m->fcum, fi);
     X = vmulu32((vi)((vu)fc >> 16), (vi)((vu)X >> PROB_BITS)) + (slot - (fc & 0xFFFF));
     const vi need = (vi)((vu)X < (vu){0} + RANS_L);
     const vi pos = *POSp & ~(*POSp < 0);   /* >= 0 */
-    vi wd;
-    for (int j = 0; j < 8; j++) wd[j] = m->words[pos[j]];
+    const vi wd = gather_u16(m->words, pos);
     *Xp = vsel(need, (X << 16) | wd, X);
     *POSp += need;
     const vi isesc = s == 2 * m->amax + 1;
     const vi ep = vsel(*EPOSp > EEND, EEND, *EPOSp);
-    vi ev;
-    for (int j = 0; j < 8; j++) ev[j] = m->esc[ep[j]];
+    const vi ev = gather_s32(m->esc, ep);
     const vi r = vsel(isesc, ev, s - m->amax);
     *EPOSp -= isesc;
     const vi v = sh + ((r ^ nf) + f);
     return (v << 16) - UV;
 }
 
+/* Ring of the lanes' last values: slot x & 15 holds column step x's, lane l of the group at column VL + l, the rows
+ * above lane 0 (the previous group's last two rows) as lanes -2 and -1 at columns VL - 2 and VL - 1. A lane's
+ * neighbours k steps back in itself and the one or two lanes above it are then one unaligned load (lanes shifted
+ * across vectors by the address, not by shuffles) */
+#define RING 16
+
 INLINE int steady(const int NV, i64 *pf, i64 y0, i64 w, const int32_t *u, const model_t *m, u64 *xs, i64 *pos,
                   const i64 *pmin, i64 *epos, const i64 *eend, i64 xs0, i64 x_last)
 {
+    const int NL = 8 * NV, NVV = NL / VL;
     const i64 ws = w + 4;
     const i64 b0 = (y0 + 2) * ws + 2;
     vmodel_t vm;
-    model_tables(m->thr, 7, m->coef, vm.T, vm.ct);
+    model_tables(m->thr, 7, m->coef, &vm.tb);
     vm.tab0 = m->tab0; vm.alpha = m->alpha; vm.amax = m->amax; vm.pshift = m->pshift; vm.cshift = 2 - m->pshift;
     vm.lut = m->lut; vm.lut16 = m->lut16; vm.fcum = m->fcum; vm.words = m->words; vm.esc = m->esc;
-    vi X[2], POS[2], EPOS[2], EEND[2], H[2][9], G[9];
-    for (int v = 0; v < NV; v++) {
-        memcpy(&X[v], xs + 8 * v, sizeof(vi));
-        memcpy(&POS[v], pos + 8 * v, sizeof(vi));
-        memcpy(&EPOS[v], epos + 8 * v, sizeof(vi));
-        memcpy(&EEND[v], eend + 8 * v, sizeof(vi));
-        const i64 *base = pf + b0 + 8 * v * (ws - 3) + xs0;
-        for (int k = 1; k <= 8; k++)
-            for (int j = 0; j < 8; j++) H[v][k][j] = base[j * (ws - 3) - k];
+    vi X[16 / VL], POS[16 / VL], EPOS[16 / VL], EEND[16 / VL];
+    i64 ring[RING][VL + 16] __attribute__((aligned(64)));
+    memset(ring, 0, sizeof ring);
+    for (int v = 0; v < NVV; v++) {
+        memcpy(&X[v], xs + VL * v, sizeof(vi));
+        memcpy(&POS[v], pos + VL * v, sizeof(vi));
+        memcpy(&EPOS[v], epos + VL * v, sizeof(vi));
+        memcpy(&EEND[v], eend + VL * v, sizeof(vi));
     }
     const i64 *R0 = pf + y0 * ws + 2;         /* two rows above lane 0 (image row y0 - 2) */
     const i64 *R1 = pf + (y0 + 1) * ws + 2;   /* row above lane 0 (image row y0 - 1) */
-    /* G[k]: lane 6 = R0[x + 6 - k], lane 7 = R1[x + 3 - k] (the rows above lane 0 as two more lanes' histories) */
-#define GV(x) ((vi){0, 0, 0, 0, 0, 0, R0[(x) + 6], R1[(x) + 3]})
-    for (int k = 1; k <= 8; k++) G[k] = GV(xs0 - k);
-    for (i64 x0 = xs0; x0 <= x_last; x0++) {
-        vi pv[2];
-        for (int v = 0; v < NV; v++) {
-            const vi *A = v ? H[v - 1] : G;    /* the history of the lanes above this vector's lane 0 */
-            const vi *B = H[v];
-            const vnbr_t n = {
-                .W = B[1], .WW = B[2], .N = UP1(B[3], A[3]), .NW = UP1(B[4], A[4]), .NE = UP1(B[2], A[2]),
-                .NE2 = UP1(B[1], A[1]), .NW2 = UP1(B[5], A[5]), .NN = UP2(B[6], A[6]), .NNW = UP2(B[7], A[7]),
-                .NNE = UP2(B[5], A[5]), .NNW2 = UP2(B[8], A[8]), .NNE2 = UP2(B[4], A[4])};
-            const int32_t *ub = u + (y0 + 8 * v) * w + x0 - 24 * v;
-            vi UV;
-            for (int j = 0; j < 8; j++) UV[j] = ub[j * (w - 3)];
-            pv[v] = vstep(&vm, &n, UV, &X[v], &POS[v], &EPOS[v], EEND[v]);
-        }
-        for (int v = 0; v < NV; v++) {
-            i64 *o = pf + b0 + 8 * v * (ws - 3) + x0;
-            for (int j = 0; j < 8; j++) o[j * (ws - 3)] = pv[v][j];
-            for (int k = 8; k > 1; k--) H[v][k] = H[v][k - 1];
-            H[v][1] = pv[v];
-        }
-        for (int k = 8; k > 1; k--) G[k] = G[k - 1];
-        G[1] = GV(x0);
+    for (int k = 1; k <= 8; k++) {
+        i64 *r = ring[(xs0 - k) & (RING - 1)];
+        r[VL - 2] = R0[xs0 - k + 6];
+        r[VL - 1] = R1[xs0 - k + 3];
+        for (int l = 0; l < NL; l++) r[VL + l] = pf[b0 + l * (ws - 3) + xs0 - k];
     }
-#undef GV
-    for (int v = 0; v < NV; v++)
-        for (int j = 0; j < 8; j++)
-            if (POS[v][j] < pmin[8 * v + j] || EPOS[v][j] > eend[8 * v + j]) return 0;
-    for (int v = 0; v < NV; v++) {
-        memcpy(xs + 8 * v, &X[v], sizeof(vi));
-        memcpy(pos + 8 * v, &POS[v], sizeof(vi));
-        memcpy(epos + 8 * v, &EPOS[v], sizeof(vi));
+    const vi uidx = (vi)IOTA * (w - 3);   /* dither offset of lane j of a vector */
+    for (i64 x0 = xs0; x0 <= x_last; x0++) {
+        i64 *out = ring[x0 & (RING - 1)];
+        for (int v = 0; v < NVV; v++) {
+            const int c = VL + VL * v;   /* this vector's lane 0 */
+#define RW(k, sh) LOADV(vi, &ring[(x0 - (k)) & (RING - 1)][c - (sh)])
+            const vnbr_t n = {.W = RW(1, 0), .WW = RW(2, 0), .N = RW(3, 1), .NW = RW(4, 1), .NE = RW(2, 1),
+                              .NE2 = RW(1, 1), .NW2 = RW(5, 1), .NN = RW(6, 2), .NNW = RW(7, 2), .NNE = RW(5, 2),
+                              .NNW2 = RW(8, 2), .NNE2 = RW(4, 2)};
+#undef RW
+            const vi UV = gather_s32(u + (y0 + VL * v) * w + x0 - 3 * VL * v, uidx);
+            const vi pv = vstep(&vm, &n, UV, &X[v], &POS[v], &EPOS[v], EEND[v]);
+            memcpy(&out[c], &pv, sizeof pv);
+        }
+        out[VL - 2] = R0[x0 + 6];
+        out[VL - 1] = R1[x0 + 3];
+        for (int l = 0; l < NL; l++) pf[b0 + l * (ws - 3) + x0] = out[VL + l];
+    }
+    for (int v = 0; v < NVV; v++)
+        for (int j = 0; j < VL; j++)
+            if (POS[v][j] < pmin[VL * v + j] || EPOS[v][j] > eend[VL * v + j]) return 0;
+    for (int v = 0; v < NVV; v++) {
+        memcpy(xs + VL * v, &X[v], sizeof(vi));
+        memcpy(pos + VL * v, &POS[v], sizeof(vi));
+        memcpy(epos + VL * v, &EPOS[v], sizeof(vi));
     }
     return 1;
 }
@@ -133,26 +128,39 @@ INLINE vu vtrunc(vd v)
     return (vu)((vi)((vu)t - 0x4330000000000000ULL) + (vi)(t - 0x1p52 > v));
 }
 
-/* rans_lanes of _simd.c: symbols k = lo - 1 .. 0 of 8 NV lanes side by side */
+/* whether every lane of a mask (-1 / 0 lanes) is set */
+INLINE int vall(vi m)
+{
+#if defined(VEC_AVX2)
+    return _mm256_movemask_pd((__m256d)m) == 15;
+#else
+    for (int j = 0; j < VL; j++)
+        if (!m[j]) return 0;
+    return 1;
+#endif
+}
+
+/* rans_lanes of _simd.c: symbols k = lo - 1 .. 0 of 8 NV lanes side by side, VL to a vector */
 INLINE void rans_lanes(const int NV, const int32_t *ent, const u64 *fc, const i64 *rs, const i64 *rl, uint16_t *out,
                        i64 lo, u64 *xs, i64 *nws, i64 *ci, i64 *ce, i64 *cq, const i64 *o)
 {
-    vu X[2];
-    vi NW[2], I[2], E[2], Q[2], O[2];
-    for (int v = 0; v < NV; v++) {
-        memcpy(&X[v], xs + 8 * v, sizeof(vi)); memcpy(&NW[v], nws + 8 * v, sizeof(vi));
-        memcpy(&I[v], ci + 8 * v, sizeof(vi)); memcpy(&E[v], ce + 8 * v, sizeof(vi));
-        memcpy(&Q[v], cq + 8 * v, sizeof(vi)); memcpy(&O[v], o + 8 * v, sizeof(vi));
+    const int NVV = 8 * NV / VL;
+    vu X[16 / VL];
+    vi NW[16 / VL], I[16 / VL], E[16 / VL], Q[16 / VL], O[16 / VL];
+    for (int v = 0; v < NVV; v++) {
+        memcpy(&X[v], xs + VL * v, sizeof(vi)); memcpy(&NW[v], nws + VL * v, sizeof(vi));
+        memcpy(&I[v], ci + VL * v, sizeof(vi)); memcpy(&E[v], ce + VL * v, sizeof(vi));
+        memcpy(&Q[v], cq + VL * v, sizeof(vi)); memcpy(&O[v], o + VL * v, sizeof(vi));
     }
     for (i64 k = lo - 1; k >= 0; k--) {
-        for (int v = 0; v < NV; v++) {
-            vu FC;
-            for (int j = 0; j < 8; j++) FC[j] = fc[ent[I[v][j]]];
+        for (int v = 0; v < NVV; v++) {
+            const vu FC = (vu)gather_64(fc, gather_s32(ent, I[v]));
             const vu F = FC & 0xFFFFFFFFULL, C = FC >> 32;
             const vd R = 1.0 / vu2d(F);
             const vi emit = (vi)(X[v] >= F << (32 - PROB_BITS));
             /* every lane writes its low word at its next slot whether it emits or not, as the scalar coder */
-            for (int j = 0; j < 8; j++) out[O[v][j] + NW[v][j]] = (uint16_t)X[v][j];
+            const vi at = O[v] + NW[v];
+            for (int j = 0; j < VL; j++) out[at[j]] = (uint16_t)X[v][j];
             NW[v] -= emit;
             const vu Xs = (vu)vsel(emit, (vi)(X[v] >> 16), (vi)X[v]);
             const vu q = vtrunc(vu2d(Xs) * R + 1.52587890625e-05);
@@ -161,19 +169,20 @@ INLINE void rans_lanes(const int NV, const int32_t *ent, const u64 *fc, const i6
             if (k > 0) {
                 const vi inrow = I[v] > E[v];
                 I[v] += inrow;
-                for (int j = 0; j < 8; j++)
-                    if (!inrow[j]) {
-                        const i64 r = Q[v][j] - 1;
-                        I[v][j] = rs[r] + rl[r] - 1;
-                        E[v][j] = rs[r];
-                        Q[v][j] = r;
-                    }
+                if (!vall(inrow))
+                    for (int j = 0; j < VL; j++)
+                        if (!inrow[j]) {
+                            const i64 r = Q[v][j] - 1;
+                            I[v][j] = rs[r] + rl[r] - 1;
+                            E[v][j] = rs[r];
+                            Q[v][j] = r;
+                        }
             }
         }
     }
-    for (int v = 0; v < NV; v++) {
-        memcpy(xs + 8 * v, &X[v], sizeof(vi));
-        memcpy(nws + 8 * v, &NW[v], sizeof(vi));
+    for (int v = 0; v < NVV; v++) {
+        memcpy(xs + VL * v, &X[v], sizeof(vi));
+        memcpy(nws + VL * v, &NW[v], sizeof(vi));
     }
 }
 
