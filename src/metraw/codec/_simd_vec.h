@@ -112,10 +112,11 @@ INLINE vi gather_u8(const uint8_t *b, vi idx) GATHER_LOOP(uint8_t)
 INLINE vi gather_64(const u64 *b, vi idx) GATHER_LOOP(u64)
 #endif
 
-/* n <= VL values from p (zeros past n) and to p */
+/* n <= VL values from p (zeros past n) and to p (n = VL: one load or store, not a memcpy call) */
 #define LOADN(T, V, p, n) ({ V v_ = {0}; if ((n) == VL) { memcpy(&v_, (p), sizeof v_); } \
                              else { memcpy(&v_, (p), (size_t)(n) * sizeof(T)); } v_; })
-#define STOREN(T, p, v, n) do { __typeof__(v) s_ = (v); memcpy((p), &s_, (size_t)(n) * sizeof(T)); } while (0)
+#define STOREN(T, p, v, n) do { __typeof__(v) s_ = (v); if ((n) == VL) { memcpy((p), &s_, VL * sizeof(T)); } \
+                                 else { memcpy((p), &s_, (size_t)(n) * sizeof(T)); } } while (0)
 #define LOADV(V, p) ({ V v_; memcpy(&v_, (p), sizeof v_); v_; })
 
 /* ---- the dither and the transforms (_simd_prepare.c): VL pixels a step ---- */
@@ -151,8 +152,24 @@ INLINE vi forward8(vd y, vd u, const fwd_t *f)
 }
 
 /* n <= VL DN at stride cs as int32 */
-INLINE vs32 load_dn(const uint16_t *d, i64 cs, i64 n)
+INLINE vs32 load_dn(const uint16_t *d, i64 cs, i64 n, int more)
 {
+    /* contiguous or every other (a CFA plane): one load (the latter reads d[2 VL - 1], inside the row where more DN
+     * follow); else lane by lane (through the stack: a store-forwarding stall a vector) */
+    typedef uint16_t vu16 __attribute__((vector_size(2 * VL)));
+    typedef uint16_t vu16x2 __attribute__((vector_size(4 * VL)));
+    if (n == VL && cs == 1) return __builtin_convertvector(LOADV(vu16, d), vs32);
+#if VL == 4
+    if (n == VL && cs == 2 && more) {
+        const vu16x2 t = LOADV(vu16x2, d);
+        return __builtin_convertvector(__builtin_shufflevector(t, t, 0, 2, 4, 6), vs32);
+    }
+#else
+    if (n == VL && cs == 2 && more) {
+        const vu16x2 t = LOADV(vu16x2, d);
+        return __builtin_convertvector(__builtin_shufflevector(t, t, 0, 2), vs32);
+    }
+#endif
     vs32 v = {0};
     for (i64 k = 0; k < n; k++) v[k] = d[k * cs];
     return v;
@@ -174,7 +191,7 @@ void VN(metraw_forward)(const uint16_t *data, i64 rows, i64 cols, i64 row_stride
     for (i64 i = 0; i < rows; i++)
         for (i64 j = 0; j < cols; j += VL) {
             const i64 n = cols - j < VL ? cols - j : VL;
-            const vd y = __builtin_convertvector(load_dn(data + i * row_stride + j * col_stride, col_stride, n), vd);
+            const vd y = __builtin_convertvector(load_dn(data + i * row_stride + j * col_stride, col_stride, n, j + VL < cols), vd);
             const vi s = forward8(y, LOADN(double, vd, u + i * cols + j, n), &f);
             STOREN(int32_t, out + i * cols + j, __builtin_convertvector(s, vs32), n);
         }
@@ -193,7 +210,7 @@ i64 VN(metraw_plane_buffer)(const uint16_t *data, i64 rows, i64 cols, i64 row_st
         i64 *row = p + (i + 2) * ws;
         for (i64 j = 0; j < cols; j += VL) {
             const i64 n = cols - j < VL ? cols - j : VL;
-            const vd y = __builtin_convertvector(load_dn(data + i * row_stride + j * col_stride, col_stride, n), vd);
+            const vd y = __builtin_convertvector(load_dn(data + i * row_stride + j * col_stride, col_stride, n, j + VL < cols), vd);
             const vu32 x = dither24(k1, k2, start + i * row_step + j * col_step, col_step);
             const vi s = forward8(y, dither_value(x), &f);
             const vi s32 = __builtin_convertvector(__builtin_convertvector(s, vs32), vi);   /* as stored */
@@ -233,7 +250,11 @@ void VN(metraw_inverse_dn)(const int32_t *sym, i64 rows, i64 cols, u64 k1, u64 k
             const vd zh = (s - u) * half_step;
             const vd v = vmind(vmaxd(k * (zh * zh) + offset, (vd){0}), (vd){0} + 65535.0);
             const vi dn = vrint(v);
-            if (out_col_stride == 1) {
+            if (out_col_stride == 1 && n == VL) {
+                typedef uint16_t vu16 __attribute__((vector_size(2 * VL)));
+                const vu16 o16 = __builtin_convertvector(dn, vu16);
+                memcpy(o + j, &o16, sizeof o16);
+            } else if (out_col_stride == 1) {
                 for (i64 q = 0; q < n; q++) o[j + q] = (uint16_t)dn[q];
             } else {
                 for (i64 q = 0; q < n; q++) o[(j + q) * out_col_stride] = (uint16_t)dn[q];

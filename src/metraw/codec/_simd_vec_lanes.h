@@ -44,8 +44,16 @@ INLINE vi vstep(const vmodel_t *m, const vnbr_t *n, vi UV, vi *Xp, vi *POSp, vi 
 
 /* Ring of the lanes' last values: slot x & 15 holds column step x's, lane l of the group at column VL + l, the rows
  * above lane 0 (the previous group's last two rows) as lanes -2 and -1 at columns VL - 2 and VL - 1. A lane's
- * neighbours k steps back in itself and the one or two lanes above it are then one unaligned load (lanes shifted
- * across vectors by the address, not by shuffles) */
+ * neighbours k steps back in itself and the one or two lanes above it: two aligned loads (a vector and the one above
+ * it), one shuffle (unaligned loads across two recent vector stores would stall store forwarding) */
+/* lanes shifted up by one (two) across a pair: [a_{VL-1}, b_0 .. b_{VL-2}] ([a_{VL-2}, a_{VL-1}, b_0 ..]) */
+#if VL == 4
+#define UP1(b, a) SHUF(a, b, 3, 4, 5, 6)
+#define UP2(b, a) SHUF(a, b, 2, 3, 4, 5)
+#else
+#define UP1(b, a) SHUF(a, b, 1, 2)
+#define UP2(b, a) (a)
+#endif
 #define RING 16
 
 INLINE int steady(const int NV, i64 *pf, i64 y0, i64 w, const int32_t *u, const model_t *m, u64 *xs, i64 *pos,
@@ -80,11 +88,15 @@ INLINE int steady(const int NV, i64 *pf, i64 y0, i64 w, const int32_t *u, const 
         i64 *out = ring[x0 & (RING - 1)];
         for (int v = 0; v < NVV; v++) {
             const int c = VL + VL * v;   /* this vector's lane 0 */
-#define RW(k, sh) LOADV(vi, &ring[(x0 - (k)) & (RING - 1)][c - (sh)])
+#define RB(k) LOADV(vi, &ring[(x0 - (k)) & (RING - 1)][c])
+#define RA(k) LOADV(vi, &ring[(x0 - (k)) & (RING - 1)][c - VL])
+#define RW(k, sh) ((sh) == 0 ? RB(k) : (sh) == 1 ? UP1(RB(k), RA(k)) : UP2(RB(k), RA(k)))
             const vnbr_t n = {.W = RW(1, 0), .WW = RW(2, 0), .N = RW(3, 1), .NW = RW(4, 1), .NE = RW(2, 1),
                               .NE2 = RW(1, 1), .NW2 = RW(5, 1), .NN = RW(6, 2), .NNW = RW(7, 2), .NNE = RW(5, 2),
                               .NNW2 = RW(8, 2), .NNE2 = RW(4, 2)};
 #undef RW
+#undef RA
+#undef RB
             const vi UV = gather_s32(u + (y0 + VL * v) * w + x0 - 3 * VL * v, uidx);
             const vi pv = vstep(&vm, &n, UV, &X[v], &POS[v], &EPOS[v], EEND[v]);
             memcpy(&out[c], &pv, sizeof pv);
