@@ -3,8 +3,8 @@
  * _simd_driver.c: the scalar parts (the decoder's general path and row-group schedule, the rANS pass's scalar part,
  *   the alphabet counts), the paths this CPU can run, the interface version;
  * _simd.c, _simd_prepare.c: the AVX-512 kernels (the coder's loops; the dither and transforms);
- * _simd_vec.h: the same kernels once more in GCC / Clang vector extensions (8 lanes of 64 bits), instantiated for AVX2
- *   by _simd_avx2.c and for any CPU by _simd_portable.c.
+ * _simd_vec.h: the same kernels once more in GCC / Clang vector extensions (vectors of a register's width: 4 or 2
+ *   lanes of 64 bits), instantiated for AVX2 by _simd_avx2.c and for any CPU by _simd_portable.c.
  * Every path exports the same functions, metraw_<name>_<path> (path avx512, avx2, portable); metraw.codec.native binds
  * those of the path it runs. */
 #ifndef METRAW_SIMD_H

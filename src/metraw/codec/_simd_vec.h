@@ -1,11 +1,12 @@
-/* metraw.codec._simd, the kernels of _simd.c and _simd_prepare.c once more in GCC / Clang vector extensions: 8 lanes
- * of 64 bits (the decoder's lanes, the encoder's pixels) or of 32 (the dither hash), written once and compiled per
- * target by the file that includes this one: _simd_avx2.c (AVX2, FMA, BMI2: each vector two 256-bit registers) and
- * _simd_portable.c (any CPU; SSE2 on x86-64, NEON on ARM, or scalar code). The includer defines VEC_PATH (the
- * functions' suffix) and, for AVX2, VEC_AVX2. Same values as the AVX-512 kernels and the numba loops, to the bit:
- * integer arithmetic wraps (-fwrapv), float64 one IEEE operation at a time (-ffp-contract=off: no fused multiply-add),
- * and rounding to integers by adding 1.5 2^52 (round to nearest even, exact for |z| < 2^51: symbols, DN and rANS
- * quotients are far below it). Gathers and scatters are element loops (the compiler picks the instructions). */
+/* metraw.codec._simd, the kernels of _simd.c and _simd_prepare.c once more in GCC / Clang vector extensions: vectors
+ * of one register (VL lanes of 64 bits: the decoder's lanes, the encoder's pixels; or of 32: the dither hash),
+ * written once and compiled per target by the file that includes this one: _simd_avx2.c (AVX2, FMA, BMI2: VL = 4, a
+ * 256-bit register, with AVX2 gathers and vpermd lookups) and _simd_portable.c (any CPU; VL = 2: SSE2 on x86-64, NEON
+ * on ARM, or scalar code). The includer defines VEC_PATH (the functions' suffix) and, for AVX2, VEC_AVX2. Same values
+ * as the AVX-512 kernels and the numba loops, to the bit: integer arithmetic wraps (-fwrapv), float64 one IEEE
+ * operation at a time (-ffp-contract=off: no fused multiply-add), and rounding to integers by adding 1.5 2^52 (round
+ * to nearest even, exact for |z| < 2^51: symbols, DN and rANS quotients are far below it). Scatters, and the portable
+ * build's gathers, are element loops. */
 #include "_simd.h"
 
 #define VCAT2(a, b) a##_##b

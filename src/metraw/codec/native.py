@@ -8,8 +8,8 @@ One extension, ``metraw.codec._simd``, holds every path, chosen at import by wha
 as numpy and libjpeg-turbo do; ``PATHS`` best first):
 
 - ``avx512``: AVX-512 F and DQ intrinsics (``_simd.c``, ``_simd_prepare.c``);
-- ``avx2``: the kernels of ``_simd_vec.h`` (GCC / Clang vector extensions, 8 lanes of 64 bits) compiled for AVX2 with
-  FMA and BMI2 (``_simd_avx2.c``, a target pragma: no special build flags);
+- ``avx2``: the kernels of ``_simd_vec.h`` (GCC / Clang vector extensions, 4 lanes of 64 bits a register, AVX2
+  gathers) compiled for AVX2 with FMA and BMI2 (``_simd_avx2.c``, a target pragma: no special build flags);
 - ``portable``: the same kernels compiled for the build's default target (``_simd_portable.c``: any CPU, ARM
   included);
 - ``numba``: no library (not built: no C compiler), the codec's numba loops (``decoder.decode_plane``,
