@@ -168,6 +168,34 @@ def test_compiled_causal_buffer_is_numbas():
 
 
 @needs_native
+def test_compiled_residual_pass_is_numbas_beyond_int32():
+    """The residual pass against numba's where the buffer's values or the coefficients leave int32 (the AVX2 path
+    multiplies int32 neighbours by one 32-bit multiply, other rows by the exact 64-bit sums): rows of large values
+    between ordinary ones, coefficients beyond 2^31, partial last vectors."""
+    from metraw.codec.decoder import predictor_table
+
+    rng = np.random.default_rng(11)
+    for h, w, big_coef in [(9, 13, False), (12, 37, False), (7, 20, True)]:
+        s = rng.integers(-300, 3000, (h, w)).astype(np.int32)
+        u = rng.uniform(-0.5, 0.5, (h, w))
+        p = predictive._front(s, u, np.int64(int(predictive._mean_symbol(s))) << 16)
+        p[5, 3:9] += np.int64(1) << 40           # rows 3-5 of the plane see them
+        p[8, w // 2] = -(np.int64(1) << 31) - 1   # just below int32
+        thr = np.sort(rng.integers(0, 1 << 20, 3)).astype(np.int64)
+        coef = rng.integers(-3000, 3000, (4, 11)).astype(np.int64)
+        if big_coef:
+            coef[2, 4] = (1 << 33) + 5
+        bias = rng.integers(-1000, 1000, 4).astype(np.int64)
+        got = [np.zeros(h * w + 3, np.int32) for _ in range(2)]
+        ref = [np.zeros(h * w + 3, np.int32) for _ in range(2)]
+        mg = native.residuals(p, thr, predictor_table(coef, bias), 5, 1, *got, 3)
+        mr = predictive._residuals(p, thr, coef.ravel(), bias, 5, 1, *ref, 3)
+        np.testing.assert_array_equal(got[0], ref[0])
+        np.testing.assert_array_equal(got[1], ref[1])
+        assert mg == mr
+
+
+@needs_native
 def test_compiled_plane_buffer_is_dither_forward_and_front(monkeypatch):
     """The encoder's one-pass plane buffer (dither, forward transform and causal buffer from the DN) against the three
     steps in numba (``_dither_grid_kernel``, ``_forward_kernel``, ``_front_c0``), exactly: CFA cells of 1 to 4 pixels

@@ -309,6 +309,7 @@ typedef struct {
     i64 ct[13 * 8];
 #if defined(VEC_AVX2)
     __m256i lo[13], hi[13];
+    int k32;   /* every tap's coefficient (taps 0-11) is an int32 */
 #endif
 } vtab_t;
 
@@ -327,6 +328,8 @@ INLINE void model_tables(const i64 *thr, i64 nthr, const i64 *coef13, vtab_t *vt
         vt->lo[k] = _mm256_loadu_si256((const __m256i *)lo);
         vt->hi[k] = _mm256_loadu_si256((const __m256i *)hi);
     }
+    vt->k32 = 1;
+    for (int k = 0; k < 12 * 8; k++) vt->k32 &= vt->ct[k] == (i64)(int32_t)vt->ct[k];
 #endif
 }
 
@@ -342,7 +345,7 @@ INLINE vi lookup8(const i64 *tab8, vi C)
 
 /* activity context (to *Cp) and prediction W + ((sum_i k_i n_i - W sum_i k_i) >> 12) + bias (vpredict of _simd.c),
  * mod 2^64 */
-INLINE vi vpredict(const vtab_t *m, const vnbr_t *n, vi *Cp)
+INLINE vi vpredict_(const vtab_t *m, const vnbr_t *n, vi *Cp, const int n32)
 {
     const vi *T = m->T;
     const vi act = vabs(n->W - n->NW) + vabs(n->N - n->NW) + vabs(n->N - n->NE) + vabs(n->W - n->WW)
@@ -356,14 +359,27 @@ INLINE vi vpredict(const vtab_t *m, const vnbr_t *n, vi *Cp)
     const __m256i ci = (__m256i)C;
 #define LO(k) ((vi)_mm256_permutevar8x32_epi32(m->lo[k], ci))
 #define HI(k) ((vi)_mm256_permutevar8x32_epi32(m->hi[k], ci))
-    vi lo = {0}, cr = {0};
+    vi a;
+    if (n32) {
+        /* every neighbour and coefficient an int32: each product exact from one signed 32 x 32 -> 64-bit multiply
+         * (pmuldq), so the sum is the same mod 2^64 */
+        vi s = {0};
+#define TAP(k, v, op) s op (vi)_mm256_mul_epi32((__m256i)(v), (__m256i)LO(k))
+        TAP(0, n->N, +=); TAP(1, n->NW, +=); TAP(2, n->NE, +=); TAP(3, n->WW, +=); TAP(4, n->NN, +=);
+        TAP(5, n->NW2, +=); TAP(6, n->NNW, +=); TAP(7, n->NNE, +=); TAP(8, n->NE2, +=); TAP(9, n->NNW2, +=);
+        TAP(10, n->NNE2, +=); TAP(11, n->W, -=);
+#undef TAP
+        a = s;
+    } else {
+        vi lo = {0}, cr = {0};
 #define TAP(k, v, op) do { const vi x_ = (v), kl_ = LO(k); lo op vmulu32(x_, kl_); \
                            cr op vmulu32((vi)((vu)x_ >> 32), kl_) + vmulu32(x_, HI(k)); } while (0)
-    TAP(0, n->N, +=); TAP(1, n->NW, +=); TAP(2, n->NE, +=); TAP(3, n->WW, +=); TAP(4, n->NN, +=);
-    TAP(5, n->NW2, +=); TAP(6, n->NNW, +=); TAP(7, n->NNE, +=); TAP(8, n->NE2, +=); TAP(9, n->NNW2, +=);
-    TAP(10, n->NNE2, +=); TAP(11, n->W, -=);
+        TAP(0, n->N, +=); TAP(1, n->NW, +=); TAP(2, n->NE, +=); TAP(3, n->WW, +=); TAP(4, n->NN, +=);
+        TAP(5, n->NW2, +=); TAP(6, n->NNW, +=); TAP(7, n->NNE, +=); TAP(8, n->NE2, +=); TAP(9, n->NNW2, +=);
+        TAP(10, n->NNE2, +=); TAP(11, n->W, -=);
 #undef TAP
-    const vi a = lo + (cr << 32);
+        a = lo + (cr << 32);
+    }
     const vi bias = (vi)((vu)LO(12) & 0xFFFFFFFFULL) | (HI(12) << 32);
 #undef LO
 #undef HI
@@ -377,6 +393,47 @@ INLINE vi vpredict(const vtab_t *m, const vnbr_t *n, vi *Cp)
 #endif
     return n->W + vsra(a, 12) + bias;
 }
+INLINE vi vpredict(const vtab_t *m, const vnbr_t *n, vi *Cp) { return vpredict_(m, n, Cp, 0); }
+
+/* VL pixels of a row (m <= VL of them): residuals and table indices out, |r| of the m into *rmax; n32: every
+ * neighbour an int32 (vpredict_) */
+INLINE void residual_step(const vtab_t *vt, const i64 *b, i64 ws, i64 m, i64 tab0, int psh, int csh, int32_t *ro,
+                          int32_t *to, vi *rmax, const int n32)
+{
+#define LD(o) LOADN(i64, vi, b + (o), m)
+    const vnbr_t n = {.W = LD(-1), .WW = LD(-2), .N = LD(-ws), .NW = LD(-ws - 1), .NE = LD(-ws + 1),
+                      .NE2 = LD(-ws + 2), .NW2 = LD(-ws - 2), .NN = LD(-2 * ws), .NNW = LD(-2 * ws - 1),
+                      .NNE = LD(-2 * ws + 1), .NNW2 = LD(-2 * ws - 2), .NNE2 = LD(-2 * ws + 2)};
+    const vi P = LD(0);
+#undef LD
+    vi C;
+    const vi acc = vpredict_(vt, &n, &C, n32);
+    const vi sv = vsra(P + 32767, 16);
+    const vi mh = acc + ((sv << 16) - P) + (1 << 15);
+    vi r = sv - vsra(mh, 16);
+    vi fr = mh & 0xFFFF;
+    const vi f = 1 - (vi)((vu)fr >> 15);
+    const vi nf = -f;
+    fr ^= nf & 0xFFFF;
+    r = (r ^ nf) + f;
+    const vi t = tab0 + (C << csh) + (vi)((((vu)fr >> 13) & 3) >> psh);
+    STOREN(int32_t, ro, __builtin_convertvector(r, vs32), m);
+    STOREN(int32_t, to, __builtin_convertvector(t, vs32), m);
+    const vi lane = IOTA;
+    *rmax = vmax(*rmax, vabs(r) & (lane < m));
+}
+
+/* whether every value of a padded row (n of them) is an int32: the OR of the values + 2^31 is below 2^32 */
+INLINE int row_fits32(const i64 *row, i64 n)
+{
+    vu acc = {0};
+    i64 k = 0;
+    for (; k + VL <= n; k += VL) acc |= (vu)LOADV(vi, row + k) + 0x80000000ULL;
+    u64 a = 0;
+    for (; k < n; k++) a |= (u64)row[k] + 0x80000000ULL;
+    for (int j = 0; j < VL; j++) a |= acc[j];
+    return a >> 32 == 0;
+}
 
 i64 VN(metraw_residuals)(const i64 *pf, i64 h, i64 w, const i64 *thr, i64 nthr, const i64 *coef13, i64 tab0,
                          i64 pshift, int32_t *r_out, int32_t *t_out)
@@ -384,35 +441,26 @@ i64 VN(metraw_residuals)(const i64 *pf, i64 h, i64 w, const i64 *thr, i64 nthr, 
     const i64 ws = w + 4;
     vtab_t vt;
     model_tables(thr, nthr, coef13, &vt);
-    const vi lane = IOTA;
     const int psh = (int)pshift, csh = (int)(2 - pshift);
     vi rmax = {0};
+#if defined(VEC_AVX2)
+    /* rows of the padded buffer (y + 2 the image's row y) whose values are all int32s; a pixel whose three rows are
+     * takes one signed 32-bit multiply a tap where the coefficients are int32s too (the same sums) */
+    int fit[3] = {row_fits32(pf, ws), row_fits32(pf + ws, ws), 0};
+#endif
     for (i64 y = 0; y < h; y++) {
         const i64 *row = pf + (y + 2) * ws + 2;
-        for (i64 x = 0; x < w; x += VL) {
-            const i64 m = w - x < VL ? w - x : VL;
-            const i64 *b = row + x;
-#define LD(o) LOADN(i64, vi, b + (o), m)
-            const vnbr_t n = {.W = LD(-1), .WW = LD(-2), .N = LD(-ws), .NW = LD(-ws - 1), .NE = LD(-ws + 1),
-                              .NE2 = LD(-ws + 2), .NW2 = LD(-ws - 2), .NN = LD(-2 * ws), .NNW = LD(-2 * ws - 1),
-                              .NNE = LD(-2 * ws + 1), .NNW2 = LD(-2 * ws - 2), .NNE2 = LD(-2 * ws + 2)};
-            const vi P = LD(0);
-#undef LD
-            vi C;
-            const vi acc = vpredict(&vt, &n, &C);
-            const vi sv = vsra(P + 32767, 16);
-            const vi mh = acc + ((sv << 16) - P) + (1 << 15);
-            vi r = sv - vsra(mh, 16);
-            vi fr = mh & 0xFFFF;
-            const vi f = 1 - (vi)((vu)fr >> 15);
-            const vi nf = -f;
-            fr ^= nf & 0xFFFF;
-            r = (r ^ nf) + f;
-            const vi t = tab0 + (C << csh) + (vi)((((vu)fr >> 13) & 3) >> psh);
-            STOREN(int32_t, r_out + y * w + x, __builtin_convertvector(r, vs32), m);
-            STOREN(int32_t, t_out + y * w + x, __builtin_convertvector(t, vs32), m);
-            rmax = vmax(rmax, vabs(r) & (lane < m));
-        }
+        int32_t *ro = r_out + y * w, *to = t_out + y * w;
+        i64 x = 0;
+#if defined(VEC_AVX2)
+        fit[2] = row_fits32(row - 2, ws);
+        if (vt.k32 && fit[0] && fit[1] && fit[2])
+            for (; x + VL <= w; x += VL) residual_step(&vt, row + x, ws, VL, tab0, psh, csh, ro + x, to + x, &rmax, 1);
+        fit[0] = fit[1];
+        fit[1] = fit[2];
+#endif
+        for (; x + VL <= w; x += VL) residual_step(&vt, row + x, ws, VL, tab0, psh, csh, ro + x, to + x, &rmax, 0);
+        if (x < w) residual_step(&vt, row + x, ws, w - x, tab0, psh, csh, ro + x, to + x, &rmax, 0);
     }
     i64 out = 0;
     for (int j = 0; j < VL; j++) out = rmax[j] > out ? rmax[j] : out;
