@@ -153,27 +153,27 @@ INLINE int vall(vi m)
 }
 
 /* rans_lanes of _simd.c: symbols k = lo - 1 .. 0 of 8 NV lanes side by side, VL to a vector. The words go out in
- * blocks of RB steps: each step's slots and low words to a buffer (vector stores), then to out lane by lane. Stores
- * to out at slots that the lanes' states decide, among the loop's gathers, made the gathers wait for those slots (the
- * store addresses) and so for the states: canon_dng 1-thread, forced AVX2 on an AVX-512 Xeon, 17.4 -> 8.4-9.1 ms
- * (2026-11-28; gathering the reciprocals instead of dividing, or one gather of a per-symbol table entry instead of two
- * chained, measured slower). */
-#define RB 32
+ * blocks of RANS_BLOCK steps: each step's slots and low words to a buffer (vector stores), then to out lane by lane.
+ * Stores to out at slots that the lanes' states decide, among the loop's gathers, made the gathers wait for those
+ * slots (the store addresses) and so for the states: canon_dng 1-thread, forced AVX2 on an AVX-512 Xeon, 17.4 ->
+ * 8.4-9.1 ms (2026-11-28; gathering the reciprocals instead of dividing, or one gather of a per-symbol table entry
+ * instead of two chained, measured slower). */
+#define RANS_BLOCK 32
 INLINE void rans_lanes(const int NV, const int32_t *ent, const u64 *fc, const i64 *rs, const i64 *rl, uint16_t *out,
                        i64 lo, u64 *xs, i64 *nws, i64 *ci, i64 *ce, i64 *cq, const i64 *o)
 {
     const int NVV = 8 * NV / VL;
     vu X[16 / VL];
     vi NW[16 / VL], I[16 / VL], E[16 / VL], Q[16 / VL], O[16 / VL];
-    vi bat[RB][16 / VL];
-    vu bx[RB][16 / VL];
+    vi bat[RANS_BLOCK][16 / VL];
+    vu bx[RANS_BLOCK][16 / VL];
     for (int v = 0; v < NVV; v++) {
         memcpy(&X[v], xs + VL * v, sizeof(vi)); memcpy(&NW[v], nws + VL * v, sizeof(vi));
         memcpy(&I[v], ci + VL * v, sizeof(vi)); memcpy(&E[v], ce + VL * v, sizeof(vi));
         memcpy(&Q[v], cq + VL * v, sizeof(vi)); memcpy(&O[v], o + VL * v, sizeof(vi));
     }
-    for (i64 k0 = lo - 1; k0 >= 0; k0 -= RB) {
-        const int nb = k0 + 1 < RB ? (int)(k0 + 1) : RB;
+    for (i64 k0 = lo - 1; k0 >= 0; k0 -= RANS_BLOCK) {
+        const int nb = k0 + 1 < RANS_BLOCK ? (int)(k0 + 1) : RANS_BLOCK;
         for (int b = 0; b < nb; b++) {
             const i64 k = k0 - b;
             for (int v = 0; v < NVV; v++) {
@@ -212,7 +212,7 @@ INLINE void rans_lanes(const int NV, const int32_t *ent, const u64 *fc, const i6
         memcpy(nws + VL * v, &NW[v], sizeof(vi));
     }
 }
-#undef RB
+#undef RANS_BLOCK
 
 static void rans8(const int32_t *ent, const u64 *fc, const i64 *rs, const i64 *rl, uint16_t *out, i64 lo, u64 *xs,
                   i64 *nws, i64 *ci, i64 *ce, i64 *cq, const i64 *o)
