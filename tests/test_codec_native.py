@@ -313,6 +313,30 @@ def test_compiled_loop_handles_escapes_and_16_bit_tables(monkeypatch):
 
 
 @needs_native
+def test_compiled_loops_are_exact_where_values_leave_int32(monkeypatch):
+    """Symbols past 2^15 (buffer values s 2^16 past int32: the AVX2 path's 32-bit products give way to the exact
+    64-bit sums, in the encoder's residual pass row by row and in the decoder's steady part from the step that meets
+    one): a bright patch in the middle of ordinary rows, and a plane beyond int32 throughout; the same stream as
+    numba's encoder and the planes back from both decoders."""
+    from metraw.codec import prepare
+
+    rng = np.random.default_rng(9)
+    shape = (300, 400)
+    u = prepare.dither(5, 0, shape[0] * shape[1]).reshape(shape)
+    base = np.rint(30000 + rng.normal(0, 4, shape) + u).astype(np.int32)
+    patch = base.copy()
+    patch[120:140, 140:200] += 6000
+    for s in (patch, base + 20000):
+        blob = predictive.encode_planes([(s, u)])
+        with monkeypatch.context() as m:
+            m.setattr(native, "LIB", None)
+            assert predictive.encode_planes([(s, u)]) == blob
+        got, ref = _decode_planes_both(blob, [u], monkeypatch)
+        np.testing.assert_array_equal(got[0], s)
+        np.testing.assert_array_equal(ref[0], s)
+
+
+@needs_native
 def test_compiled_loop_rejects_corrupt_streams_like_the_numba_loop(monkeypatch):
     """Damaged coded words (a wrong stream with a right CRC, as from a buggy writer): both loops raise the same
     clear error, or decode the same values where the damage goes unseen."""

@@ -11,10 +11,10 @@ typedef struct {
 
 /* one step of VL lanes (vstep of _simd.c); reads are kept inside the arrays in corrupt streams (positions clamped:
  * such a lane is rejected at the end of the steady part all the same) */
-INLINE vi vstep(const vmodel_t *m, const vnbr_t *n, vi UV, vi *Xp, vi *POSp, vi *EPOSp, vi EEND)
+INLINE vi vstep(const vmodel_t *m, const vnbr_t *n, vi UV, vi *Xp, vi *POSp, vi *EPOSp, vi EEND, const int n32)
 {
     vi C;
-    const vi mh = vpredict(&m->tb, n, &C) + (UV + (1 << 15));
+    const vi mh = vpredict_(&m->tb, n, &C, n32) + (UV + (1 << 15));
     const vi sh = vsra(mh, 16);
     const vi fr = mh & 0xFFFF;
     const vi f = 1 - (vi)((vu)fr >> 15);
@@ -84,27 +84,48 @@ INLINE int steady(const int NV, i64 *pf, i64 y0, i64 w, const int32_t *u, const 
         for (int l = 0; l < NL; l++) r[VL + l] = pf[b0 + l * (ws - 3) + xs0 - k];
     }
     const vi uidx = (vi)IOTA * (w - 3);   /* dither offset of lane j of a vector */
-    for (i64 x0 = xs0; x0 <= x_last; x0++) {
-        i64 *out = ring[x0 & (RING - 1)];
-        for (int v = 0; v < NVV; v++) {
-            const int c = VL + VL * v;   /* this vector's lane 0 */
+    /* one column step; n32: every value in the ring an int32 (one 32-bit multiply a tap, vpredict_); returns whether
+     * the values it adds to the ring are int32s (checked only where n32) */
+#define STEP(n32) ({ \
+        i64 *out = ring[x0 & (RING - 1)]; \
+        vu big_ = {0}; \
+        for (int v = 0; v < NVV; v++) { \
+            const int c = VL + VL * v;   /* this vector's lane 0 */ \
+            const vnbr_t n = {.W = RW(1, 0), .WW = RW(2, 0), .N = RW(3, 1), .NW = RW(4, 1), .NE = RW(2, 1), \
+                              .NE2 = RW(1, 1), .NW2 = RW(5, 1), .NN = RW(6, 2), .NNW = RW(7, 2), .NNE = RW(5, 2), \
+                              .NNW2 = RW(8, 2), .NNE2 = RW(4, 2)}; \
+            const vi UV = gather_s32(u + (y0 + VL * v) * w + x0 - 3 * VL * v, uidx); \
+            const vi pv = vstep(&vm, &n, UV, &X[v], &POS[v], &EPOS[v], EEND[v], n32); \
+            memcpy(&out[c], &pv, sizeof pv); \
+            if (n32) big_ |= (vu)pv + 0x80000000ULL; \
+        } \
+        const i64 r0_ = R0[x0 + 6], r1_ = R1[x0 + 3]; \
+        out[VL - 2] = r0_; \
+        out[VL - 1] = r1_; \
+        for (int l = 0; l < NL; l++) pf[b0 + l * (ws - 3) + x0] = out[VL + l]; \
+        u64 b_ = ((u64)r0_ + 0x80000000ULL) | ((u64)r1_ + 0x80000000ULL); \
+        for (int j = 0; j < VL; j++) b_ |= big_[j]; \
+        b_ >> 32 == 0; })
 #define RB(k) LOADV(vi, &ring[(x0 - (k)) & (RING - 1)][c])
 #define RA(k) LOADV(vi, &ring[(x0 - (k)) & (RING - 1)][c - VL])
 #define RW(k, sh) ((sh) == 0 ? RB(k) : (sh) == 1 ? UP1(RB(k), RA(k)) : UP2(RB(k), RA(k)))
-            const vnbr_t n = {.W = RW(1, 0), .WW = RW(2, 0), .N = RW(3, 1), .NW = RW(4, 1), .NE = RW(2, 1),
-                              .NE2 = RW(1, 1), .NW2 = RW(5, 1), .NN = RW(6, 2), .NNW = RW(7, 2), .NNE = RW(5, 2),
-                              .NNW2 = RW(8, 2), .NNE2 = RW(4, 2)};
+    i64 x0 = xs0;
+#if defined(VEC_AVX2)
+    /* the 32-bit products while every value in the ring is an int32 (the same sums), then the exact 64-bit ones */
+    int fits = vm.tb.k32;
+    for (int k = 1; k <= 8; k++) {
+        const i64 *r = ring[(xs0 - k) & (RING - 1)];
+        fits &= r[VL - 2] == (i64)(int32_t)r[VL - 2] && r[VL - 1] == (i64)(int32_t)r[VL - 1];
+        /* lane l's pixel at column xs0 - k - 3 l, a neighbour where >= -2 (else before its row: not read) */
+        for (int l = 0; l < NL && xs0 - k - 3 * l >= -2; l++) fits &= r[VL + l] == (i64)(int32_t)r[VL + l];
+    }
+    for (; fits && x0 <= x_last; x0++) fits = STEP(1);
+#endif
+    for (; x0 <= x_last; x0++) (void)STEP(0);
 #undef RW
 #undef RA
 #undef RB
-            const vi UV = gather_s32(u + (y0 + VL * v) * w + x0 - 3 * VL * v, uidx);
-            const vi pv = vstep(&vm, &n, UV, &X[v], &POS[v], &EPOS[v], EEND[v]);
-            memcpy(&out[c], &pv, sizeof pv);
-        }
-        out[VL - 2] = R0[x0 + 6];
-        out[VL - 1] = R1[x0 + 3];
-        for (int l = 0; l < NL; l++) pf[b0 + l * (ws - 3) + x0] = out[VL + l];
-    }
+#undef STEP
     for (int v = 0; v < NVV; v++)
         for (int j = 0; j < VL; j++)
             if (POS[v][j] < pmin[VL * v + j] || EPOS[v][j] > eend[VL * v + j]) return 0;
