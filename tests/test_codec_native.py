@@ -407,23 +407,23 @@ def test_auto_selection_picks_only_paths_faster_than_numba():
 
 
 def test_paths_give_the_same_bytes_and_values_on_the_benchmark_frames():
-    """Every compiled path and numba: the same stream and decoded values on the benchmark's real frames (data/real)
-    at steps 1 and 2, and on a synthetic frame where those are absent."""
+    """Every compiled path and numba: the same stream and decoded values on the benchmark's real frames (data/real,
+    with the benchmark's fixed profiles, ``REAL_PROFILES`` of benchmarks/codec.py: every frame, whatever calibrate's
+    fit does) at steps 1 and 2, and on a synthetic frame where those are absent."""
+    import importlib.util
     from pathlib import Path
 
-    from metraw.calibrate import from_image
     from metraw.io import read_raw
 
-    real = Path(__file__).resolve().parents[1] / "data" / "real"
+    root = Path(__file__).resolve().parents[1]
+    spec = importlib.util.spec_from_file_location("metraw_codec_benchmark", root / "benchmarks" / "codec.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
     images = []
-    for rel in ("canon_dng/colorchart.dng", "micasense/IMG_0000_1.tif", "spacenet_pan/pan1.tif"):
-        if (real / rel).exists():
-            img = read_raw(real / rel)
-            try:
-                res = from_image(img)
-            except MetrawError:   # a frame calibrate refuses: the others still compare the paths
-                continue
-            images.append(RawImage(img.data >> res.unused_low_bits if res.unused_low_bits else img.data, res.profile))
+    for rel, fit in bench.REAL_PROFILES.items():
+        if (bench.REAL / rel).exists():
+            img = read_raw(bench.REAL / rel)
+            images.append(RawImage(img.data, img.profile.replace(**fit)))
     images.append(_image(520, 700, "RGGB", 3000.0, seed=5))
     for img in images:
         for step in (1.0, 2.0):
