@@ -209,7 +209,40 @@ i64 VN(metraw_plane_buffer)(const uint16_t *data, i64 rows, i64 cols, i64 row_st
     vi sum = {0};
     for (i64 i = 0; i < rows; i++) {
         i64 *row = p + (i + 2) * ws;
-        for (i64 j = 0; j < cols; j += VL) {
+        i64 j = 0;
+#if defined(VEC_AVX2)
+        /* 8 pixels a step: one 8-lane dither hash, the rest as two vectors of 4 */
+        const __m256i lane8 = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+        for (; j + 8 < cols || (j + 8 == cols && col_stride == 1); j += 8) {
+            const i64 index = start + i * row_step + j * col_step;
+            __m256i x = _mm256_add_epi32(_mm256_set1_epi32((int)(uint32_t)index),
+                                         _mm256_mullo_epi32(lane8, _mm256_set1_epi32((int)(uint32_t)col_step)));
+            x = _mm256_add_epi32(_mm256_mullo_epi32(x, _mm256_set1_epi32((int)0x9E3779B9u)),
+                                 _mm256_set1_epi32((int)(uint32_t)k1));
+            x = _mm256_xor_si256(x, _mm256_srli_epi32(x, 16));
+            x = _mm256_mullo_epi32(x, _mm256_set1_epi32(0x7FEB352D));
+            x = _mm256_xor_si256(x, _mm256_srli_epi32(x, 15));
+            x = _mm256_mullo_epi32(x, _mm256_set1_epi32((int)0x846CA68Bu));
+            x = _mm256_xor_si256(x, _mm256_set1_epi32((int)(uint32_t)k2));
+            x = _mm256_xor_si256(x, _mm256_srli_epi32(x, 16));
+            x = _mm256_srli_epi32(x, 8);   /* the 24-bit hashes (as dither24) */
+            const uint16_t *d = data + i * row_stride + j * col_stride;
+            for (int h = 0; h < 2; h++) {
+                const __m128i xh = h ? _mm256_extracti128_si256(x, 1) : _mm256_castsi256_si128(x);
+                const vd u = __builtin_convertvector((vs32)xh, vd) * (1.0 / 16777216.0) - 0.5;
+                const vd y = __builtin_convertvector(load_dn(d + 4 * h * col_stride, col_stride, 4, 1), vd);
+                const vi s = forward8(y, u, &f);
+                /* as stored (int32): the low dwords sign-extended */
+                const __m256i lo2 = _mm256_shuffle_epi32((__m256i)s, _MM_SHUFFLE(2, 2, 0, 0));
+                const vi s32 = (vi)_mm256_blend_epi32((__m256i)s, _mm256_srai_epi32(lo2, 31), 0xAA);
+                sum += s32;
+                const vi fu = (vi)_mm256_cvtepi32_epi64(_mm_srli_epi32(xh, 8)) - (1 << 15);   /* floor(u 2^16) */
+                const vi pv = (s32 << 16) - fu;
+                memcpy(row + 2 + j + 4 * h, &pv, sizeof pv);
+            }
+        }
+#endif
+        for (; j < cols; j += VL) {
             const i64 n = cols - j < VL ? cols - j : VL;
             const vd y = __builtin_convertvector(load_dn(data + i * row_stride + j * col_stride, col_stride, n, j + VL < cols), vd);
             const vu32 x = dither24(k1, k2, start + i * row_step + j * col_step, col_step);
