@@ -137,6 +137,24 @@ INLINE vu32 dither24(u64 k1, u64 k2, i64 index, i64 col_step)
     return x >> 8;
 }
 
+#if defined(VEC_AVX2)
+/* dither24 of 8 pixels in one register */
+INLINE __m256i dither24x8(u64 k1, u64 k2, i64 index, i64 col_step)
+{
+    const __m256i lane8 = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+    __m256i x = _mm256_add_epi32(_mm256_set1_epi32((int)(uint32_t)index),
+                                 _mm256_mullo_epi32(lane8, _mm256_set1_epi32((int)(uint32_t)col_step)));
+    x = _mm256_add_epi32(_mm256_mullo_epi32(x, _mm256_set1_epi32((int)0x9E3779B9u)), _mm256_set1_epi32((int)(uint32_t)k1));
+    x = _mm256_xor_si256(x, _mm256_srli_epi32(x, 16));
+    x = _mm256_mullo_epi32(x, _mm256_set1_epi32(0x7FEB352D));
+    x = _mm256_xor_si256(x, _mm256_srli_epi32(x, 15));
+    x = _mm256_mullo_epi32(x, _mm256_set1_epi32((int)0x846CA68Bu));
+    x = _mm256_xor_si256(x, _mm256_set1_epi32((int)(uint32_t)k2));
+    x = _mm256_xor_si256(x, _mm256_srli_epi32(x, 16));
+    return _mm256_srli_epi32(x, 8);
+}
+#endif
+
 /* u = x 2^-24 - 1/2 (exact) */
 INLINE vd dither_value(vu32 x) { return __builtin_convertvector((vs32)x, vd) * (1.0 / 16777216.0) - 0.5; }
 
@@ -212,20 +230,8 @@ i64 VN(metraw_plane_buffer)(const uint16_t *data, i64 rows, i64 cols, i64 row_st
         i64 j = 0;
 #if defined(VEC_AVX2)
         /* 8 pixels a step: one 8-lane dither hash, the rest as two vectors of 4 */
-        const __m256i lane8 = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
         for (; j + 8 < cols || (j + 8 == cols && col_stride == 1); j += 8) {
-            const i64 index = start + i * row_step + j * col_step;
-            __m256i x = _mm256_add_epi32(_mm256_set1_epi32((int)(uint32_t)index),
-                                         _mm256_mullo_epi32(lane8, _mm256_set1_epi32((int)(uint32_t)col_step)));
-            x = _mm256_add_epi32(_mm256_mullo_epi32(x, _mm256_set1_epi32((int)0x9E3779B9u)),
-                                 _mm256_set1_epi32((int)(uint32_t)k1));
-            x = _mm256_xor_si256(x, _mm256_srli_epi32(x, 16));
-            x = _mm256_mullo_epi32(x, _mm256_set1_epi32(0x7FEB352D));
-            x = _mm256_xor_si256(x, _mm256_srli_epi32(x, 15));
-            x = _mm256_mullo_epi32(x, _mm256_set1_epi32((int)0x846CA68Bu));
-            x = _mm256_xor_si256(x, _mm256_set1_epi32((int)(uint32_t)k2));
-            x = _mm256_xor_si256(x, _mm256_srli_epi32(x, 16));
-            x = _mm256_srli_epi32(x, 8);   /* the 24-bit hashes (as dither24) */
+            const __m256i x = dither24x8(k1, k2, start + i * row_step + j * col_step, col_step);
             const uint16_t *d = data + i * row_stride + j * col_stride;
             for (int h = 0; h < 2; h++) {
                 const __m128i xh = h ? _mm256_extracti128_si256(x, 1) : _mm256_castsi256_si128(x);
@@ -262,11 +268,20 @@ i64 VN(metraw_plane_buffer)(const uint16_t *data, i64 rows, i64 cols, i64 row_st
 
 void VN(metraw_dither_fixed)(u64 k1, u64 k2, i64 start, i64 rows, i64 cols, i64 row_step, i64 col_step, int32_t *out)
 {
-    for (i64 i = 0; i < rows; i++)
-        for (i64 j = 0; j < cols; j += VL) {
+    for (i64 i = 0; i < rows; i++) {
+        i64 j = 0;
+#if defined(VEC_AVX2)
+        for (; j + 8 <= cols; j += 8) {
+            const __m256i x = dither24x8(k1, k2, start + i * row_step + j * col_step, col_step);
+            _mm256_storeu_si256((__m256i *)(void *)(out + i * cols + j),
+                                _mm256_sub_epi32(_mm256_srli_epi32(x, 8), _mm256_set1_epi32(1 << 15)));
+        }
+#endif
+        for (; j < cols; j += VL) {
             const vu32 x = dither24(k1, k2, start + i * row_step + j * col_step, col_step);
             STOREN(int32_t, out + i * cols + j, (vs32)(x >> 8) - (1 << 15), cols - j < VL ? cols - j : VL);
         }
+    }
 }
 
 /* rint(K ((s - u) q / 2)^2 + offset) clipped to 0 .. 65535 (clipping before rounding: the same, the bounds being
@@ -277,7 +292,39 @@ void VN(metraw_inverse_dn)(const int32_t *sym, i64 rows, i64 cols, u64 k1, u64 k
 {
     for (i64 i = 0; i < rows; i++) {
         uint16_t *o = out + i * out_row_stride;
-        for (i64 j = 0; j < cols; j += VL) {
+        i64 j = 0;
+#if defined(VEC_AVX2)
+        /* 8 pixels a step: one 8-lane dither hash, two vectors of 4, the DN packed to 16 bits in one register */
+        for (; j + 8 <= cols; j += 8) {
+            const __m256i x = dither24x8(k1, k2, start + i * row_step + j * col_step, col_step);
+            __m256i dn2[2];
+            for (int h = 0; h < 2; h++) {
+                const __m128i xh = h ? _mm256_extracti128_si256(x, 1) : _mm256_castsi256_si128(x);
+                const vd u = __builtin_convertvector((vs32)xh, vd) * (1.0 / 16777216.0) - 0.5;
+                const vd s = __builtin_convertvector(LOADV(vs32, sym + i * cols + j + 4 * h), vd);
+                const vd zh = (s - u) * half_step;
+                const vd v = vmind(vmaxd(k * (zh * zh) + offset, (vd){0}), (vd){0} + 65535.0);
+                dn2[h] = (__m256i)vrint(v);   /* 0 .. 65535 */
+            }
+            /* the 8 DN's low words: dwords 0, 2 of each 128-bit half hold them */
+            const __m256i d32 = _mm256_permute4x64_epi64(_mm256_castps_si256(_mm256_shuffle_ps(
+                _mm256_castsi256_ps(dn2[0]), _mm256_castsi256_ps(dn2[1]), _MM_SHUFFLE(2, 0, 2, 0))), _MM_SHUFFLE(3, 1, 2, 0));
+            const __m128i d16 = _mm_packus_epi32(_mm256_castsi256_si128(d32), _mm256_extracti128_si256(d32, 1));
+            if (out_col_stride == 1) {
+                _mm_storeu_si128((__m128i *)(void *)(o + j), d16);
+            } else {
+                uint16_t *oj = o + j * out_col_stride;
+                oj[0] = (uint16_t)_mm_extract_epi16(d16, 0); oj[out_col_stride] = (uint16_t)_mm_extract_epi16(d16, 1);
+                oj[2 * out_col_stride] = (uint16_t)_mm_extract_epi16(d16, 2);
+                oj[3 * out_col_stride] = (uint16_t)_mm_extract_epi16(d16, 3);
+                oj[4 * out_col_stride] = (uint16_t)_mm_extract_epi16(d16, 4);
+                oj[5 * out_col_stride] = (uint16_t)_mm_extract_epi16(d16, 5);
+                oj[6 * out_col_stride] = (uint16_t)_mm_extract_epi16(d16, 6);
+                oj[7 * out_col_stride] = (uint16_t)_mm_extract_epi16(d16, 7);
+            }
+        }
+#endif
+        for (; j < cols; j += VL) {
             const i64 n = cols - j < VL ? cols - j : VL;
             const vd u = dither_value(dither24(k1, k2, start + i * row_step + j * col_step, col_step));
             const vd s = __builtin_convertvector(LOADN(int32_t, vs32, sym + i * cols + j, n), vd);
