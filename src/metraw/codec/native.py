@@ -49,10 +49,14 @@ ABI = 4
 #: The compiled paths, best first, and their bits in ``metraw_simd_paths()`` (``_simd.h``).
 PATHS = ("avx512", "avx2", "portable")
 #: The compiled paths auto-selection may pick, best first: those measured faster than the numba loops (1-thread CPU,
-#: encode and decode, ``benchmarks/codec.py --native``). The vector-extension builds of 8 x 64-bit lanes (64-byte
-#: vectors) ran 2-4x slower than numba on AVX2 (GCC splits them into scalar lanes and stack traffic), so a CPU
-#: without AVX-512 runs numba unless METRAW_NATIVE names a path.
-AUTO = ("avx512",)
+#: encode and decode, ``benchmarks/codec.py --native``). avx2 since 2026-11-28 (forced on an AVX-512 Intel Xeon,
+#: Emerald Rapids, 2 cores, load ~4.6; medians of 11 alternating rounds, ms, encode / decode): canon_dng 45.6 / 40.8
+#: against numba's 52.8 / 54.1, micasense 22.3 / 26.7 against 30.9 / 34.7, spacenet_pan 8.1 / 7.2 against 9.0 / 9.2
+#: (JPEG-LS 68.2 / 61.9, 42.5 / 39.6, 12.2 / 11.2). Not measured on a CPU without AVX-512: where gathers are slow
+#: (AMD Zen 1-2; Intel Skylake-derived cores under the GDS / Downfall microcode) numba may stay ahead. The portable
+#: build (2 lanes of 64 bits, SSE2 there) is not picked: 2.0-2.3x numba's time on the same host (encode canon_dng
+#: 123 against 62 ms, decode 134 against 69).
+AUTO = ("avx512", "avx2")
 _PATH_BITS = {"portable": 1, "avx2": 2, "avx512": 4}
 #: The functions every path exports as ``metraw_<name>_<path>``.
 _NAMES = ("decode_plane", "residuals", "rans_encode", "dither_grid", "forward", "plane_buffer", "dither_fixed",
