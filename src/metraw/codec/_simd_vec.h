@@ -6,7 +6,9 @@
  * as the AVX-512 kernels and the numba loops, to the bit: integer arithmetic wraps (-fwrapv), float64 one IEEE
  * operation at a time (-ffp-contract=off: no fused multiply-add), and rounding to integers by adding 1.5 2^52 (round
  * to nearest even, exact for |z| < 2^51: symbols, DN and rANS quotients are far below it). Scatters, and the portable
- * build's gathers, are element loops. */
+ * build's gathers, are element loops. On AVX2, predictions whose neighbours and coefficients are all int32s (real
+ * frames: symbols below 2^15) take one signed 32 x 32 -> 64-bit multiply a tap (pmuldq), the same sums as the exact
+ * 64-bit ones from three pmuludq, which the others take. */
 #include "_simd.h"
 
 #define VCAT2(a, b) a##_##b
