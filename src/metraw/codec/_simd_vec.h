@@ -78,8 +78,17 @@ INLINE vd vi2d(vi a) { return (vd)(a + MAGIC_BITS) - MAGIC; }
 INLINE vi vrint(vd z) { return (vi)(z + MAGIC) - MAGIC_BITS; }
 /* floor(z) as int64, |z| < 2^51 */
 INLINE vi vfloor(vd z) { const vi r = vrint(z); return r + (vi)(vi2d(r) > z); }
+/* a < b ? a : b and a > b ? a : b: what minpd / maxpd return (b where either is NaN) */
+#if defined(VEC_AVX2)
+INLINE vd vmind(vd a, vd b) { return (vd)_mm256_min_pd((__m256d)a, (__m256d)b); }
+INLINE vd vmaxd(vd a, vd b) { return (vd)_mm256_max_pd((__m256d)a, (__m256d)b); }
+/* int32 to double (one vcvtdq2pd) */
+INLINE vd vs32_to_d(vs32 a) { return (vd)_mm256_cvtepi32_pd((__m128i)a); }
+#else
 INLINE vd vmind(vd a, vd b) { return vseld((vi)(a < b), a, b); }
 INLINE vd vmaxd(vd a, vd b) { return vseld((vi)(a > b), a, b); }
+INLINE vd vs32_to_d(vs32 a) { return __builtin_convertvector(a, vd); }
+#endif
 INLINE vd vsqrt(vd x)
 {
 #if defined(VEC_AVX2)
@@ -158,7 +167,7 @@ INLINE __m256i dither24x8(u64 k1, u64 k2, i64 index, i64 col_step)
 #endif
 
 /* u = x 2^-24 - 1/2 (exact) */
-INLINE vd dither_value(vu32 x) { return __builtin_convertvector((vs32)x, vd) * (1.0 / 16777216.0) - 0.5; }
+INLINE vd dither_value(vu32 x) { return vs32_to_d((vs32)x) * (1.0 / 16777216.0) - 0.5; }
 
 typedef struct { double black, inv_k, c, xmax, inv_step; } fwd_t;
 
@@ -237,8 +246,8 @@ i64 VN(metraw_plane_buffer)(const uint16_t *data, i64 rows, i64 cols, i64 row_st
             const uint16_t *d = data + i * row_stride + j * col_stride;
             for (int h = 0; h < 2; h++) {
                 const __m128i xh = h ? _mm256_extracti128_si256(x, 1) : _mm256_castsi256_si128(x);
-                const vd u = __builtin_convertvector((vs32)xh, vd) * (1.0 / 16777216.0) - 0.5;
-                const vd y = __builtin_convertvector(load_dn(d + 4 * h * col_stride, col_stride, 4, 1), vd);
+                const vd u = vs32_to_d((vs32)xh) * (1.0 / 16777216.0) - 0.5;
+                const vd y = vs32_to_d(load_dn(d + 4 * h * col_stride, col_stride, 4, 1));
                 const vi s = forward8(y, u, &f);
                 /* as stored (int32): the low dwords sign-extended */
                 const __m256i lo2 = _mm256_shuffle_epi32((__m256i)s, _MM_SHUFFLE(2, 2, 0, 0));
@@ -302,8 +311,8 @@ void VN(metraw_inverse_dn)(const int32_t *sym, i64 rows, i64 cols, u64 k1, u64 k
             __m256i dn2[2];
             for (int h = 0; h < 2; h++) {
                 const __m128i xh = h ? _mm256_extracti128_si256(x, 1) : _mm256_castsi256_si128(x);
-                const vd u = __builtin_convertvector((vs32)xh, vd) * (1.0 / 16777216.0) - 0.5;
-                const vd s = __builtin_convertvector(LOADV(vs32, sym + i * cols + j + 4 * h), vd);
+                const vd u = vs32_to_d((vs32)xh) * (1.0 / 16777216.0) - 0.5;
+                const vd s = vs32_to_d(LOADV(vs32, sym + i * cols + j + 4 * h));
                 const vd zh = (s - u) * half_step;
                 const vd v = vmind(vmaxd(k * (zh * zh) + offset, (vd){0}), (vd){0} + 65535.0);
                 dn2[h] = (__m256i)vrint(v);   /* 0 .. 65535 */
