@@ -171,11 +171,11 @@ def test_compiled_causal_buffer_is_numbas():
 def test_compiled_residual_pass_is_numbas_beyond_int32():
     """The residual pass against numba's where the buffer's values or the coefficients leave int32 (the AVX2 path
     multiplies int32 neighbours by one 32-bit multiply, other rows by the exact 64-bit sums): rows of large values
-    between ordinary ones, coefficients beyond 2^31, partial last vectors."""
+    between ordinary ones, coefficients or a bias beyond 2^31, partial last vectors."""
     from metraw.codec.decoder import predictor_table
 
     rng = np.random.default_rng(11)
-    for h, w, big_coef in [(9, 13, False), (12, 37, False), (7, 20, True)]:
+    for h, w, big_coef in [(9, 13, False), (12, 37, False), (7, 20, True), (8, 21, "bias")]:
         s = rng.integers(-300, 3000, (h, w)).astype(np.int32)
         u = rng.uniform(-0.5, 0.5, (h, w))
         p = predictive._front(s, u, np.int64(int(predictive._mean_symbol(s))) << 16)
@@ -183,9 +183,11 @@ def test_compiled_residual_pass_is_numbas_beyond_int32():
         p[8, w // 2] = -(np.int64(1) << 31) - 1   # just below int32
         thr = np.sort(rng.integers(0, 1 << 20, 3)).astype(np.int64)
         coef = rng.integers(-3000, 3000, (4, 11)).astype(np.int64)
-        if big_coef:
+        if big_coef is True:
             coef[2, 4] = (1 << 33) + 5
         bias = rng.integers(-1000, 1000, 4).astype(np.int64)
+        if big_coef == "bias":
+            bias[1:] = -(1 << 35) - 3   # the contexts these activities reach
         got = [np.zeros(h * w + 3, np.int32) for _ in range(2)]
         ref = [np.zeros(h * w + 3, np.int32) for _ in range(2)]
         mg = native.residuals(p, thr, predictor_table(coef, bias), 5, 1, *got, 3)

@@ -400,7 +400,7 @@ typedef struct {
     i64 ct[13 * 8];
 #if defined(VEC_AVX2)
     __m256i lo[13], hi[13];
-    int k32;   /* every tap's coefficient (taps 0-11) is an int32 */
+    int k32;   /* every coefficient (taps 0-11) and bias is an int32 */
 #endif
 } vtab_t;
 
@@ -419,8 +419,8 @@ INLINE void model_tables(const i64 *thr, i64 nthr, const i64 *coef13, vtab_t *vt
         vt->lo[k] = _mm256_loadu_si256((const __m256i *)lo);
         vt->hi[k] = _mm256_loadu_si256((const __m256i *)hi);
     }
-    vt->k32 = 1;
-    for (int k = 0; k < 12 * 8; k++) vt->k32 &= vt->ct[k] == (i64)(int32_t)vt->ct[k];
+    vt->k32 = 1;   /* taps 0-11 and the bias */
+    for (int k = 0; k < 13 * 8; k++) vt->k32 &= vt->ct[k] == (i64)(int32_t)vt->ct[k];
 #endif
 }
 
@@ -471,7 +471,9 @@ INLINE vi vpredict_(const vtab_t *m, const vnbr_t *n, vi *Cp, const int n32)
 #undef TAP
         a = lo + (cr << 32);
     }
-    const vi bias = (vi)((vu)LO(12) & 0xFFFFFFFFULL) | (HI(12) << 32);
+    /* the bias: an int32 (n32) sign-extended by a signed multiply by 1, else from its two halves */
+    const vi bias = n32 ? (vi)_mm256_mul_epi32((__m256i)LO(12), _mm256_set1_epi64x(1))
+                        : (vi)((vu)LO(12) & 0xFFFFFFFFULL) | (HI(12) << 32);
 #undef LO
 #undef HI
 #else
@@ -508,8 +510,17 @@ INLINE void residual_step(const vtab_t *vt, const i64 *b, i64 ws, i64 m, i64 tab
     fr ^= nf & 0xFFFF;
     r = (r ^ nf) + f;
     const vi t = tab0 + (C << csh) + (vi)((((vu)fr >> 13) & 3) >> psh);
-    STOREN(int32_t, ro, __builtin_convertvector(r, vs32), m);
-    STOREN(int32_t, to, __builtin_convertvector(t, vs32), m);
+#if defined(VEC_AVX2)
+    if (m == VL) {   /* the low dwords by one vpermd */
+        const __m256i lo = _mm256_setr_epi32(0, 2, 4, 6, 0, 2, 4, 6);
+        _mm_storeu_si128((__m128i *)(void *)ro, _mm256_castsi256_si128(_mm256_permutevar8x32_epi32((__m256i)r, lo)));
+        _mm_storeu_si128((__m128i *)(void *)to, _mm256_castsi256_si128(_mm256_permutevar8x32_epi32((__m256i)t, lo)));
+    } else
+#endif
+    {
+        STOREN(int32_t, ro, __builtin_convertvector(r, vs32), m);
+        STOREN(int32_t, to, __builtin_convertvector(t, vs32), m);
+    }
     const vi lane = IOTA;
     *rmax = vmax(*rmax, vabs(r) & (lane < m));
 }
