@@ -181,7 +181,11 @@ def test_compiled_residual_pass_is_numbas_beyond_int32():
         p = predictive._front(s, u, np.int64(int(predictive._mean_symbol(s))) << 16)
         p[5, 3:9] += np.int64(1) << 40           # rows 3-5 of the plane see them
         p[8, w // 2] = -(np.int64(1) << 31) - 1   # just below int32
+        p[3, 2::2] = (1 << 31) - 7                # int32s whose differences are not (32-bit absolute differences)
+        p[3, 3::2] = -(1 << 31) + 9
         thr = np.sort(rng.integers(0, 1 << 20, 3)).astype(np.int64)
+        if w % 2:   # contexts that tell huge activities apart
+            thr = np.array([1 << 20, (1 << 31) + 5, 1 << 33], np.int64)
         coef = rng.integers(-3000, 3000, (4, 11)).astype(np.int64)
         if big_coef is True:
             coef[2, 4] = (1 << 33) + 5

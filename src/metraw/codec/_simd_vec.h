@@ -6,9 +6,9 @@
  * as the AVX-512 kernels and the numba loops, to the bit: integer arithmetic wraps (-fwrapv), float64 one IEEE
  * operation at a time (-ffp-contract=off: no fused multiply-add), and rounding to integers by adding 1.5 2^52 (round
  * to nearest even, exact for |z| < 2^51: symbols, DN and rANS quotients are far below it). Scatters, and the portable
- * build's gathers, are element loops. On AVX2, predictions whose neighbours and coefficients are all int32s (real
- * frames: symbols below 2^15) take one signed 32 x 32 -> 64-bit multiply a tap (pmuldq), the same sums as the exact
- * 64-bit ones from three pmuludq, which the others take. */
+ * build's gathers, are element loops. On AVX2, predictions whose coefficients are int32s and neighbours in [-2^30,
+ * 2^30) (real frames: symbols below 2^14) take one signed 32 x 32 -> 64-bit multiply a tap (pmuldq) and 32-bit
+ * absolute differences, the same values as the exact 64-bit arithmetic, which the others take. */
 #include "_simd.h"
 
 #define VCAT2(a, b) a##_##b
@@ -439,8 +439,15 @@ INLINE vi lookup8(const i64 *tab8, vi C)
 INLINE vi vpredict_(const vtab_t *m, const vnbr_t *n, vi *Cp, const int n32)
 {
     const vi *T = m->T;
-    const vi act = vabs(n->W - n->NW) + vabs(n->N - n->NW) + vabs(n->N - n->NE) + vabs(n->W - n->WW)
-                 + vabs(n->N - n->NN);
+#if defined(VEC_AVX2)
+    /* n32: every neighbour in [-2^30, 2^30), so a difference is an int32 and its low dword's vpabsd its |.| */
+#define VABS(d) (n32 ? (vi)_mm256_and_si256(_mm256_abs_epi32((__m256i)(d)), _mm256_set1_epi64x(0xFFFFFFFF)) : vabs(d))
+#else
+#define VABS(d) vabs(d)
+#endif
+    const vi act = VABS(n->W - n->NW) + VABS(n->N - n->NW) + VABS(n->N - n->NE) + VABS(n->W - n->WW)
+                 + VABS(n->N - n->NN);
+#undef VABS
     const vi C = -((act > T[0]) + (act > T[1]) + (act > T[2]) + (act > T[3]) + (act > T[4]) + (act > T[5])
                    + (act > T[6]));
     *Cp = C;
@@ -489,7 +496,7 @@ INLINE vi vpredict_(const vtab_t *m, const vnbr_t *n, vi *Cp, const int n32)
 INLINE vi vpredict(const vtab_t *m, const vnbr_t *n, vi *Cp) { return vpredict_(m, n, Cp, 0); }
 
 /* VL pixels of a row (m <= VL of them): residuals and table indices out, |r| of the m into *rmax; n32: every
- * neighbour an int32 (vpredict_) */
+ * neighbour in [-2^30, 2^30) (vpredict_) */
 INLINE void residual_step(const vtab_t *vt, const i64 *b, i64 ws, i64 m, i64 tab0, int psh, int csh, int32_t *ro,
                           int32_t *to, vi *rmax, const int n32)
 {
@@ -525,16 +532,18 @@ INLINE void residual_step(const vtab_t *vt, const i64 *b, i64 ws, i64 m, i64 tab
     *rmax = vmax(*rmax, vabs(r) & (lane < m));
 }
 
-/* whether every value of a padded row (n of them) is an int32: the OR of the values + 2^31 is below 2^32 */
+/* whether every value of a padded row (n of them) is in [-2^30, 2^30) (FITS30: int32 products and differences):
+ * the OR of the values + 2^30 is below 2^31 */
+#define FITS30(v) (((u64)(v) + 0x40000000ULL) >> 31 == 0)
 INLINE int row_fits32(const i64 *row, i64 n)
 {
     vu acc = {0};
     i64 k = 0;
-    for (; k + VL <= n; k += VL) acc |= (vu)LOADV(vi, row + k) + 0x80000000ULL;
+    for (; k + VL <= n; k += VL) acc |= (vu)LOADV(vi, row + k) + 0x40000000ULL;
     u64 a = 0;
-    for (; k < n; k++) a |= (u64)row[k] + 0x80000000ULL;
+    for (; k < n; k++) a |= (u64)row[k] + 0x40000000ULL;
     for (int j = 0; j < VL; j++) a |= acc[j];
-    return a >> 32 == 0;
+    return a >> 31 == 0;
 }
 
 i64 VN(metraw_residuals)(const i64 *pf, i64 h, i64 w, const i64 *thr, i64 nthr, const i64 *coef13, i64 tab0,
@@ -546,8 +555,8 @@ i64 VN(metraw_residuals)(const i64 *pf, i64 h, i64 w, const i64 *thr, i64 nthr, 
     const int psh = (int)pshift, csh = (int)(2 - pshift);
     vi rmax = {0};
 #if defined(VEC_AVX2)
-    /* rows of the padded buffer (y + 2 the image's row y) whose values are all int32s; a pixel whose three rows are
-     * takes one signed 32-bit multiply a tap where the coefficients are int32s too (the same sums) */
+    /* rows of the padded buffer (y + 2 the image's row y) whose values are all in [-2^30, 2^30); a pixel whose three
+     * rows are takes one signed 32-bit multiply a tap where the coefficients are int32s (the same sums) */
     int fit[3] = {row_fits32(pf, ws), row_fits32(pf + ws, ws), 0};
 #endif
     for (i64 y = 0; y < h; y++) {

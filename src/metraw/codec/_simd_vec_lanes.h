@@ -84,8 +84,8 @@ INLINE int steady(const int NV, i64 *pf, i64 y0, i64 w, const int32_t *u, const 
         for (int l = 0; l < NL; l++) r[VL + l] = pf[b0 + l * (ws - 3) + xs0 - k];
     }
     const vi uidx = (vi)IOTA * (w - 3);   /* dither offset of lane j of a vector */
-    /* one column step; n32: every value in the ring an int32 (one 32-bit multiply a tap, vpredict_); returns whether
-     * the values it adds to the ring are int32s (checked only where n32) */
+    /* one column step; n32: every value in the ring in [-2^30, 2^30) (FITS30: one 32-bit multiply a tap and 32-bit
+     * absolute differences, vpredict_); returns whether the values it adds to the ring are (checked only where n32) */
 #define STEP(n32) ({ \
         i64 *out = ring[x0 & (RING - 1)]; \
         vu big_ = {0}; \
@@ -97,27 +97,28 @@ INLINE int steady(const int NV, i64 *pf, i64 y0, i64 w, const int32_t *u, const 
             const vi UV = gather_s32(u + (y0 + VL * v) * w + x0 - 3 * VL * v, uidx); \
             const vi pv = vstep(&vm, &n, UV, &X[v], &POS[v], &EPOS[v], EEND[v], n32); \
             memcpy(&out[c], &pv, sizeof pv); \
-            if (n32) big_ |= (vu)pv + 0x80000000ULL; \
+            if (n32) big_ |= (vu)pv + 0x40000000ULL; \
         } \
         const i64 r0_ = R0[x0 + 6], r1_ = R1[x0 + 3]; \
         out[VL - 2] = r0_; \
         out[VL - 1] = r1_; \
         for (int l = 0; l < NL; l++) pf[b0 + l * (ws - 3) + x0] = out[VL + l]; \
-        u64 b_ = ((u64)r0_ + 0x80000000ULL) | ((u64)r1_ + 0x80000000ULL); \
+        u64 b_ = ((u64)r0_ + 0x40000000ULL) | ((u64)r1_ + 0x40000000ULL); \
         for (int j = 0; j < VL; j++) b_ |= big_[j]; \
-        b_ >> 32 == 0; })
+        b_ >> 31 == 0; })
 #define RB(k) LOADV(vi, &ring[(x0 - (k)) & (RING - 1)][c])
 #define RA(k) LOADV(vi, &ring[(x0 - (k)) & (RING - 1)][c - VL])
 #define RW(k, sh) ((sh) == 0 ? RB(k) : (sh) == 1 ? UP1(RB(k), RA(k)) : UP2(RB(k), RA(k)))
     i64 x0 = xs0;
 #if defined(VEC_AVX2)
-    /* the 32-bit products while every value in the ring is an int32 (the same sums), then the exact 64-bit ones */
+    /* the 32-bit products while every value in the ring is in [-2^30, 2^30) (the same sums), then the exact 64-bit
+     * ones */
     int fits = vm.tb.k32;
     for (int k = 1; k <= 8; k++) {
         const i64 *r = ring[(xs0 - k) & (RING - 1)];
-        fits &= r[VL - 2] == (i64)(int32_t)r[VL - 2] && r[VL - 1] == (i64)(int32_t)r[VL - 1];
+        fits &= FITS30(r[VL - 2]) && FITS30(r[VL - 1]);
         /* lane l's pixel at column xs0 - k - 3 l, a neighbour where >= -2 (else before its row: not read) */
-        for (int l = 0; l < NL && xs0 - k - 3 * l >= -2; l++) fits &= r[VL + l] == (i64)(int32_t)r[VL + l];
+        for (int l = 0; l < NL && xs0 - k - 3 * l >= -2; l++) fits &= FITS30(r[VL + l]);
     }
     for (; fits && x0 <= x_last; x0++) fits = STEP(1);
 #endif
