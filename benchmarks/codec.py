@@ -1,13 +1,15 @@
 """Codec benchmark: metraw at steps 0.5/1/2 vs lossless and near-lossless peers on real frames.
 
 Real data: data/real of the repository (canon_dng, micasense, spacenet_pan; see its README.md).
-Profiles: calibrated from each frame (metraw.calibrate.from_image). Timings side by side in one
+Profiles: fixed per frame (REAL_PROFILES: the single-frame fit's values before e6ab38f). Timings side by side in one
 run (2 threads for metraw). Writes docs/figures/codec_rd.png.  Run: nice -n 5 python benchmarks/codec.py
 Speed only (real frames, steps 1 and 2: 2-thread wall and 1-thread CPU ratios against JPEG-LS):
 nice -n 5 python benchmarks/codec.py --speed   (all cases round-robin, medians of SPEED_REPS rounds;
 then the 20 MP frame: absolute times and Mpix/s)
 Compiled loops against numba (1-thread CPU, the real frames at step 1, same process, alternating rounds):
 nice -n 5 python benchmarks/codec.py --native
+Both time every codec path the host runs (native.AVAILABLE, then numba; --paths avx2,numba picks some; --reps N
+rounds for --speed, --no-large skips its 20 MP frame) and print the CPU's model and flags and the path at import.
 
 Where the time goes (issue #18; CPU ms on one core, THREADS = 1, step 1, medians of 7 calls per
 stage, 2 shared cores under load 2-9 from other users: +-10 %). Before = commit e5cee37, after =
@@ -218,7 +220,6 @@ import imagecodecs
 import numpy as np
 
 from metraw import codec
-from metraw.calibrate import from_image
 from metraw.codec import prepare
 from metraw.codec.selfcheck import self_check
 from metraw.io import read_raw
@@ -230,16 +231,26 @@ REAL = Path(__file__).resolve().parents[1] / "data" / "real"
 REAL_NAMES = ("canon_dng", "micasense", "spacenet_pan")
 
 
+#: Each real frame's noise profile, fixed: the gain [DN/e-] and read noise [e-] that the single-frame fit
+#: (metraw.calibrate.from_image) gave before e6ab38f (the fit of issue #51 item 3 returns other values and refuses
+#: spacenet_pan), on top of the profile read_raw reads from the file (black and white level, CFA, camera); no frame
+#: has unused low bits. The codec's bits depend on this profile: with it, canon_dng / micasense / spacenet_pan code
+#: at 2.416 / 2.382 / 2.254 bpp at step 1, as in the tables above, whatever calibrate's fit does next.
+REAL_PROFILES = {
+    "canon_dng/colorchart.dng": {"gain_dn_per_e": 1.979204758086497, "read_noise_e": 5.889697818669081},
+    "micasense/IMG_0000_1.tif": {"gain_dn_per_e": 1.2990650484412891, "read_noise_e": 6.298109637783334},
+    "spacenet_pan/pan1.tif": {"gain_dn_per_e": 2.351707199275583, "read_noise_e": 0.0},
+}
+
+
 def frames():
     out = []
-    for rel in ("canon_dng/colorchart.dng", "micasense/IMG_0000_1.tif", "spacenet_pan/pan1.tif"):
+    for rel, fit in REAL_PROFILES.items():
         path = REAL / rel
         if not path.exists():
             continue
         img = read_raw(path)
-        res = from_image(img)
-        data = img.data >> res.unused_low_bits if res.unused_low_bits else img.data
-        out.append((rel.split("/")[0], RawImage(data, res.profile)))
+        out.append((rel.split("/")[0], RawImage(img.data, img.profile.replace(**fit))))
     prof = CalibrationProfile(gain_dn_per_e=0.5, black_level_dn=100, read_noise_e=3, white_level_dn=16000, adc_bits=14)
     yy, xx = np.mgrid[0:1024, 0:1536]
     mean = 50 + 20000 * (0.5 + 0.5 * np.sin(xx / 150.0) * np.cos(yy / 97.0))
@@ -376,17 +387,42 @@ SPEED_REPS = 21
 SPEED_BATCH = 5
 
 
-def speed_main() -> int:
-    """``--speed``: only the speed comparison with lossless JPEG-LS on the real frames (steps 1, 2).
+def _arg(flag: str, default: str) -> str:
+    """The value after ``flag`` on the command line, else ``default``."""
+    argv = sys.argv[1:]
+    return argv[argv.index(flag) + 1] if flag in argv[:-1] else default
 
-    All (frame, step) cases run round-robin, ``SPEED_REPS`` rounds: each round times every case's
-    metraw encode/decode on 2 threads, then on 1 thread, each next to CharLS. A spell in which the
-    shared machine gives this process one core then hits every case alike instead of one row."""
-    print(f"# load: {os.getloadavg()} at the start (2 cores); medians of {SPEED_REPS} rounds, all cases "
+
+def _paths() -> list[str]:
+    """The codec paths to time: ``--paths a,b`` or every compiled path this host runs, then numba."""
+    from metraw.codec import native
+
+    return _arg("--paths", ",".join(native.AVAILABLE + ("numba",))).split(",")
+
+
+def _print_host() -> None:
+    from metraw.codec import native
+
+    print(f"# CPU: {native.cpu()}; codec path at import: {native.PATH} (METRAW_NATIVE="
+          f"{os.environ.get('METRAW_NATIVE', '')!r}), available: {', '.join(native.AVAILABLE) or 'none'}")
+
+
+def speed_main() -> int:
+    """``--speed``: only the speed comparison with lossless JPEG-LS on the real frames (steps 1, 2), for every codec
+    path (``--paths``; default: each compiled path this host runs and numba).
+
+    All (path, frame, step) cases run round-robin, ``SPEED_REPS`` rounds (``--reps``): each round times every case's
+    metraw encode/decode on 2 threads, then on 1 thread, each next to CharLS. A spell in which the shared machine
+    gives this process one core then hits every case alike instead of one row."""
+    from metraw.codec import native
+
+    reps, paths = int(_arg("--reps", str(SPEED_REPS))), _paths()
+    _print_host()
+    print(f"# load: {os.getloadavg()} at the start; medians of {reps} rounds, all cases "
           f"round-robin, each interleaved with JPEG-LS (CharLS); a sample = mean of {SPEED_BATCH} consecutive calls")
-    print(f"{'frame':12s} {'MP':>4s} {'q':>4s} {'bpp':>6s} {'enc ms':>7s} {'dec ms':>7s} {'jls e':>6s} {'jls d':>6s} "
-          f"{'wall2 e':>7s} {'wall2 d':>7s} | {'cpu1 ms e':>9s} {'cpu1 ms d':>9s} {'jls e':>6s} {'jls d':>6s} "
-          f"{'cpu1 e':>6s} {'cpu1 d':>6s} {'par e':>5s} {'par d':>5s} {'won e':>5s} {'won d':>5s} | "
+    print(f"{'path':8s} {'frame':12s} {'MP':>4s} {'q':>4s} {'bpp':>6s} {'enc ms':>7s} {'dec ms':>7s} {'jls e':>6s} "
+          f"{'jls d':>6s} {'wall2 e':>7s} {'wall2 d':>7s} | {'cpu1 ms e':>9s} {'cpu1 ms d':>9s} {'jls e':>6s} "
+          f"{'jls d':>6s} {'cpu1 e':>6s} {'cpu1 d':>6s} {'par e':>5s} {'par d':>5s} {'won e':>5s} {'won d':>5s} | "
           f"{'Mpx/s e2':>8s} {'Mpx/s d2':>8s} {'Mpx/s e1':>8s} {'Mpx/s d1':>8s}")
     cases = []
     for name, img in frames():
@@ -398,44 +434,51 @@ def speed_main() -> int:
                 warnings.simplefilter("ignore")
                 blob = codec.encode(img, step, 0)
             cases.append((name, step, img, blob, jl))
-    # per case: [2-thread walls, 2-thread cpus, 1-thread cpus], each 4 lists (enc, dec, jls enc, jls dec)
-    samples = [[[[] for _ in range(4)] for _ in range(3)] for _ in cases]
-    threads = codec.THREADS
+    # per path and case: [2-thread walls, 2-thread cpus, 1-thread cpus], each 4 lists (enc, dec, jls enc, jls dec)
+    samples = {p: [[[[] for _ in range(4)] for _ in range(3)] for _ in cases] for p in paths}
+    threads, before = codec.THREADS, native.PATH
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            for _ in range(SPEED_REPS):
-                for (name, step, img, blob, jl), smp in zip(cases, samples):
-                    d = img.data
-                    fns = [lambda: codec.encode(img, step, 0), lambda: codec.decode(blob, profile=img.profile),
-                           lambda: imagecodecs.jpegls_encode(d), lambda: imagecodecs.jpegls_decode(jl)]
-                    for nthreads, walls, cpus in ((threads, smp[0], smp[1]), (1, None, smp[2])):
-                        codec.THREADS = nthreads
-                        w, c = side_by_side(fns, reps=1, cpu=True, samples=True, batch=SPEED_BATCH)
-                        for k in range(4):
-                            if walls is not None:
-                                walls[k] += w[k]
-                            cpus[k] += c[k]
+            for _ in range(reps):
+                for path in paths:
+                    native.use(path)
+                    for (name, step, img, blob, jl), smp in zip(cases, samples[path]):
+                        d = img.data
+                        fns = [lambda: codec.encode(img, step, 0), lambda: codec.decode(blob, profile=img.profile),
+                               lambda: imagecodecs.jpegls_encode(d), lambda: imagecodecs.jpegls_decode(jl)]
+                        for nthreads, walls, cpus in ((threads, smp[0], smp[1]), (1, None, smp[2])):
+                            codec.THREADS = nthreads
+                            w, c = side_by_side(fns, reps=1, cpu=True, samples=True, batch=SPEED_BATCH)
+                            for k in range(4):
+                                if walls is not None:
+                                    walls[k] += w[k]
+                                cpus[k] += c[k]
     finally:
         codec.THREADS = threads
-    for (name, step, img, blob, jl), (walls, cpus2, cpus1) in zip(cases, samples):
-        te, td, te_j, td_j = (float(np.median(v)) for v in walls)
-        ce2, cd2 = float(np.median(cpus2[0])), float(np.median(cpus2[1]))
-        ce, cd, ce_j, cd_j = (float(np.median(v)) for v in cpus1)
-        # share of rounds in which metraw (2 threads) beat JPEG-LS, encode and decode
-        won_e = np.mean(np.array(walls[0]) < np.array(walls[2]))
-        won_d = np.mean(np.array(walls[1]) < np.array(walls[3]))
-        mp = img.data.size / 1e6
-        print(f"{name:12s} {mp:4.1f} {step:4.1f} {8 * len(blob) / img.data.size:6.3f} {te * 1e3:7.1f} {td * 1e3:7.1f} "
-              f"{te_j * 1e3:6.1f} {td_j * 1e3:6.1f} {te_j / te:7.2f} {td_j / td:7.2f} | {ce * 1e3:9.1f} {cd * 1e3:9.1f} "
-              f"{ce_j * 1e3:6.1f} {cd_j * 1e3:6.1f} {ce / ce_j:6.2f} {cd / cd_j:6.2f} {ce2 / te:5.2f} {cd2 / td:5.2f} "
-              f"{won_e:5.2f} {won_d:5.2f} | {mp / te:8.1f} {mp / td:8.1f} {mp / ce:8.1f} {mp / cd:8.1f}")
+        native.use(before)
+    for path in paths:
+        for (name, step, img, blob, jl), (walls, cpus2, cpus1) in zip(cases, samples[path]):
+            te, td, te_j, td_j = (float(np.median(v)) for v in walls)
+            ce2, cd2 = float(np.median(cpus2[0])), float(np.median(cpus2[1]))
+            ce, cd, ce_j, cd_j = (float(np.median(v)) for v in cpus1)
+            # share of rounds in which metraw (2 threads) beat JPEG-LS, encode and decode
+            won_e = np.mean(np.array(walls[0]) < np.array(walls[2]))
+            won_d = np.mean(np.array(walls[1]) < np.array(walls[3]))
+            mp = img.data.size / 1e6
+            print(f"{path:8s} {name:12s} {mp:4.1f} {step:4.1f} {8 * len(blob) / img.data.size:6.3f} {te * 1e3:7.1f} "
+                  f"{td * 1e3:7.1f} {te_j * 1e3:6.1f} {td_j * 1e3:6.1f} {te_j / te:7.2f} {td_j / td:7.2f} | "
+                  f"{ce * 1e3:9.1f} {cd * 1e3:9.1f} {ce_j * 1e3:6.1f} {cd_j * 1e3:6.1f} {ce / ce_j:6.2f} {cd / cd_j:6.2f} "
+                  f"{ce2 / te:5.2f} {cd2 / td:5.2f} {won_e:5.2f} {won_d:5.2f} | {mp / te:8.1f} {mp / td:8.1f} "
+                  f"{mp / ce:8.1f} {mp / cd:8.1f}")
     print("# wall2 = JPEG-LS wall / metraw wall, metraw on 2 threads (> 1: metraw faster); cpu1 = metraw CPU time "
           "on 1 thread / JPEG-LS CPU time; par = metraw CPU / wall on 2 threads (2: tiles fully concurrent); "
           "won = share of rounds in which metraw's 2-thread wall time beat JPEG-LS's; Mpx/s e2/d2 = megapixels per "
           "second of wall time on 2 threads, e1/d1 per second of CPU time on 1 thread")
     print(f"# load: {os.getloadavg()} at the end")
-    speed_large()
+    if "--no-large" not in sys.argv[1:]:
+        print(f"# the 20 MP frame on the path at import, {native.PATH}")
+        speed_large()
     return 0
 
 
@@ -495,38 +538,42 @@ def speed_large() -> None:
 
 
 def native_main(rounds: int = 11) -> int:
-    """1-thread CPU of encode and decode with the compiled loops (``metraw.codec.native``) and with numba's (``LIB``
-    set to None, as METRAW_NATIVE=0 does), same process, alternating; medians of ``rounds`` (a sample: 3 calls;
-    encode without the profile check)."""
+    """1-thread CPU of encode and decode on each codec path (``--paths``; default: each compiled path this host runs,
+    and numba's loops), same process, alternating; medians of ``rounds`` (a sample: 3 calls; encode without the
+    profile check), and JPEG-LS (CharLS) on the same frame for scale."""
     from metraw.codec import native
 
-    if native.LIB is None:
-        print("metraw.codec._simd is not built or not used here (no compiler, no AVX-512, or METRAW_NATIVE=0)")
-        return 1
-    lib, threads = native.LIB, codec.THREADS
-    print(f"# load: {os.getloadavg()} at the start; two_vectors={native.TWO_VECTORS}")
+    _print_host()
+    paths, before, threads = _paths(), native.PATH, codec.THREADS
+    print(f"# load: {os.getloadavg()} at the start; two_vectors={native.TWO_VECTORS}; 1-thread CPU ms (x JPEG-LS)")
     codec.THREADS = 1
     try:
         for name, img in frames():
             if name not in REAL_NAMES:
                 continue
             blob = codec.encode(img, 1.0, 0, check_profile=False)
+            jl = imagecodecs.jpegls_encode(img.data)
+            d = img.data
             ms = {}
             for _ in range(rounds):
-                for key, which in (("numba", None), ("C", lib)):
-                    native.LIB = which
-                    for what, fn in (("enc", lambda: codec.encode(img, 1.0, 0, check_profile=False)),
-                                     ("dec", lambda: codec.decode(blob))):
+                for key in paths + ["JPEG-LS"]:
+                    if key != "JPEG-LS":
+                        native.use(key)
+                    enc = (lambda: imagecodecs.jpegls_encode(d)) if key == "JPEG-LS" else \
+                        (lambda: codec.encode(img, 1.0, 0, check_profile=False))
+                    dec = (lambda: imagecodecs.jpegls_decode(jl)) if key == "JPEG-LS" else (lambda: codec.decode(blob))
+                    for what, fn in (("enc", enc), ("dec", dec)):
                         t = time.process_time()
                         for _ in range(3):
                             fn()
                         ms.setdefault((what, key), []).append((time.process_time() - t) / 3 * 1e3)
             m = {k: float(np.median(v)) for k, v in ms.items()}
-            print(f"{name:13s} encode {m['enc', 'numba']:6.1f} -> {m['enc', 'C']:6.1f} ms "
-                  f"({m['enc', 'numba'] / m['enc', 'C']:.2f}x)   decode {m['dec', 'numba']:6.1f} -> "
-                  f"{m['dec', 'C']:6.1f} ms ({m['dec', 'numba'] / m['dec', 'C']:.2f}x)")
+            cells = "   ".join(f"{p} {m['enc', p]:6.1f} ({m['enc', p] / m['enc', 'JPEG-LS']:.2f}) / "
+                               f"{m['dec', p]:6.1f} ({m['dec', p] / m['dec', 'JPEG-LS']:.2f})" for p in paths)
+            print(f"{name:13s} encode / decode: {cells}   JPEG-LS {m['enc', 'JPEG-LS']:6.1f} / {m['dec', 'JPEG-LS']:6.1f}")
     finally:
-        native.LIB, codec.THREADS = lib, threads
+        native.use(before)
+        codec.THREADS = threads
     return 0
 
 

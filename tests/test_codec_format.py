@@ -62,17 +62,21 @@ def _sha(b: bytes) -> str:
     return hashlib.sha256(b).hexdigest()
 
 
-@pytest.mark.parametrize("loop", ["compiled, two vectors", "compiled, 8-row halves", "numba"])
+@pytest.mark.parametrize("loop", [f"{path}, {how}" for path in ("avx512", "avx2", "portable")
+                                  for how in ("two vectors", "8-row halves")] + ["numba"])
 @pytest.mark.parametrize("name", sorted(FIXTURES))
 def test_stored_version3_blob_decodes_bit_exact(name, loop, monkeypatch):
     from metraw.codec import native
 
-    if loop == "numba":
-        monkeypatch.setattr(native, "LIB", None)
-    elif native.LIB is None:
-        pytest.skip("compiled codec loop not built or no AVX-512 on this CPU")
-    else:   # how the compiled loop runs a 16-lane group (the same values either way)
-        monkeypatch.setattr(native, "TWO_VECTORS", loop == "compiled, two vectors")
+    path, _, how = loop.partition(", ")
+    if path != "numba" and path not in native.AVAILABLE:
+        pytest.skip(f"the {path} codec path is not built or not run by this CPU")
+    monkeypatch.setattr(native, "TWO_VECTORS", how == "two vectors")   # how a compiled path runs 16 lanes
+    with native.path_in_use(path):
+        _check_fixture(name)
+
+
+def _check_fixture(name):
     step, blob_sha, pix_sha = FIXTURES[name]
     blob = (HERE / name).read_bytes()
     assert _sha(blob) == blob_sha, "the stored fixture changed: fixtures are never rewritten"

@@ -1,9 +1,10 @@
-"""The compiled decoder loop (metraw.codec.native, C with AVX-512 lanes) against the numba loop: same values.
+"""The compiled codec loops (metraw.codec.native: C, one extension with AVX-512, AVX2 and portable paths chosen at
+run time) against the numba loops: same bytes and values, on every compiled path this host runs (``native.AVAILABLE``).
 
 Both loops decode the same streams; the compiled one takes streams of 8 or 16 lanes. The cases cover the steady
 part's edges (plane widths around the first steady column 3 (L - 1) + 1, heights that leave a short last group),
-Bayer and mono, steps 0.5 / 1 / 2, 8-bit and 16-bit symbol tables, escapes, and corrupt streams. Skipped where the
-extension is not built or the CPU has no AVX-512.
+Bayer and mono, steps 0.5 / 1 / 2, 8-bit and 16-bit symbol tables, escapes, and corrupt streams. Skipped only where
+the extension is not built.
 """
 
 from __future__ import annotations
@@ -20,7 +21,16 @@ from metraw.raw.image import RawImage
 from metraw.raw.profile import CalibrationProfile
 from metraw.raw.sensor import expose, rng_from_seed
 
-needs_native = pytest.mark.skipif(native.LIB is None, reason="compiled codec loop not built or no AVX-512 on this CPU")
+@pytest.fixture(params=native.AVAILABLE or ("none",))
+def compiled(request):
+    """Each compiled path this host runs, in turn (the test runs once per path)."""
+    if request.param == "none":
+        pytest.skip("compiled codec loops not built")
+    with native.path_in_use(request.param):
+        yield request.param
+
+
+needs_native = pytest.mark.usefixtures("compiled")
 
 PROF = CalibrationProfile(gain_dn_per_e=0.5, black_level_dn=100, read_noise_e=3, white_level_dn=16000, adc_bits=14)
 
@@ -158,6 +168,40 @@ def test_compiled_causal_buffer_is_numbas():
 
 
 @needs_native
+def test_compiled_residual_pass_is_numbas_beyond_int32():
+    """The residual pass against numba's where the buffer's values or the coefficients leave int32 (the AVX2 path
+    multiplies int32 neighbours by one 32-bit multiply, other rows by the exact 64-bit sums): rows of large values
+    between ordinary ones, coefficients or a bias beyond 2^31, partial last vectors."""
+    from metraw.codec.decoder import predictor_table
+
+    rng = np.random.default_rng(11)
+    for h, w, big_coef in [(9, 13, False), (12, 37, False), (7, 20, True), (8, 21, "bias")]:
+        s = rng.integers(-300, 3000, (h, w)).astype(np.int32)
+        u = rng.uniform(-0.5, 0.5, (h, w))
+        p = predictive._front(s, u, np.int64(int(predictive._mean_symbol(s))) << 16)
+        p[5, 3:9] += np.int64(1) << 40           # rows 3-5 of the plane see them
+        p[8, w // 2] = -(np.int64(1) << 31) - 1   # just below int32
+        p[3, 2::2] = (1 << 31) - 7                # int32s whose differences are not (32-bit absolute differences)
+        p[3, 3::2] = -(1 << 31) + 9
+        thr = np.sort(rng.integers(0, 1 << 20, 3)).astype(np.int64)
+        if w % 2:   # contexts that tell huge activities apart
+            thr = np.array([1 << 20, (1 << 31) + 5, 1 << 33], np.int64)
+        coef = rng.integers(-3000, 3000, (4, 11)).astype(np.int64)
+        if big_coef is True:
+            coef[2, 4] = (1 << 33) + 5
+        bias = rng.integers(-1000, 1000, 4).astype(np.int64)
+        if big_coef == "bias":
+            bias[1:] = -(1 << 35) - 3   # the contexts these activities reach
+        got = [np.zeros(h * w + 3, np.int32) for _ in range(2)]
+        ref = [np.zeros(h * w + 3, np.int32) for _ in range(2)]
+        mg = native.residuals(p, thr, predictor_table(coef, bias), 5, 1, *got, 3)
+        mr = predictive._residuals(p, thr, coef.ravel(), bias, 5, 1, *ref, 3)
+        np.testing.assert_array_equal(got[0], ref[0])
+        np.testing.assert_array_equal(got[1], ref[1])
+        assert mg == mr
+
+
+@needs_native
 def test_compiled_plane_buffer_is_dither_forward_and_front(monkeypatch):
     """The encoder's one-pass plane buffer (dither, forward transform and causal buffer from the DN) against the three
     steps in numba (``_dither_grid_kernel``, ``_forward_kernel``, ``_front_c0``), exactly: CFA cells of 1 to 4 pixels
@@ -275,6 +319,30 @@ def test_compiled_loop_handles_escapes_and_16_bit_tables(monkeypatch):
 
 
 @needs_native
+def test_compiled_loops_are_exact_where_values_leave_int32(monkeypatch):
+    """Symbols past 2^15 (buffer values s 2^16 past int32: the AVX2 path's 32-bit products give way to the exact
+    64-bit sums, in the encoder's residual pass row by row and in the decoder's steady part from the step that meets
+    one): a bright patch in the middle of ordinary rows, and a plane beyond int32 throughout; the same stream as
+    numba's encoder and the planes back from both decoders."""
+    from metraw.codec import prepare
+
+    rng = np.random.default_rng(9)
+    shape = (300, 400)
+    u = prepare.dither(5, 0, shape[0] * shape[1]).reshape(shape)
+    base = np.rint(30000 + rng.normal(0, 4, shape) + u).astype(np.int32)
+    patch = base.copy()
+    patch[120:140, 140:200] += 6000
+    for s in (patch, base + 20000):
+        blob = predictive.encode_planes([(s, u)])
+        with monkeypatch.context() as m:
+            m.setattr(native, "LIB", None)
+            assert predictive.encode_planes([(s, u)]) == blob
+        got, ref = _decode_planes_both(blob, [u], monkeypatch)
+        np.testing.assert_array_equal(got[0], s)
+        np.testing.assert_array_equal(ref[0], s)
+
+
+@needs_native
 def test_compiled_loop_rejects_corrupt_streams_like_the_numba_loop(monkeypatch):
     """Damaged coded words (a wrong stream with a right CRC, as from a buggy writer): both loops raise the same
     clear error, or decode the same values where the damage goes unseen."""
@@ -311,32 +379,89 @@ def test_compiled_loop_rejects_corrupt_streams_like_the_numba_loop(monkeypatch):
     assert errors >= 6   # most damage is caught
 
 
-def test_environment_switches_the_compiled_loop_off():
-    """METRAW_NATIVE=0: the codec decodes with its numba loop (for comparisons and for a suspected fault)."""
-    import os
+def test_environment_chooses_the_path():
+    """METRAW_NATIVE=0: the codec runs its numba loops (for comparisons and for a suspected fault); a path's name: that
+    path; unset or auto: the best this host runs; a path the host lacks: a warning and the best."""
     import subprocess
     import sys
 
-    env = dict(os.environ, METRAW_NATIVE="0")
-    out = subprocess.run([sys.executable, "-c", "from metraw.codec import native; print(native.LIB)"], env=env,
-                         capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == "None"
+    def run(value):
+        env = dict(os.environ, METRAW_NATIVE=value)
+        out = subprocess.run([sys.executable, "-W", "always", "-c",
+                              "from metraw.codec import native; print(native.PATH, native.LIB is None)"],
+                             env=env, capture_output=True, text=True, check=True)
+        return out.stdout.split(), out.stderr
+
+    assert run("0")[0] == ["numba", "True"]
+    best = native.auto_path(native.AVAILABLE)
+    assert run("auto")[0][0] == best and run("")[0][0] == best
+    for path in native.AVAILABLE:
+        assert run(path)[0] == [path, "False"]
+    for path in set(native.PATHS) - set(native.AVAILABLE):
+        got, err = run(path)
+        assert got[0] == best and "not a path this build" in err
 
 
-def test_the_compiled_loops_are_built_where_a_compiler_and_avx512_are():
-    """An install on a machine with a C compiler and an AVX-512 CPU (as CI's) builds and loads the extension: a
-    broken build configuration would otherwise only show as a slower codec."""
+def test_auto_selection_picks_only_paths_faster_than_numba():
+    """Auto-selection runs the first of ``native.AUTO`` the host has, else numba: a compiled path that is slower than
+    the numba loops on its CPU (the portable build anywhere) is never picked unless METRAW_NATIVE names it."""
+    assert native.auto_path(("avx512", "avx2", "portable")) == "avx512"
+    assert native.auto_path(()) == "numba"
+    assert native.auto_path(("portable",)) == "numba"
+    assert native.auto_path(("avx2", "portable")) == ("avx2" if "avx2" in native.AUTO else "numba")
+    assert set(native.AUTO) <= set(native.PATHS)
+
+
+def test_paths_give_the_same_bytes_and_values_on_the_benchmark_frames():
+    """Every compiled path and numba: the same stream and decoded values on the benchmark's real frames (data/real,
+    with the benchmark's fixed profiles, ``REAL_PROFILES`` of benchmarks/codec.py: every frame, whatever calibrate's
+    fit does) at steps 1 and 2, and on a synthetic frame where those are absent."""
+    import importlib.util
+    from pathlib import Path
+
+    from metraw.io import read_raw
+
+    root = Path(__file__).resolve().parents[1]
+    spec = importlib.util.spec_from_file_location("metraw_codec_benchmark", root / "benchmarks" / "codec.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    images = []
+    for rel, fit in bench.REAL_PROFILES.items():
+        if (bench.REAL / rel).exists():
+            img = read_raw(bench.REAL / rel)
+            images.append(RawImage(img.data, img.profile.replace(**fit)))
+    images.append(_image(520, 700, "RGGB", 3000.0, seed=5))
+    for img in images:
+        for step in (1.0, 2.0):
+            blobs, decoded = {}, {}
+            for path in native.AVAILABLE + ("numba",):
+                with native.path_in_use(path):
+                    blobs[path] = codec.encode(img, step, 0, check_profile=False)
+                    decoded[path] = codec.decode(blobs[path]).data
+            ref = blobs["numba"]
+            assert all(b == ref for b in blobs.values()), [p for p, b in blobs.items() if b != ref]
+            for d in decoded.values():
+                np.testing.assert_array_equal(d, decoded["numba"])
+
+
+def test_the_compiled_loops_are_built_where_a_compiler_is():
+    """An install on a machine with a C compiler (as CI's) builds and loads the extension, with the paths the CPU
+    reports: a broken build configuration would otherwise only show as a slower codec."""
     import platform
     import shutil
     from pathlib import Path
 
     cpuinfo = Path("/proc/cpuinfo")
     flags = cpuinfo.read_text().split() if cpuinfo.exists() else []
-    if not (shutil.which("cc") and platform.machine() == "x86_64" and "avx512f" in flags and "avx512dq" in flags):
-        pytest.skip("no C compiler or no AVX-512 here: the numba loops are expected")
-    if os.environ.get("METRAW_NATIVE", "1").strip() == "0":
-        pytest.skip("METRAW_NATIVE=0: the numba loops are asked for")
-    assert native.LIB is not None, "metraw.codec._simd was not built or not loaded (pip install -e . builds it)"
+    if not shutil.which("cc"):
+        pytest.skip("no C compiler here: the numba loops are expected")
+    assert native._LIB is not None, "metraw.codec._simd was not built or not loaded (pip install -e . builds it)"
+    assert "portable" in native.AVAILABLE
+    if platform.machine() == "x86_64":
+        assert ("avx2" in native.AVAILABLE) == all(f in flags for f in ("avx2", "fma", "bmi2"))
+        assert ("avx512" in native.AVAILABLE) == all(f in flags for f in ("avx512f", "avx512dq"))
+    if os.environ.get("METRAW_NATIVE", "").strip() not in ("0", "numba"):
+        assert native.LIB is not None
 
 
 def test_a_library_of_another_interface_version_is_left_unused(monkeypatch):
@@ -351,8 +476,8 @@ def test_a_library_of_another_interface_version_is_left_unused(monkeypatch):
     monkeypatch.setattr(native, "ABI", native.ABI + 1)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        lib = native._load()
-    assert lib is None
+        lib, paths = native._open()
+    assert lib is None and paths == ()
     assert len(caught) == 1 and "pip install -e ." in str(caught[0].message)
 def test_a_library_lacking_a_function_is_left_unused(monkeypatch):
     """A library of the right interface number that lacks a function the code calls (a broken build) is not used: one
@@ -373,7 +498,7 @@ def test_a_library_lacking_a_function_is_left_unused(monkeypatch):
     monkeypatch.setattr(native.ctypes, "CDLL", lambda path: lib)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        assert native._load() is None
+        assert native._open() == (None, ())
     assert len(caught) == 1 and "lacks a function" in str(caught[0].message)
 
 

@@ -17,59 +17,9 @@
  * with 8-lane edges (decode_group16). The encoder's passes follow the decoder (residuals, rANS, causal buffer,
  * alphabet indices); _simd_prepare.c holds the dither and transforms. */
 #include "_simd.h"
-
-#define PROB_BITS 12          /* metraw.codec.decoder.PROB_BITS */
-#define RANS_L (1 << 16)      /* metraw.codec.decoder.RANS_L */
-
-typedef struct {
-    const i64 *thr;     /* 7 activity thresholds (padded with INT64_MAX) */
-    const i64 *coef;    /* 8 contexts x 13: 11 coefficients, their sum, the bias (unused contexts zero) */
-    i64 tab0, pshift, alpha, amax;
-    const void *lut; int lut16;   /* symbol by slot: uint8 (lut16 0) or int16 (1), tables x 2^PROB_BITS */
-    const uint32_t *fcum;         /* freq << 16 | cumulative frequency, tables x alpha */
-    const uint16_t *words;
-    const int32_t *esc;
-} model_t;
-
-/* one pixel of one lane (the general path: edges, short rows); lut16 a compile-time constant where inlined */
-INLINE void pixel(i64 *restrict pf, i64 b, i64 ws, i64 uv, const i64 *restrict t7,
-    const i64 *restrict coef, i64 tab0, i64 pshift, const void *restrict lut, const int lut16,
-    const uint32_t *restrict fcum, i64 alpha, i64 amax, const uint16_t *restrict words, const int32_t *restrict esc,
-    u64 *restrict xp, i64 *restrict posp, i64 *restrict eposp)
-{
-    const i64 half = 1 << 15;
-    i64 w_ = pf[b - 1], ww = pf[b - 2];
-    i64 n_ = pf[b - ws], nw = pf[b - ws - 1], ne = pf[b - ws + 1], nn = pf[b - 2 * ws];
-    i64 act = iabs64(w_ - nw) + iabs64(n_ - nw) + iabs64(n_ - ne) + iabs64(w_ - ww) + iabs64(n_ - nn);
-    i64 c = (act > t7[0]) + (act > t7[1]) + (act > t7[2]) + (act > t7[3]) + (act > t7[4]) + (act > t7[5])
-          + (act > t7[6]);
-    const i64 *k = coef + c * 13;
-    i64 acc = k[0] * n_ + k[1] * nw + k[2] * ne + k[3] * ww + k[4] * nn + k[5] * pf[b - ws - 2]
-            + k[6] * pf[b - 2 * ws - 1] + k[7] * pf[b - 2 * ws + 1] + k[8] * pf[b - ws + 2]
-            + k[9] * pf[b - 2 * ws - 2] + k[10] * pf[b - 2 * ws + 2]
-            - k[11] * w_;
-    i64 mh = w_ + (acc >> 12) + k[12] + uv + half;
-    i64 sh = mh >> 16, fr = mh & 0xFFFF, f = 1 - (fr >> 15);
-    i64 t = tab0 + c * (4 >> pshift) + ((((fr ^ (-f & 0xFFFF)) >> 13) & 3) >> pshift);
-    u64 x = *xp;
-    i64 slot = (i64)(x & ((1u << PROB_BITS) - 1));
-    i64 li = (t << PROB_BITS) + slot;
-    i64 s = lut16 ? (i64)((const int16_t *)lut)[li] : (i64)((const uint8_t *)lut)[li];
-    i64 fc = (i64)fcum[t * alpha + s];
-    x = (u64)(fc >> 16) * (x >> PROB_BITS) + (u64)(slot - (fc & 0xFFFF));
-    u64 need = x < RANS_L;
-    x = (x << (need << 4)) | ((u64)words[*posp] * need);
-    *posp -= (i64)need;
-    int is_esc = s == 2 * amax + 1;
-    i64 ev = esc[*eposp];
-    i64 r = is_esc ? ev : s - amax;
-    *eposp += is_esc;
-    i64 v = sh + ((r ^ -f) + f);
-    pf[b] = (v << 16) - uv;
-    *xp = x;
-}
-
 #if METRAW_X86
+
+
 /* the causal neighbours of 8 pixels (names as in decoder._pixel: N = the row above, NN two above, ...) */
 typedef struct { __m512i W, WW, N, NW, NE, NE2, NW2, NN, NNW, NNE, NNW2, NNE2; } vnbr_t;
 
@@ -240,41 +190,13 @@ SIMD_FN static int steady16(i64 *pf, i64 y0, i64 w, const int32_t *u, const mode
                             const i64 *pmin, i64 *epos, const i64 *eend, i64 xs0, i64 x_last)
 { return steady(2, pf, y0, w, u, m, xs, pos, pmin, epos, eend, xs0, x_last); }
 
-#endif
 
-/* the general path of a row group's column step xsw (lanes outside the steady part) */
-INLINE int general_step(const int lut16, i64 *restrict pf, i64 xsw, i64 y0, i64 nr,
-    i64 w, const int32_t *restrict u, const model_t *m, u64 *restrict xs, i64 *restrict pos, const i64 *restrict pmin,
-    i64 *restrict epos, const i64 *restrict eend)
-{
-    const i64 ws = w + 4;
-    for (i64 j = 0; j < nr; j++) {
-        i64 x0 = xsw - 3 * j;
-        if (x0 < 0 || x0 >= w) continue;
-        i64 y = y0 + j, yy = y + 2;
-        if (x0 == 0 && y > 0) {
-            pf[yy * ws] = pf[(yy - 1) * ws + 2];
-            pf[yy * ws + 1] = pf[(yy - 1) * ws + 2];
-        }
-        u64 x = xs[j]; i64 ps = pos[j], ep = epos[j];
-        pixel(pf, yy * ws + x0 + 2, ws, (i64)u[y * w + x0], m->thr, m->coef, m->tab0, m->pshift, m->lut, lut16,
-              m->fcum, m->alpha, m->amax, m->words, m->esc, &x, &ps, &ep);
-        if (!(ps >= pmin[j] && ep <= eend[j])) return 0;
-        xs[j] = x; pos[j] = ps; epos[j] = ep;
-        if (x0 == w - 1) {
-            pf[yy * ws + w + 2] = pf[yy * ws + w + 1];
-            pf[yy * ws + w + 3] = pf[yy * ws + w + 1];
-        }
-    }
-    return 1;
-}
 
 /* The encoder's residual pass (metraw.codec.predictive._residuals) for one plane, 8 pixels of a row per vector: every
  * neighbour is known to the encoder, so rows run without a sequential dependence. pf: the padded buffer (h + 2) x
  * (w + 4); thr: nthr activity thresholds (nthr <= 7); coef13: per context the 11 coefficients, their sum, the bias
  * (8 contexts, unused ones zero); residuals and table indices (int32) to r_out / t_out at [off, off + h w).
  * Returns max |r|. */
-#if METRAW_X86
 SIMD_FN static i64 residuals_avx512(const i64 *pf, i64 h, i64 w, const i64 *thr, i64 nthr, const i64 *coef13, i64 tab0,
                                     i64 pshift, int32_t *r_out, int32_t *t_out)
 {
@@ -320,51 +242,10 @@ SIMD_FN static i64 residuals_avx512(const i64 *pf, i64 h, i64 w, const i64 *thr,
     }
     return _mm512_reduce_max_epi64(rmax);
 }
-#endif
 
-/* metraw.codec.predictive._residuals in AVX-512 (only where metraw_simd_available()); see residuals_avx512 */
-i64 metraw_residuals(const i64 *pf, i64 h, i64 w, const i64 *thr, i64 nthr, const i64 *coef13, i64 tab0, i64 pshift,
-                     int32_t *r_out, int32_t *t_out)
-{
-#if METRAW_X86
-    return residuals_avx512(pf, h, w, thr, nthr, coef13, tab0, pshift, r_out, t_out);
-#else
-    (void)pf; (void)h; (void)w; (void)thr; (void)nthr; (void)coef13; (void)tab0; (void)pshift; (void)r_out; (void)t_out;
-    return -1;
-#endif
-}
 
-/* The encoder's rANS pass (metraw.codec.predictive._rans_encode): lane j codes the symbols of rows lr[j] ..
- * lr[j + 1] - 1 (row starts rs, lengths rl) backwards into its own stream, words to out[ls[j]:]. Symbol i pushes
- * table entry j = tab[i] alpha + idx[i] (freq, cum, rcp = 1 / freq flat); x / f by the float64 reciprocal, exact for
- * x < 2^32 (see the numba function; no fused multiply-add: built with -ffp-contract=off and explicit rounding). The
- * lanes' streams are independent, so their order does not change the bytes: the symbols past the shortest lane's
- * length go one lane at a time (scalar), the rest 16 lanes at a time in AVX-512 (two vectors of 8 side by side: their
- * dependency chains overlap; 8 for a last group of 8; 2026-11-28 on Zen 5: 5.5 -> 4.0 ms a 2 MP frame). States to
- * xs_out, word counts to nws_out (nl each). */
-INLINE void enc_symbol(const int32_t *idx, const int32_t *tab, i64 alpha, const i64 *freq, const i64 *cum,
-                       const double *rcp, uint16_t *out, i64 o, i64 *nw, u64 *xp, i64 i)
-{
-    u64 x = *xp;
-    i64 j = (i64)tab[i] * alpha + idx[i];
-    u64 f = (u64)freq[j];
-    u64 emit = x >= (f << (32 - PROB_BITS));
-    out[o + *nw] = (uint16_t)(x & 0xFFFF);
-    *nw += (i64)emit;
-    x >>= emit << 4;
-    double prod = (double)x * rcp[j];   /* -ffp-contract=off: no fused multiply-add */
-    u64 q = (u64)(prod + 1.52587890625e-05);
-    *xp = (q << PROB_BITS) + (x - q * f) + (u64)cum[j];
-}
-
-INLINE void enc_cursor(i64 *i, i64 *e, i64 *q, const i64 *rs, const i64 *rl, int more)
-{
-    if (*i > *e) { *i -= 1; return; }
-    if (more) { i64 r = *q - 1; *i = rs[r] + rl[r] - 1; *e = rs[r]; *q = r; }
-}
-
-#if METRAW_X86
-/* symbols k = lo - 1 .. 0 of lanes g .. g + 8 NV - 1 (every lane has them), the lanes side by side. ent: each
+/* The encoder's rANS pass (rans_encode_with in _simd_driver.c), AVX-512 part: symbols k = lo - 1 .. 0 of lanes g ..
+ * g + 8 NV - 1 (every lane has them), the lanes side by side. ent: each
  * symbol's table entry tab alpha + idx; fc: each entry's freq | cum << 32; x / freq by the reciprocal 1 / freq,
  * computed here (an IEEE division: the table's value) */
 INLINE SIMD_FN void rans_lanes(const int NV, const int32_t *ent, const u64 *fc, const i64 *rs, const i64 *rl,
@@ -426,73 +307,9 @@ SIMD_FN static void rans_lanes16(const int32_t *ent, const u64 *fc, const i64 *r
                                  i64 lo, u64 *xs, i64 *nws, i64 *ci, i64 *ce, i64 *cq, const i64 *o)
 { rans_lanes(2, ent, fc, rs, rl, out, lo, xs, nws, ci, ce, cq, o); }
 
-/* each symbol's table entry tab alpha + idx (n of them), 16 a vector */
-SIMD_FN static void entries_avx512(const int32_t *idx, const int32_t *tab, i64 n, i64 alpha, int32_t *ent)
-{
-    const __m512i A = _mm512_set1_epi32((int)alpha);
-    for (i64 i = 0; i < n; i += 16) {
-        const __mmask16 mk = n - i >= 16 ? 0xFFFF : (__mmask16)((1u << (n - i)) - 1);
-        const __m512i t = _mm512_maskz_loadu_epi32(mk, tab + i);
-        const __m512i e = _mm512_add_epi32(_mm512_mullo_epi32(t, A), _mm512_maskz_loadu_epi32(mk, idx + i));
-        _mm512_mask_storeu_epi32(ent + i, mk, e);
-    }
-}
-#endif
-
-void metraw_rans_encode(const int32_t *idx, const int32_t *tab, i64 n, i64 ntab, i64 alpha, const i64 *freq,
-                        const i64 *cum, const double *rcp, const i64 *rs, const i64 *rl, const i64 *lr, const i64 *ls,
-                        i64 nl, uint16_t *out, u64 *xs, i64 *nws)
-{
-    i64 ci[16], ce[16], cq[16];
-    i64 longest = 0, shortest = -1;
-    for (i64 j = 0; j < nl; j++) {
-        xs[j] = RANS_L;
-        nws[j] = 0;
-        i64 m = ls[j + 1] - ls[j];
-        longest = m > longest ? m : longest;
-        shortest = shortest < 0 || m < shortest ? m : shortest;
-        i64 q = lr[j + 1] - 1;
-        cq[j] = q;
-        ci[j] = ce[j] = 0;
-        if (q >= lr[j]) { ci[j] = rs[q] + rl[q] - 1; ce[j] = rs[q]; }
-    }
-    i64 lo = 0;
-    int32_t *ent = NULL;
-    u64 *fc = NULL;
-#if METRAW_X86
-    if (nl % 8 == 0 && shortest >= 16) {   /* >= 16 symbols: the scatter stays in the lane */
-        /* one gather of each symbol's table entry and one of the entry's frequency and cumulative frequency in the
-         * lanes' loop, instead of five (symbol, table, frequency, cumulative frequency, reciprocal); without the
-         * memory for them, the scalar coder codes every symbol */
-        ent = (int32_t *)malloc((size_t)(n > 0 ? n : 1) * sizeof(int32_t));
-        fc = (u64 *)malloc((size_t)(ntab * alpha > 0 ? ntab * alpha : 1) * sizeof(u64));
-        if (ent && fc) lo = shortest;
-    }
-#endif
-    for (i64 k = longest - 1; k >= lo; k--) {
-        for (i64 j = 0; j < nl; j++) {
-            if (k >= ls[j + 1] - ls[j]) continue;
-            enc_symbol(idx, tab, alpha, freq, cum, rcp, out, ls[j], &nws[j], &xs[j], ci[j]);
-            enc_cursor(&ci[j], &ce[j], &cq[j], rs, rl, k > 0);
-        }
-    }
-#if METRAW_X86
-    if (lo > 0) {
-        entries_avx512(idx, tab, n, alpha, ent);
-        for (i64 e = 0; e < ntab * alpha; e++) fc[e] = (u64)freq[e] | ((u64)cum[e] << 32);
-        for (i64 g = 0; g < nl; g += 16)
-            (g + 16 <= nl ? rans_lanes16 : rans_lanes8)(ent, fc, rs, rl, out, lo, xs + g, nws + g, ci + g, ce + g,
-                                                        cq + g, ls + g);
-    }
-#endif
-    free(ent);
-    free(fc);
-}
-
 /* The encoder's causal buffer (metraw.codec.predictive._front): p (h + 2) x (w + 4) of s 2^16 - floor(u 2^16), the
  * two rows above at c0s (= c0 2^16), the two columns left of row y at row y - 1's first value (c0s for row 0), the
  * two right at row y's last. s int32 and u float64 (h x w) C-contiguous; u 2^16 and its floor are exact. */
-#if METRAW_X86
 SIMD_FN static void front_avx512(const int32_t *s, const double *u, i64 h, i64 w, i64 c0s, i64 *p)
 {
     const i64 ws = w + 4;
@@ -514,21 +331,9 @@ SIMD_FN static void front_avx512(const int32_t *s, const double *u, i64 h, i64 w
         row[w + 2] = row[w + 3] = row[w + 1];
     }
 }
-#endif
-
-/* predictive._front (only where metraw_simd_available()) */
-void metraw_front(const int32_t *s, const double *u, i64 h, i64 w, i64 c0s, i64 *p)
-{
-#if METRAW_X86
-    front_avx512(s, u, h, w, c0s, p);
-#else
-    (void)s; (void)u; (void)h; (void)w; (void)c0s; (void)p;
-#endif
-}
 
 /* The encoder's alphabet indices (metraw.codec.predictive._index): idx = r + amax, or the escape 2 amax + 1 where
  * |r| > amax (16 a vector), then the per-table counts (ntab x (2 amax + 2), zeroed by the caller) in a scalar pass. */
-#if METRAW_X86
 SIMD_FN static void index_avx512(const int32_t *r, const int32_t *t, i64 n, i64 amax, i64 nt, int32_t *idx,
                                  i64 *counts)
 {
@@ -541,134 +346,35 @@ SIMD_FN static void index_avx512(const int32_t *r, const int32_t *t, i64 n, i64 
         __mmask16 out = _mm512_cmpgt_epi32_mask(v, A) | _mm512_cmplt_epi32_mask(v, NA);
         _mm512_mask_storeu_epi32(idx + i, mk, _mm512_mask_mov_epi32(_mm512_add_epi32(v, A), out, E));
     }
-    /* counts: runs of one bin in a row (smooth areas) would chain each increment on the last; two sub-histograms
-     * (even and odd pixels) halve that chain */
-    int32_t *odd = (int32_t *)calloc((size_t)(nt * alpha), sizeof(int32_t));
-    if (!odd) {
-        for (i64 i = 0; i < n; i++) counts[(i64)t[i] * alpha + idx[i]] += 1;
-        return;
-    }
-    i64 i = 0;
-    for (; i + 1 < n; i += 2) {
-        counts[(i64)t[i] * alpha + idx[i]] += 1;
-        odd[(i64)t[i + 1] * alpha + idx[i + 1]] += 1;
-    }
-    for (; i < n; i++) counts[(i64)t[i] * alpha + idx[i]] += 1;
-    for (i64 k = 0; k < nt * alpha; k++) counts[k] += odd[k];
-    free(odd);
+    index_counts(t, idx, n, alpha, nt, counts);
 }
+
+/* the AVX-512 path's functions (metraw.codec.native binds them where metraw_simd_paths() has PATH_AVX512) */
+int metraw_decode_plane_avx512(i64 *p, i64 h, i64 w, const int32_t *u, int32_t *sym, const i64 *thr7,
+                               const i64 *coef8x13, i64 tab0, i64 pshift, const void *lut, int lut16,
+                               const uint32_t *fcum, i64 alpha, i64 amax, const uint16_t *words, u64 *xs, i64 *pos,
+                               const i64 *pmin, const int32_t *esc, i64 *epos, const i64 *eend, i64 nl,
+                               int two_vectors)
+{
+    return decode_plane_with(steady8, steady16, p, h, w, u, sym, thr7, coef8x13, tab0, pshift, lut, lut16, fcum,
+                             alpha, amax, words, xs, pos, pmin, esc, epos, eend, nl, two_vectors);
+}
+
+i64 metraw_residuals_avx512(const i64 *pf, i64 h, i64 w, const i64 *thr, i64 nthr, const i64 *coef13, i64 tab0,
+                            i64 pshift, int32_t *r_out, int32_t *t_out)
+{ return residuals_avx512(pf, h, w, thr, nthr, coef13, tab0, pshift, r_out, t_out); }
+
+void metraw_rans_encode_avx512(const int32_t *idx, const int32_t *tab, i64 n, i64 ntab, i64 alpha, const i64 *freq,
+                               const i64 *cum, const double *rcp, const i64 *rs, const i64 *rl, const i64 *lr,
+                               const i64 *ls, i64 nl, uint16_t *out, u64 *xs, i64 *nws)
+{
+    rans_encode_with(rans_lanes8, rans_lanes16, idx, tab, n, ntab, alpha, freq, cum, rcp, rs, rl, lr, ls, nl, out, xs,
+                     nws);
+}
+
+void metraw_front_avx512(const int32_t *s, const double *u, i64 h, i64 w, i64 c0s, i64 *p)
+{ front_avx512(s, u, h, w, c0s, p); }
+
+void metraw_index_avx512(const int32_t *r, const int32_t *t, i64 n, i64 amax, i64 ntab, int32_t *idx, i64 *counts)
+{ index_avx512(r, t, n, amax, ntab, idx, counts); }
 #endif
-
-/* predictive._index (only where metraw_simd_available()) */
-void metraw_index(const int32_t *r, const int32_t *t, i64 n, i64 amax, i64 ntab, int32_t *idx, i64 *counts)
-{
-#if METRAW_X86
-    index_avx512(r, t, n, amax, ntab, idx, counts);
-#else
-    (void)r; (void)t; (void)n; (void)amax; (void)ntab; (void)idx; (void)counts;
-#endif
-}
-
-/* The functions' signatures and meaning, version: metraw.codec.native.ABI must match it, so a library built from an
- * older _simd.c (an editable install is not rebuilt by a pull) is left unused rather than called wrongly. */
-int metraw_simd_abi(void) { return 3; }
-
-/* 1 where the steady part of 16-lane groups should run its two vectors side by side (AMD: their overlap hides the
- * gathers' latency, 2026-11-28 on Zen 5: 15 % faster than 8 lanes), 0 where as two groups of 8 (Intel: measured
- * 2026-11-28 on Emerald Rapids with two vectors, 10-25 % slower than 8 lanes, a noisy host) */
-int metraw_two_vector_steady(void)
-{
-#if METRAW_X86
-    __builtin_cpu_init();
-    return __builtin_cpu_is("amd");
-#else
-    return 0;
-#endif
-}
-
-/* 1 when this CPU runs the AVX-512 steady part (AVX-512 F and DQ), else 0 */
-int metraw_simd_available(void)
-{
-#if METRAW_X86
-    __builtin_cpu_init();
-    return __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512dq");
-#else
-    return 0;
-#endif
-}
-
-/* general_step over column steps [from, to) of the lanes of rows y0 .. y0 + nr - 1 (lanes xs .. eend: theirs) */
-static int general_steps(i64 *pf, i64 from, i64 to, i64 y0, i64 nr, i64 w, const int32_t *u, const model_t *m,
-                         u64 *xs, i64 *pos, const i64 *pmin, i64 *epos, const i64 *eend)
-{
-    for (i64 xsw = from; xsw < to; xsw++)
-        if (!(m->lut16 ? general_step(1, pf, xsw, y0, nr, w, u, m, xs, pos, pmin, epos, eend)
-                       : general_step(0, pf, xsw, y0, nr, w, u, m, xs, pos, pmin, epos, eend))) return 0;
-    return 1;
-}
-
-#if METRAW_X86
-/* a full 16-lane group with its two vectors side by side (w >= 48): A = lanes 0-7, B = lanes 8-15 (B's column step s
- * is A's s + 24). The ramps of 16 staggered lanes would take the scalar path for 46 column steps at each end; here
- * only 8-lane ramps do: A's start ramp, A alone in its steady part while B starts, both vectors, then B alone while A
- * ends, B's end. Each lane decodes its pixels in order and after the pixels above it (A runs ahead of B), so the
- * values are those of any other schedule. */
-SIMD_FN static int decode_group16(i64 *pf, i64 y0, i64 w, const int32_t *u, const model_t *m, u64 *xs, i64 *pos,
-                                  const i64 *pmin, i64 *epos, const i64 *eend)
-{
-    /* S8, S16: the first steady column step of 8 and 16 staggered lanes; LAG: B's column step behind A's */
-    const i64 S8 = 3 * 7 + 1, S16 = 3 * 15 + 1, LAG = 3 * 8, yb = y0 + 8;
-    return general_steps(pf, 0, S8, y0, 8, w, u, m, xs, pos, pmin, epos, eend)
-        && steady8(pf, y0, w, u, m, xs, pos, pmin, epos, eend, S8, S16 - 1)
-        && general_steps(pf, 0, S16 - LAG, yb, 8, w, u, m, xs + 8, pos + 8, pmin + 8, epos + 8, eend + 8)
-        && steady16(pf, y0, w, u, m, xs, pos, pmin, epos, eend, S16, w - 2)
-        && general_steps(pf, w - 1, w - 1 + S8, y0, 8, w, u, m, xs, pos, pmin, epos, eend)
-        && steady8(pf, yb, w, u, m, xs + 8, pos + 8, pmin + 8, epos + 8, eend + 8, w - 1 - LAG, w - 2)
-        && general_steps(pf, w - 1, w - 1 + S8, yb, 8, w, u, m, xs + 8, pos + 8, pmin + 8, epos + 8, eend + 8);
-}
-#endif
-
-/* one row group: rows y0 .. y0 + nr - 1 in lanes 0 .. nr - 1 of a group of nl lanes (xs .. eend: those lanes') */
-static int decode_group(i64 *pf, i64 y0, i64 nr, i64 nl, i64 w, const int32_t *u, const model_t *m, u64 *xs, i64 *pos,
-                        const i64 *pmin, i64 *epos, const i64 *eend)
-{
-    const i64 XS0 = 3 * (nl - 1) + 1;
-#if METRAW_X86
-    if (nl == 16 && nr == 16 && w >= XS0 + 2) return decode_group16(pf, y0, w, u, m, xs, pos, pmin, epos, eend);
-    if (nl == 8 && nr == 8 && w >= XS0 + 2)
-        return general_steps(pf, 0, XS0, y0, nr, w, u, m, xs, pos, pmin, epos, eend)
-            && steady8(pf, y0, w, u, m, xs, pos, pmin, epos, eend, XS0, w - 2)
-            && general_steps(pf, w - 1, w + 3 * (nr - 1), y0, nr, w, u, m, xs, pos, pmin, epos, eend);
-#endif
-    return general_steps(pf, 0, w + 3 * (nr - 1), y0, nr, w, u, m, xs, pos, pmin, epos, eend);
-}
-
-/* metraw.codec.decoder.decode_plane: p the (h + 2) x (w + 4) padded buffer, u the fixed-point dither (h x w),
- * sym the symbols out (h x w); lut and words readable 4 bytes past their ends (gathers read 32 bits); groups of 8
- * or 16 lanes run the AVX-512 steady part (call only where metraw_simd_available()): 16 lanes as two vectors side by
- * side where two_vectors is 1, else as two groups of 8 rows one after the other (lane j's rows in the same order, so
- * the same values). Returns 1, or 0 when a lane ran past its words or escapes (corrupt stream). */
-int metraw_decode_plane(i64 *p, i64 h, i64 w, const int32_t *u, int32_t *sym, const i64 *thr7, const i64 *coef8x13,
-                   i64 tab0, i64 pshift, const void *lut, int lut16, const uint32_t *fcum, i64 alpha, i64 amax,
-                   const uint16_t *words, u64 *xs, i64 *pos, const i64 *pmin, const int32_t *esc, i64 *epos,
-                   const i64 *eend, i64 nl, int two_vectors)
-{
-    model_t m = {thr7, coef8x13, tab0, pshift, alpha, amax, lut, lut16, fcum, words, esc};
-    const i64 ws = w + 4;
-    i64 *pf = p;
-    const i64 sub = nl == 16 && !two_vectors ? 8 : nl;
-    for (i64 y0 = 0; y0 < h; y0 += nl) {
-        for (i64 s0 = 0; s0 < nl && y0 + s0 < h; s0 += sub) {
-            const i64 nr = sub < h - y0 - s0 ? sub : h - y0 - s0;
-            if (!decode_group(pf, y0 + s0, nr, sub, w, u, &m, xs + s0, pos + s0, pmin + s0, epos + s0, eend + s0))
-                return 0;
-        }
-    }
-    for (i64 y = 0; y < h; y++) {
-        const i64 *row = pf + (y + 2) * ws + 2;
-        const int32_t *uy = u + y * w;
-        int32_t *sy = sym + y * w;
-        for (i64 x = 0; x < w; x++) sy[x] = (int32_t)((row[x] + uy[x]) >> 16);
-    }
-    return 1;
-}

@@ -228,65 +228,32 @@ SIMD_FN static void inverse_dn_avx512(const int32_t *sym, i64 rows, i64 cols, u6
         }
     }
 }
-#endif
 
-/* prepare._dither_grid_kernel (only where metraw_simd_available()) */
-void metraw_dither_grid(u64 k1, u64 k2, i64 start, i64 rows, i64 cols, i64 row_step, i64 col_step, double *out)
-{
-#if METRAW_X86
-    dither_grid_avx512(k1, k2, start, rows, cols, row_step, col_step, out);
-#else
-    (void)k1; (void)k2; (void)start; (void)rows; (void)cols; (void)row_step; (void)col_step; (void)out;
-#endif
-}
+/* the AVX-512 path's functions (metraw.codec.native binds them where metraw_simd_paths() has PATH_AVX512) */
+void metraw_dither_grid_avx512(u64 k1, u64 k2, i64 start, i64 rows, i64 cols, i64 row_step, i64 col_step, double *out)
+{ dither_grid_avx512(k1, k2, start, rows, cols, row_step, col_step, out); }
 
-/* prepare._forward_kernel (only where metraw_simd_available()); data: uint16 with strides in elements */
-void metraw_forward(const uint16_t *data, i64 rows, i64 cols, i64 row_stride, i64 col_stride, double black,
-                    double inv_k, double c, double xmax, double inv_step, const double *u, int32_t *out)
-{
-#if METRAW_X86
-    forward_avx512(data, rows, cols, row_stride, col_stride, black, inv_k, c, xmax, inv_step, u, out);
-#else
-    (void)data; (void)rows; (void)cols; (void)row_stride; (void)col_stride; (void)black; (void)inv_k; (void)c;
-    (void)xmax; (void)inv_step; (void)u; (void)out;
-#endif
-}
+void metraw_forward_avx512(const uint16_t *data, i64 rows, i64 cols, i64 row_stride, i64 col_stride, double black,
+                           double inv_k, double c, double xmax, double inv_step, const double *u, int32_t *out)
+{ forward_avx512(data, rows, cols, row_stride, col_stride, black, inv_k, c, xmax, inv_step, u, out); }
 
-/* The encoder's plane buffer (plane_buffer_avx512; only where metraw_simd_available()): returns the sum of the
- * symbols, for c0 */
-i64 metraw_plane_buffer(const uint16_t *data, i64 rows, i64 cols, i64 row_stride, i64 col_stride, u64 k1, u64 k2,
-                        i64 start, i64 row_step, i64 col_step, double black, double inv_k, double c, double xmax,
-                        double inv_step, i64 *p)
+i64 metraw_plane_buffer_avx512(const uint16_t *data, i64 rows, i64 cols, i64 row_stride, i64 col_stride, u64 k1,
+                               u64 k2, i64 start, i64 row_step, i64 col_step, double black, double inv_k, double c,
+                               double xmax, double inv_step, i64 *p)
 {
-#if METRAW_X86
     return plane_buffer_avx512(data, rows, cols, row_stride, col_stride, k1, k2, start, row_step, col_step, black,
                                inv_k, c, xmax, inv_step, p);
-#else
-    (void)data; (void)rows; (void)cols; (void)row_stride; (void)col_stride; (void)k1; (void)k2; (void)start;
-    (void)row_step; (void)col_step; (void)black; (void)inv_k; (void)c; (void)xmax; (void)inv_step; (void)p;
-    return 0;
-#endif
 }
 
-/* decoder.fixed_dither(prepare.dither_grid(...)) (only where metraw_simd_available()) */
-void metraw_dither_fixed(u64 k1, u64 k2, i64 start, i64 rows, i64 cols, i64 row_step, i64 col_step, int32_t *out)
-{
-#if METRAW_X86
-    dither_fixed_avx512(k1, k2, start, rows, cols, row_step, col_step, out);
-#else
-    (void)k1; (void)k2; (void)start; (void)rows; (void)cols; (void)row_step; (void)col_step; (void)out;
-#endif
-}
+void metraw_dither_fixed_avx512(u64 k1, u64 k2, i64 start, i64 rows, i64 cols, i64 row_step, i64 col_step,
+                                int32_t *out)
+{ dither_fixed_avx512(k1, k2, start, rows, cols, row_step, col_step, out); }
 
-/* prepare.inverse_dn with the dither made on the way (only where metraw_simd_available()); see inverse_dn_avx512 */
-void metraw_inverse_dn(const int32_t *sym, i64 rows, i64 cols, u64 k1, u64 k2, i64 start, i64 row_step, i64 col_step,
-                       double half_step, double k, double offset, uint16_t *out, i64 out_row_stride, i64 out_col_stride)
+void metraw_inverse_dn_avx512(const int32_t *sym, i64 rows, i64 cols, u64 k1, u64 k2, i64 start, i64 row_step,
+                              i64 col_step, double half_step, double k, double offset, uint16_t *out,
+                              i64 out_row_stride, i64 out_col_stride)
 {
-#if METRAW_X86
     inverse_dn_avx512(sym, rows, cols, k1, k2, start, row_step, col_step, half_step, k, offset, out, out_row_stride,
                       out_col_stride);
-#else
-    (void)sym; (void)rows; (void)cols; (void)k1; (void)k2; (void)start; (void)row_step; (void)col_step;
-    (void)half_step; (void)k; (void)offset; (void)out; (void)out_row_stride; (void)out_col_stride;
-#endif
 }
+#endif
