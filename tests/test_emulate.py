@@ -386,9 +386,9 @@ def test_cli_emulate_writes_store_atomically(tmp_path, capsys):
     rc = main(["emulate", str(src_path), str(bad), "--params", str(params), "--point", "diameter_m=30,exposure_s=1"])
     assert rc == 2 and "times more light" in capsys.readouterr().err
     assert not bad.exists() and not any(p.name.startswith(".bad.zarr") for p in tmp_path.iterdir())
-    # --at-point NAME: the params file's point, merged once in metraw.points; the same store as the full list of
+    # --at-point NAME: the params file's point, merged once in metraw.study.points; the same store as the full list of
     # its fields as overrides (what the workflow passed before), ints of the params file held as floats alike
-    from metraw.points import target_params
+    from metraw.study.points import target_params
 
     full["target"]["nominal"]["black_level_dn"] = 64  # an int in the file
     params.write_text(yaml.safe_dump(full))

@@ -19,7 +19,7 @@ def register(subparsers) -> None:
     p.add_argument("--point", default="", help="target overrides name=value,... (any TargetSystem field; "
                    "tuples with ':', e.g. frame_offset_m=10:-5), e.g. focal_length_m=1.644,diameter_m=0.2")
     p.add_argument("--at-point", default=None, metavar="NAME",
-                   help="the target of the parameter file's point NAME (metraw.points.target_params: the nominal "
+                   help="the target of the parameter file's point NAME (metraw.study.points.target_params: the nominal "
                    "with the point's overrides, merged once), e.g. diameter_m-0.5; what the workflow passes")
     p.add_argument("--params", default="params.yaml", help="parameter file with target.nominal (default params.yaml)")
     p.add_argument("--mode", choices=("photon", "expected", "auto"), default=None,
@@ -63,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
     if args.at_point is not None and args.point:
         raise MetrawError("give --point (overrides) or --at-point (a point of the parameter file), not both")
     if args.at_point is not None:
-        from metraw.points import target_params
+        from metraw.study.points import target_params
 
         target = TargetSystem.from_dict(target_params(params, args.at_point))
     else:
