@@ -204,6 +204,14 @@ Then ``codec.TILE_PIXELS`` 5 -> 2.5 MP (frames up to 5 MP keep their 2 tiles, so
 20 MP frame in 8 tiles instead of 4, 1-thread CPU / JPEG-LS (5 interleaved rounds, 1-thread calls only):
 encode 0.89 -> 0.67 (step 1) and 0.87 -> 0.67 (step 2), decode 0.88 -> 0.89 and 0.87 -> 0.88, bpp 2.9367 -> 2.9450
 and 2.0325 -> 2.0354; measured that way, decode is below JPEG-LS's at 4 tiles too (the 1.06 above: 7 rounds).
+
+The AVX2 path (issue #52; forced on the Intel Emerald Rapids VM, 2026-11-28 evening): ``--native`` (load ~4.6) 1-thread
+CPU ms encode / decode, avx2 against numba: canon_dng 45.6 / 40.8 against 52.8 / 54.1, micasense 22.3 / 26.7 against
+30.9 / 34.7, spacenet_pan 8.1 / 7.2 against 9.0 / 9.2 (so native.AUTO picks avx2 without AVX-512). ``--speed --reps 11
+--no-large`` (load 1.4 -> 5.7: a one-core job ran throughout, so par ~0.7 and the 2-thread walls are not an idle
+machine's), cpu1 / JPEG-LS encode / decode at steps 1 and 2: avx2 canon_dng 0.73 / 0.69, 0.75 / 0.66; micasense
+0.58 / 0.67, 0.46 / 0.57; spacenet_pan 0.67 / 0.60, 0.61 / 0.69 (numba 0.68-0.97, avx512 0.40-0.56); canon_dng's
+step-1 encode there 57.7 ms against numba's 56.7 (a tie in that run; 45.6 against 52.8 in ``--native``).
 """
 
 from __future__ import annotations
