@@ -161,6 +161,27 @@ def test_a_flat_line_states_the_nominal_value_as_its_optimum():
     assert not line["flat"] and line["optimal"] == pytest.approx(0.6)
 
 
+def test_normalise_never_moves_a_property_that_never_moved_alone():
+    # an exposure line: signal and smear grow together; IoU rises along it. The fit cannot tell the signal's effect
+    # from the smear's, so adding smear to a sharp image is not offered (it is what made the default run's best
+    # point worse: its normalised images scored 0.037 lower)
+    points = [{"point": f"t{i}", "iou": 0.18 + 0.012 * i, "iou_sd": 0.003, "gsd_m": 0.9 + 0.3 * (i % 2) * 0,
+               "reference_signal_e": 30.0 * (1 + i), "smear_m": 0.7 * (1 + i), "diffraction_m": 1.65 + 0.5 * (i == 4)}
+              for i in range(5)]
+    model = PropertyModel.from_points(points)
+    assert not model.identified("smear_m") and not model.identified("reference_signal_e")
+    assert model.best_move("smear_m", {"reference_signal_e": 60.0, "smear_m": 1.4, "diffraction_m": 1.65}) is None
+    line = model.optimum_line("smear_m", {"reference_signal_e": 60.0, "smear_m": 1.4, "diffraction_m": 1.65})
+    assert line["identified"] is False
+    # a mono point beside a Bayer one differs in signal alone among the properties, but also in its sensor
+    pair = [{"point": "a", "iou": 0.2, "iou_sd": 0.01, "reference_signal_e": 57.0, "gsd_m": 0.9, "sensor": "bayer"},
+            {"point": "b", "iou": 0.2, "iou_sd": 0.01, "reference_signal_e": 223.0, "gsd_m": 0.9, "sensor": "mono"},
+            {"point": "c", "iou": 0.1, "iou_sd": 0.01, "reference_signal_e": 244.0, "gsd_m": 1.8, "sensor": "bayer"}]
+    assert not PropertyModel.from_points(pair).identified("reference_signal_e")
+    pair[1]["sensor"] = "bayer"
+    assert PropertyModel.from_points(pair).identified("reference_signal_e")
+
+
 def test_normalise_moves_toward_an_optimum_the_fit_shows():
     # IoU peaks at a mid signal (a network trained on dimmer images): thinning a bright image helps
     points = [{"point": f"p{i}", "iou": 0.35 - 0.2 * math.log(s / 40.0) ** 2, "iou_sd": 0.003, "gsd_m": 0.9,

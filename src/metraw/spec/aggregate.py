@@ -396,14 +396,18 @@ def _property_model(options, rows: list[dict[str, Any]]):
     """Each point's image properties (medians over its store's images, ``row["properties"]``) and the IoU fit
     over them (`metraw.spec.property_model`), from every point: lines, grids and categorical points."""
     from metraw.io.store import RawStore
+    from metraw.raw.cfa import cfa_family
     from metraw.spec.property_model import PropertyModel, store_properties
 
     for r in rows:
         spath = Path(options.stores_pattern.format(point=r["point"], results=options.results))
         if not spath.exists():
             raise MetrawError(f"store {spath} of point {r['point']} is missing (needed for its image properties)")
-        r["properties"] = store_properties(RawStore.open(spath))
-    points = [{"point": r["point"], "iou": r["iou"], "iou_sd": r["iou_sd"], **r["properties"]} for r in rows]
+        store = RawStore.open(spath)
+        r["properties"] = store_properties(store)
+        r["sensor"] = cfa_family(store[0].cfa_pattern)  # mono or bayer: points of two sensors are not comparable
+    points = [{"point": r["point"], "iou": r["iou"], "iou_sd": r["iou_sd"], "sensor": r["sensor"], **r["properties"]}
+              for r in rows]
     return PropertyModel.from_points(points, seed=options.seed)
 
 

@@ -256,9 +256,11 @@ def build_spec(tolerances: Mapping[str, Any], nominal: Mapping[str, Any], requir
             "measured": {v: {"iou": r["iou"], "iou_sd": r["iou_sd"]} for v, r in c["values"].items()}})
     if property_model is not None:
         props = {name: Limit(line["optimal"], line["min"], line["max"], line["unit"], {
-            "iou_at_optimal": line["iou_at_optimal"], "flat": line["flat"], "from": "property model (every point of the "
-            "run), others at the nominal point's properties; min / max: the sampled range; flat: no value along it "
-            "beats the nominal's by more than 2 predictive sd, so the optimal is the nominal's"})
+            "iou_at_optimal": line["iou_at_optimal"], "flat": line["flat"], "identified": line["identified"],
+            "from": "property model (every point of the run), others at the nominal point's properties; min / max: "
+            "the sampled range; flat: no value along it beats the nominal's by more than 2 predictive sd, so the "
+            "optimal is the nominal's; identified: some points differ in this property alone (else its line carries "
+            "the properties that moved with it, and no normalisation moves it)"})
             for name, line in property_lines(property_model, model_at).items()}
     else:
         props = _property_limits(params, nominal, nominal_f, optimum, signal_reference_e)

@@ -53,6 +53,13 @@ DEGRADES = {"gsd_m": "up", "diffraction_m": "up", "smear_m": "up", "reference_si
 #: A move toward the fit's optimum is planned only when it raises the predicted IoU by more than this many
 #: predictive standard deviations (of the image's own prediction): normalise never degrades on noise.
 HELPS_SIGMA = 2.0
+#: A property's own effect is identified when two points of the run differ in it by more than ``IDENTIFY_STEP``
+#: (relative) while every other property agrees within ``IDENTIFY_SAME`` (relative). One-at-a-time sweeps move
+#: several properties at once (a longer exposure: more signal *and* more smear); along a property that never moved
+#: alone the fit cannot tell its effect from its companions', so no normalisation moves it and its line states the
+#: nominal's value.
+IDENTIFY_STEP = 0.05
+IDENTIFY_SAME = 0.02
 #: Reference wavelength of the diffraction scale [m].
 WAVELENGTH_REF_M = 550e-9
 #: Gaussian sigma of the Airy core in units of lambda/D (best-fit Gaussian to the Airy disc).
@@ -235,6 +242,18 @@ class PropertyModel:
                 return float(r[name])
         return float(np.median([float(r[name]) for r in self.points]))
 
+    def identified(self, name: str) -> bool:
+        """Whether two points of one sensor (their ``sensor``, when stated: mono or bayer) differ in ``name`` alone
+        (``IDENTIFY_STEP``, ``IDENTIFY_SAME``)."""
+        def rel(a: float, b: float) -> float:
+            return abs(a - b) / max(abs(a), abs(b), 1e-300)
+
+        others = [n for n in self.names if n != name]
+        pts = self.points
+        return any(p.get("sensor") == q.get("sensor") and rel(float(p[name]), float(q[name])) > IDENTIFY_STEP
+                   and all(rel(float(p[n]), float(q[n])) <= IDENTIFY_SAME for n in others)
+                   for i, p in enumerate(pts) for q in pts[i + 1:])
+
     def sampled_range(self, name: str) -> tuple[float, float]:
         values = [float(r[name]) for r in self.points]
         return min(values), max(values)
@@ -244,9 +263,11 @@ class PropertyModel:
         """The value of ``name`` in its degrade-only direction (from the image's own value to the end of the
         sampled range), others held at the image's values, that maximises the predicted IoU, when it beats the
         image's own prediction (``here``: its (mean, sd), when the caller has it) by more than ``HELPS_SIGMA``
-        predictive sd; else None."""
+        predictive sd, and the run identifies the property's own effect (``identified``); else None."""
         from metraw.spec.tolerance import Axis
 
+        if not self.identified(name):
+            return None
         have = float(props[name])
         lo, hi = self.sampled_range(name)
         end = hi if DEGRADES[name] == "up" else lo
@@ -281,8 +302,10 @@ class PropertyModel:
         i = int(np.argmax(p.mean))
         here_mean, here_sd = self.predict(at)
         if float(p.mean[i]) - here_mean <= HELPS_SIGMA * here_sd:
-            return {"optimal": float(at[name]), "iou_at_optimal": here_mean, "min": lo, "max": hi, "flat": True}
-        return {"optimal": float(grid[i]), "iou_at_optimal": float(p.mean[i]), "min": lo, "max": hi, "flat": False}
+            return {"optimal": float(at[name]), "iou_at_optimal": here_mean, "min": lo, "max": hi, "flat": True,
+                    "identified": self.identified(name)}
+        return {"optimal": float(grid[i]), "iou_at_optimal": float(p.mean[i]), "min": lo, "max": hi, "flat": False,
+                "identified": self.identified(name)}
 
     def to_dict(self) -> dict[str, Any]:
         return {"properties": list(self.names), "units": {n: UNITS[n] for n in self.names},
