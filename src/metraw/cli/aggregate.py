@@ -1,19 +1,5 @@
-"""``metraw aggregate``: per-point results -> GP response surfaces, tolerances, spec.yaml, figures.
-
-The point list comes from params.yaml (`metraw.study.points.parameter_points`), never from a glob;
-every point's metrics (and compression) file must exist. Outputs under ``--out``:
-``spec.yaml``, ``aggregate.json``, ``figures/*.png`` and ``plots/*.csv`` (for ``dvc plots``).
-With replicate models a point's IoU, precision, recall and object F1 (synthetic and real) are the means over
-the replicates (``iou_measurement``, ``with_replicate_means``); box scores are the first model's.
-
-Sim-to-real (``--real-metrics-pattern``, issue #16): each point's synthetic-trained model scored on the
-real images emulated through the same point. aggregate.json then holds per point ``real_iou`` (+ sd),
-``real_precision``, ``real_recall``, ``real_box_iou`` (box labels: predicted objects as boxes),
-``real_labels``, ``sim_to_real_gap`` (synthetic test IoU - real IoU, with its sd) and ``sim_to_real_note``, plus a top-level ``sim_to_real`` summary (nominal gap, whether it
-is within ``--gap-tolerance``; ``--source-real-metrics``: the drone-resolution reference); the IoU
-figures draw the real points beside the synthetic ones. The GP, tolerances and spec.yaml are fitted
-to the synthetic test IoU only: the real images are a check of transfer, not the basis of the spec.
-"""
+"""``metraw aggregate``: per-point results -> GP response surfaces, tolerances, spec.yaml, figures. The command
+parses its arguments and calls `metraw.spec.aggregate` (what it reads and writes is described there)."""
 
 from __future__ import annotations
 

@@ -308,6 +308,21 @@ def open_model(model_dir, device: str):
         raise MetrawError(f"cannot read the model in {model_dir}: {' '.join(str(exc).split())[:200]}") from None
 
 
+def open_for_inference(model_dir, device: str | None, transforms: int | None):
+    """A trained model ready to score or predict: (model, checkpoint, record, its TrainConfig, the dihedral
+    transforms to average (``transforms``, default the model's ``predict_transforms``), device), torch seeded and
+    threaded as the model's config says."""
+    from metraw.segment.train import TrainConfig, default_device, set_determinism
+
+    device = device or default_device()
+    model, ckpt, record = open_model(model_dir, device)
+    config = TrainConfig.from_dict(ckpt["config"])
+    transforms = config.predict_transforms if transforms is None else transforms
+    check_transforms(transforms)
+    set_determinism(config.seed, config.threads, device)
+    return model, ckpt, record, config, transforms, device
+
+
 def check_channels(ckpt: dict[str, Any], pattern: str, where: str, model_dir) -> None:
     """The model was trained on images of the image's sensor kind (mono or Bayer: the checkpoint's ``sensor``),
     and takes its four packed planes, else a one-line error."""
@@ -378,14 +393,9 @@ def evaluate_store(store_path, model_dir, device: str | None = None, progress: b
     from metraw.io.store import RawStore
     from metraw.progress import progress_bar
     from metraw.segment.data import prepare
-    from metraw.segment.train import TrainConfig, default_device, flush_denormals, replicate_dirs, set_determinism
+    from metraw.segment.train import flush_denormals, replicate_dirs
 
-    device = device or default_device()
-    model, ckpt, record = open_model(model_dir, device)
-    config = TrainConfig.from_dict(ckpt["config"])
-    transforms = config.predict_transforms if transforms is None else transforms
-    check_transforms(transforms)
-    set_determinism(config.seed, config.threads, device)
+    model, ckpt, record, config, transforms, device = open_for_inference(model_dir, device, transforms)
     store = RawStore.open(store_path)
     is_training, identified_by = training_store(store, store_path, record)
     indices, split_name = select_images(store, store_path, model_dir, ckpt, config, split, is_training)

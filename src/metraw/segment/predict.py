@@ -29,7 +29,7 @@ import numpy as np
 
 from metraw.errors import MetrawError
 from metraw.raw.cfa import PACKED_CELL_PX, PACKED_GEOMETRY, unpack_planes
-from metraw.segment.data import canonical_window, check_transforms
+from metraw.segment.data import canonical_window
 from metraw.segment.evaluate import THRESHOLD
 from metraw.segment.objects import MIN_OBJECT_AREA_M2
 
@@ -100,20 +100,15 @@ def predict_store(store_path, model_dir, out_path, device: str | None = None, pr
     from metraw.atomic import atomic_path
     from metraw.io.store import RawStore
     from metraw.progress import progress_bar
-    from metraw.segment.evaluate import check_channels, label_kind, open_model
-    from metraw.segment.train import TrainConfig, default_device, flush_denormals, set_determinism
+    from metraw.segment.evaluate import check_channels, label_kind, open_for_inference
+    from metraw.segment.train import flush_denormals
 
     for path in (out_path, overlay):
         if path is not None and Path(path).exists() and not overwrite:
             raise MetrawError(f"output {path} already exists (use --overwrite to replace it)")
     if overlay is not None and overlay_count < 1:
         raise MetrawError(f"--overlay-count must be >= 1, got {overlay_count}")
-    device = device or default_device()
-    model, ckpt, _ = open_model(model_dir, device)
-    config = TrainConfig.from_dict(ckpt["config"])
-    transforms = config.predict_transforms if transforms is None else transforms
-    check_transforms(transforms)
-    set_determinism(config.seed, config.threads, device)
+    model, ckpt, _, config, transforms, device = open_for_inference(model_dir, device, transforms)
     store = RawStore.open(store_path)
     n = len(store)
     if n == 0:
