@@ -393,7 +393,7 @@ def evaluate_store(store_path, model_dir, device: str | None = None, progress: b
     from metraw.io.store import RawStore
     from metraw.progress import progress_bar
     from metraw.segment.data import prepare
-    from metraw.segment.train import flush_denormals, replicate_dirs
+    from metraw.segment.train import TrainConfig, flush_denormals, replicate_dirs
 
     model, ckpt, record, config, transforms, device = open_for_inference(model_dir, device, transforms)
     store = RawStore.open(store_path)
