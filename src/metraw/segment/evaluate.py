@@ -327,11 +327,12 @@ def check_channels(ckpt: dict[str, Any], pattern: str, where: str, model_dir) ->
     """The model was trained on images of the image's sensor kind (mono or Bayer: the checkpoint's ``sensor``),
     and takes its four packed planes, else a one-line error."""
     from metraw.raw.cfa import cfa_family
+    from metraw.segment.train import checkpoint_sensor
 
     if ckpt.get("in_channels") != 4:
         raise MetrawError(f"the model in {model_dir} takes {ckpt.get('in_channels')} packed plane(s) (a mono model "
                           "of an older metraw, which packed mono mosaics in 1 plane): train it again")
-    sensor = ckpt.get("sensor", "bayer")  # checkpoints without it are Bayer models (older mono ones failed above)
+    sensor = checkpoint_sensor(ckpt)
     if sensor != cfa_family(pattern):
         raise MetrawError(f"the model in {model_dir} was trained on {sensor} images but {where} is {pattern} "
                           f"({cfa_family(pattern)}): sensor mismatch")

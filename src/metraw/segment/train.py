@@ -528,6 +528,12 @@ def load_model(model_dir: str | os.PathLike, device: str | None = None):
     return model, ckpt, record
 
 
+def checkpoint_sensor(ckpt: dict[str, Any]) -> str:
+    """The images a checkpoint's network was trained on, "mono" or "bayer": its ``sensor``, or for checkpoints
+    written before it was recorded, "bayer" for four input planes and "mono" for one."""
+    return ckpt.get("sensor", "bayer" if ckpt.get("in_channels") == 4 else "mono")
+
+
 def pretrained_states(model_dir: str | os.PathLike, n: int, sensor: str | None = None) -> list[dict[str, Any]]:
     """The weights of the first ``n`` replicates of a model directory (``metraw pretrain``'s), in replicate
     order: replicate r of a point fine-tunes from the r-th. ``sensor`` ("mono" or "bayer"): the images the
@@ -540,7 +546,7 @@ def pretrained_states(model_dir: str | os.PathLike, n: int, sensor: str | None =
     if len(dirs) < n:
         raise MetrawError(f"{model_dir} holds {len(dirs)} pretrained replicate(s); {n} are asked for (one per replicate)")
     ckpts = [torch.load(d / CHECKPOINT, map_location="cpu", weights_only=True) for d in dirs[:n]]
-    have = ckpts[0].get("sensor", "bayer" if ckpts[0].get("in_channels") == 4 else "mono")
+    have = checkpoint_sensor(ckpts[0])
     if sensor is not None and have != sensor:
         raise MetrawError(f"{model_dir} was pretrained on {have} images; this training sees {sensor} images: "
                           "pretrain with its sensor's pattern (metraw pretrain --cfa-pattern)")

@@ -151,11 +151,15 @@ def reference_signal_e(image: RawImage) -> float | None:
     the mosaic's channels, times the air's transmission (as the provenance states it; 1 when it states none)
     and the thinnings since the emulation. None when the profile lacks pitch, focal length,
     aperture or exposure."""
+    return _reference_signal(image, stated_air(image))
+
+
+def _reference_signal(image: RawImage, air: StatedAir) -> float | None:
+    """`reference_signal_e` with the provenance's `StatedAir` already read."""
     prof = image.profile
     if None in (prof.pixel_pitch_m, prof.focal_length_m, prof.aperture_diameter_m, prof.exposure_s) \
             or not prof.aperture_diameter_m:
         return None
-    air = stated_air(image)
     t_air = 1.0 if air.transmission is None else air.transmission
     scale = pixel_etendue_m2_sr(prof) * prof.exposure_s * prof.optical_transmission * t_air * air.light_factor
     shares = _channel_shares(image)
@@ -172,8 +176,11 @@ def haze_fraction(image: RawImage) -> float | None:
     """Path radiance's share of the light from the reference ground, haze / (haze + reference signal), both in
     photoelectrons per pixel through the same optics (see module docstring); None when the provenance states no
     haze or the profile lacks the geometry."""
-    haze = stated_haze_per_pixel_e(image)
-    signal = reference_signal_e(image)
+    air = stated_air(image)
+    return _fraction(air.haze_e, _reference_signal(image, air))
+
+
+def _fraction(haze: float | None, signal: float | None) -> float | None:
     if haze is None or signal is None or haze + signal <= 0:
         return None
     return float(haze / (haze + signal))
@@ -191,8 +198,9 @@ def geometry_properties(profile) -> dict[str, float | None]:
 def image_properties(image: RawImage) -> dict[str, float | None]:
     """Every property of ``image`` (see module docstring); None where the profile or provenance cannot state it."""
     out = geometry_properties(image.profile)
-    out["reference_signal_e"] = reference_signal_e(image)
-    out["haze_fraction"] = haze_fraction(image)
+    air = stated_air(image)  # the provenance read once for both
+    out["reference_signal_e"] = _reference_signal(image, air)
+    out["haze_fraction"] = _fraction(air.haze_e, out["reference_signal_e"])
     return out
 
 
