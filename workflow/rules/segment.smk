@@ -33,6 +33,8 @@ if PRETRAIN["enabled"]:
                 runtime=60,  # minutes
             log:
                 "logs/pretrain_scenes.log",
+            benchmark:
+                "logs/benchmark/pretrain_scenes.tsv",
             shell:
                 "metraw scenes --n {params.n} --seed {params.seed}"
                 " --size {params.synthetic[size_px]} --camera {input.params_file} --out {output} --workers {threads}"
@@ -67,6 +69,8 @@ if PRETRAIN["enabled"]:
             runtime=60,  # minutes
         log:
             "logs/pretrain/{cfa_pattern}.log",
+        benchmark:
+            "logs/benchmark/pretrain/{cfa_pattern}.tsv",
         shell:
             "metraw pretrain {input.decoded} {params.extra} --codec-step {params.codec[step]} --out {output}"
             " --cfa-pattern {wildcards.cfa_pattern} --params {input.params_file} --workers {threads} 2> {log}"
@@ -91,6 +95,8 @@ rule train:
         runtime=60,  # minutes, a generous bound on the measured wall time
     log:
         "logs/train/{point}.log",
+    benchmark:
+        "logs/benchmark/train/{point}.tsv",
     shell:
         "metraw train {input.store} --source {input.source_decoded} --codec-step {params.codec[step]} {params.finetune}"
         " --out {output} --params {input.params_file} --workers {threads} 2> {log}"
@@ -109,6 +115,8 @@ rule evaluate:
         runtime=20,  # minutes, a generous bound on the measured wall time
     log:
         "logs/evaluate/{point}.log",
+    benchmark:
+        "logs/benchmark/evaluate/{point}.tsv",
     shell:
         "metraw evaluate {input.store} --model {input.model} --out {output} 2> {log}"
 
@@ -134,6 +142,8 @@ rule train_source:
         runtime=120,  # minutes, a generous bound on the measured wall time
     log:
         "logs/train/source.log",
+    benchmark:
+        "logs/benchmark/train/source.tsv",
     shell:
         "metraw train {input.decoded} --out {output} --params {input.params_file} --replicates 1"
         " --profile {params.profile} 2> {log}"
@@ -152,5 +162,7 @@ rule evaluate_source:
         runtime=20,  # minutes, a generous bound on the measured wall time
     log:
         "logs/evaluate/source.log",
+    benchmark:
+        "logs/benchmark/evaluate/source.tsv",
     shell:
         "metraw evaluate {input.store} --model {input.model} --out {output} 2> {log}"
