@@ -23,6 +23,7 @@ class Clock:
 def clock(monkeypatch):
     c = Clock()
     monkeypatch.setattr(progress.time, "monotonic", c)
+    monkeypatch.setattr(progress, "_LAST_LINE_S", [None])  # a fresh process
     return c
 
 
@@ -37,6 +38,23 @@ def test_a_line_every_interval_with_rate_and_time_left(clock):
     assert lines == ["fields: 40/100 (40 %) in 0m20s, 2 scenes/s, about 0m30s left",
                      "fields: 80/100 (80 %) in 0m40s, 2 scenes/s, about 0m10s left",
                      "fields: 100/100 (100 %) in 0m50s, 2 scenes/s"]
+
+
+def test_loops_each_shorter_than_the_interval_still_log_every_interval(clock):
+    # a fine-tuning: 18 s of fields, then three 15 s trainings; each loop alone is shorter than 20 s
+    out = io.StringIO()
+    for desc, n, dt in (("fields", 18, 1.0), ("train", 15, 1.0), ("train", 15, 1.0), ("train", 15, 1.0)):
+        log = LogProgress(n, desc, interval_s=20.0, stream=out)
+        for _ in range(n):
+            clock.t += dt
+            log.update()
+        log.close()
+    lines = out.getvalue().splitlines()
+    # a line at 20 s (train 2/15), its last at 33 s, then 53 s (train 5/15 of the third)
+    assert lines == ["train: 2/15 (13 %) in 0m02s, 1 it/s, about 0m13s left",
+                     "train: 15/15 (100 %) in 0m15s, 1 it/s",
+                     "train: 5/15 (33 %) in 0m05s, 1 it/s, about 0m10s left",
+                     "train: 15/15 (100 %) in 0m15s, 1 it/s"]
 
 
 def test_short_work_writes_nothing(clock):

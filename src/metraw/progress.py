@@ -3,7 +3,10 @@
 Snakemake sends each job's stderr to ``logs/...``; a bar there is one ever-growing line of carriage returns and
 nothing reaches ``tail -f`` until it ends. Off a terminal, long work therefore writes one plain line every
 ``LOG_INTERVAL_S`` seconds (and a last one when it ends, if it wrote any): where it is, its rate and the time
-left. Work shorter than the interval writes nothing, so quick commands and their errors stay one line.
+left. Work shorter than the interval writes nothing, so quick commands and their errors stay one line. The interval
+counts from the process's last progress line, whichever loop wrote it (or from its first loop's start): a command
+made of several loops each shorter than the interval (a fine-tuning's fields, then three replicates' trainings) still
+writes a line every interval instead of staying silent to its end.
 """
 
 from __future__ import annotations
@@ -19,6 +22,8 @@ T = TypeVar("T")
 #: Seconds between two progress lines off a terminal (``METRAW_LOG_INTERVAL_S`` overrides it): well under a minute,
 #: so no running job's log stays silent for longer.
 LOG_INTERVAL_S = 20.0
+#: ``time.monotonic()`` of this process's last progress line, or of its first `LogProgress`'s start (None before it)
+_LAST_LINE_S: list[float | None] = [None]
 
 
 def log_interval_s() -> float:
@@ -36,8 +41,9 @@ def _duration(seconds: float) -> str:
 
 
 class LogProgress:
-    """Counts done of ``total`` (None: unknown) and writes a line to ``stream`` at most every ``interval_s``:
-    ``desc: done/total (pct) in elapsed, rate unit/s, about left`` plus any ``note`` given to `update`."""
+    """Counts done of ``total`` (None: unknown) and writes a line to ``stream`` when the process has written none for
+    ``interval_s``: ``desc: done/total (pct) in elapsed, rate unit/s, about left`` plus any ``note`` given to
+    `update`."""
 
     def __init__(self, total: int | None, desc: str, unit: str = "it", interval_s: float | None = None,
                  stream=None) -> None:
@@ -48,14 +54,16 @@ class LogProgress:
         self.note = ""
         self.lines = 0
         self.written = -1  # ``done`` at the last line
-        self.t0 = self.last = time.monotonic()
+        self.t0 = time.monotonic()
+        if _LAST_LINE_S[0] is None:
+            _LAST_LINE_S[0] = self.t0
 
     def update(self, n: int = 1, note: str | None = None) -> None:
         self.done += n
         if note is not None:
             self.note = note
         now = time.monotonic()
-        if now - self.last >= self.interval_s:
+        if now - _LAST_LINE_S[0] >= self.interval_s:  # the process's silence, not only this loop's
             self.write(now)
 
     def write(self, now: float | None = None) -> None:
@@ -68,7 +76,7 @@ class LogProgress:
         note = f"; {self.note}" if self.note else ""
         print(f"{self.desc}: {where} in {_duration(elapsed)}, {rate:.3g} {self.unit}/s{left}{note}",
               file=self.stream, flush=True)
-        self.last, self.written = now, self.done
+        _LAST_LINE_S[0], self.written = now, self.done
         self.lines += 1
 
     def close(self) -> None:
