@@ -89,9 +89,12 @@ INLINE SIMD_FN __m512i vstep(const vmodel_t *m, const vnbr_t *n, __m512i UV, __m
     *Xp = _mm512_mask_mov_epi64(X, need, _mm512_or_si512(_mm512_slli_epi64(X, 16), wd));
     *POSp = _mm512_mask_sub_epi64(*POSp, need, *POSp, one);
     __mmask8 isesc = _mm512_cmpeq_epi64_mask(s, m->escsym);
-    __m512i ev = _mm512_cvtepi32_epi64(_mm512_i64gather_epi32(*EPOSp, m->esc, 4));
-    __m512i r = _mm512_mask_mov_epi64(_mm512_sub_epi64(s, m->amaxv), isesc, ev);
-    *EPOSp = _mm512_mask_add_epi64(*EPOSp, isesc, *EPOSp, one);
+    __m512i r = _mm512_sub_epi64(s, m->amaxv);
+    if (isesc) {   /* escapes are rare: their gather only in the steps that have one */
+        __m512i ev = _mm512_cvtepi32_epi64(_mm512_i64gather_epi32(*EPOSp, m->esc, 4));
+        r = _mm512_mask_mov_epi64(r, isesc, ev);
+        *EPOSp = _mm512_mask_add_epi64(*EPOSp, isesc, *EPOSp, one);
+    }
     __m512i v = _mm512_add_epi64(sh, _mm512_add_epi64(_mm512_xor_si512(r, nf), f));
     return _mm512_sub_epi64(_mm512_slli_epi64(v, 16), UV);
 }

@@ -9,6 +9,18 @@ typedef struct {
     const uint32_t *fcum; const uint16_t *words; const int32_t *esc;
 } vmodel_t;
 
+/* whether any lane of a mask (-1 / 0 lanes) is set */
+INLINE int vany(vi m)
+{
+#if defined(VEC_AVX2)
+    return _mm256_movemask_pd((__m256d)m) != 0;
+#else
+    for (int j = 0; j < VL; j++)
+        if (m[j]) return 1;
+    return 0;
+#endif
+}
+
 /* one step of VL lanes (vstep of _simd.c); reads are kept inside the arrays in corrupt streams (positions clamped:
  * such a lane is rejected at the end of the steady part all the same) */
 INLINE vi vstep(const vmodel_t *m, const vnbr_t *n, vi UV, vi *Xp, vi *POSp, vi *EPOSp, vi EEND, const int n32)
@@ -34,10 +46,12 @@ INLINE vi vstep(const vmodel_t *m, const vnbr_t *n, vi UV, vi *Xp, vi *POSp, vi 
     *Xp = vsel(need, (X << 16) | wd, X);
     *POSp += need;
     const vi isesc = s == 2 * m->amax + 1;
-    const vi ep = vsel(*EPOSp > EEND, EEND, *EPOSp);
-    const vi ev = gather_s32(m->esc, ep);
-    const vi r = vsel(isesc, ev, s - m->amax);
-    *EPOSp -= isesc;
+    vi r = s - m->amax;
+    if (vany(isesc)) {   /* escapes are rare: their gather only in the steps that have one */
+        const vi ep = vsel(*EPOSp > EEND, EEND, *EPOSp);
+        r = vsel(isesc, gather_s32(m->esc, ep), r);
+        *EPOSp -= isesc;
+    }
     const vi v = sh + ((r ^ nf) + f);
     return (v << 16) - UV;
 }
