@@ -337,11 +337,14 @@ def encode(image: RawImage, step: float = 1.0, seed: int = 0, check_profile: boo
         measured = (_noise_sigma_of_planes([_buffer_symbols(f) for f, _ in buffers], step)
                     if check_profile and r0 == 0 else None)
         acc = [] if account is not None else None
-        return predictive.encode_buffers(buffers, acc), acc, measured
+        # the tile's escapes (saturated or below the transform's domain) here, in the tile's thread, not in one pass
+        # over the frame after the tiles (canon_dng: 1.2 ms that ran on one core)
+        esc = prepare.escape_mask(data[r0:r1], prof)
+        return predictive.encode_buffers(buffers, acc), acc, measured, esc, np.flatnonzero(esc) + r0 * w
 
     results = _map_tiles(work, tiles)
-    esc = prepare.escape_mask(data, prof)
-    idx = np.flatnonzero(esc)
+    esc = np.concatenate([r[3] for r in results]) if len(results) > 1 else results[0][3]
+    idx = np.concatenate([r[4] for r in results]) if len(results) > 1 else results[0][4]
     if idx.size:
         esc_idx = np.diff(idx, prepend=0).astype(np.int32)
         esc_blob = entropy.encode_streams([esc_idx, data.reshape(-1)[idx].astype(np.int32)])
@@ -369,7 +372,7 @@ def _account(account: dict, blob: bytes, results, tiles, esc: np.ndarray, esc_bl
     for c, dy, dx in plane_offsets(pattern):
         pix[c] += int(esc[dy::step_c, dx::step_c].size)
         nesc[c] += int(esc[dy::step_c, dx::step_c].sum())
-    for (r0, r1), (sec, acc, _) in zip(tiles, results):
+    for (r0, r1), (sec, acc, *_) in zip(tiles, results):
         for c, b in zip(_plane_colours((r1 - r0, w), pattern), acc):
             bits[c] += b
     total_esc = sum(nesc.values())
