@@ -11,11 +11,11 @@
  * advances 8 chains. A lane's causal neighbours are the last 8 values of itself and of the two lanes above it: they
  * are kept as histories in registers (H[k]: the value k steps back) and shifted across lanes (valignq), so the
  * steady loop reads no pixel it or its neighbours wrote; the rows above lane 0 (the previous group's last two rows)
- * enter as two more histories (G). Per step: 5 gathers (dither, symbol table, frequency table, rANS word, escape)
- * and one scatter of the 8 values. The edges of each group (the first 3 (L - 1) + 1 and the last column steps)
- * take the scalar path; 16-lane groups run two vectors side by side (two chains: the gathers' latency overlaps)
- * with 8-lane edges (decode_group16). The encoder's passes follow the decoder (residuals, rANS, causal buffer,
- * alphabet indices); _simd_prepare.c holds the dither and transforms. */
+ * enter as two more histories (G). Per step: 4 gathers (dither, symbol table, frequency table, rANS word; a fifth, the
+ * escape's, only in a step with one) and one scatter of the 8 values. The edges of each group (the first 3 (L - 1) + 1
+ * and the last column steps) take the scalar path; 16-lane groups run two vectors side by side (two chains: the
+ * gathers' latency overlaps) with 8-lane edges (decode_group16). The encoder's passes follow the decoder (residuals,
+ * rANS, causal buffer, alphabet indices); _simd_prepare.c holds the dither and transforms. */
 #include "_simd.h"
 #if METRAW_X86
 
