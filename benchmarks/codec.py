@@ -212,6 +212,19 @@ CPU ms encode / decode, avx2 against numba: canon_dng 45.6 / 40.8 against 52.8 /
 machine's), cpu1 / JPEG-LS encode / decode at steps 1 and 2: avx2 canon_dng 0.73 / 0.69, 0.75 / 0.66; micasense
 0.58 / 0.67, 0.46 / 0.57; spacenet_pan 0.67 / 0.60, 0.61 / 0.69 (numba 0.68-0.97, avx512 0.40-0.56); canon_dng's
 step-1 encode there 57.7 ms against numba's 56.7 (a tie in that run; 45.6 against 52.8 in ``--native``).
+
+The same VM quiet (2026-11-29, load ~1), ``--speed --reps 15 --no-large --paths avx2,avx512,portable,numba``, JPEG-LS /
+metraw 2-thread wall, encode / decode at steps 1 and 2: avx2 canon_dng 2.78 / 2.85, 2.65 / 2.91; micasense 3.64 / 3.17,
+3.58 / 3.13; spacenet_pan 2.49 / 2.57, 2.41 / 2.60 (cpu1 0.45-0.71; par 1.69-1.86: the two tiles of a 2 MP frame keep
+~1.75 cores busy, not 2). A sampling profile (``perf record -e cpu-clock``, no hardware counters in the VM) of the avx2
+decoder put the steady loop's time on its gathers; the escape's gather (one of five a step) is needed only where a
+lane's symbol is the escape, rare, so it now runs only in those steps (the AVX-512 path too): ``--native`` medians of 4
+alternating runs of the two builds, decode 1-thread CPU ms canon_dng 38.5 -> 32.8 (avx2), 28.8 -> 25.0 (avx512);
+micasense 20.0 -> 19.6, 16.3 -> 14.4; spacenet_pan 6.8 -> 6.8, 5.6 -> 5.2. ``--speed --paths avx2 --reps 11`` after it
+and after moving the escape mask into the tiles: canon_dng 2.75 / 3.01, 2.59 / 3.15; micasense 3.76 / 3.07, 3.79 /
+3.23. The encoder's avx2 rANS pass spends its time at the gather of each symbol's table entry (16 lanes reading 16
+places of an 8 MB array); its residual pass is arithmetic on 4 x 64-bit lanes, so canon_dng's encode (1-thread 53 ms
+against 35 on avx512) stays under 3x JPEG-LS on two threads.
 """
 
 from __future__ import annotations
