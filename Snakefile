@@ -53,6 +53,10 @@ if workflow.enable_cache:
     Path(os.environ.setdefault("SNAKEMAKE_OUTPUT_CACHE", str(Path(workflow.basedir) / ".snakemake-cache"))).mkdir(
         parents=True, exist_ok=True)
 
+# Every metraw command of the jobs ends its log with one line of the CPU, wall time and peak memory it used
+# (metraw.progress.usage_line); benchmarks/main_job.py sums them per rule. The jobs inherit this environment.
+os.environ.setdefault("METRAW_USAGE_LOG", "1")
+
 report: "workflow/report/workflow.rst"
 
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 import os
+import resource
 import sys
 import time
 from typing import Any, Iterable, Iterator, TypeVar
@@ -117,3 +118,29 @@ def step_log(total: int, desc: str, unit: str = "it", disable: bool | None = Non
     if disable is not None or sys.stderr.isatty():
         return None
     return LogProgress(total, desc, unit)
+
+
+#: Environment variable that makes every successful ``metraw`` command end with `usage_line` on stderr (the
+#: workflow sets it, so each job's log ends with what the job used; ``benchmarks/main_job.py`` reads it).
+USAGE_ENV = "METRAW_USAGE_LOG"
+USAGE_PREFIX = "resources: "
+#: ``time.monotonic()`` when this module was first imported: for the command line, its start (`usage_line`'s wall)
+_IMPORTED_S = time.monotonic()
+
+
+def usage_wanted() -> bool:
+    """Whether ``USAGE_ENV`` is set to anything but empty or "0"."""
+    return os.environ.get(USAGE_ENV, "") not in ("", "0")
+
+
+def usage_line(command: str, wall_s: float | None = None) -> str:
+    """``metraw COMMAND: resources: C s CPU (U user + S system), W s wall, peak RSS M MB``: this process's CPU and that
+    of its children it waited for (worker processes), its wall time (``wall_s``; default: since this module's import,
+    for the command line its start) and the largest resident set of it or any such child (``getrusage``; kB on
+    Linux)."""
+    wall_s = time.monotonic() - _IMPORTED_S if wall_s is None else wall_s
+    me, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    user, system = me.ru_utime + kids.ru_utime, me.ru_stime + kids.ru_stime
+    rss_mb = max(me.ru_maxrss, kids.ru_maxrss) / 1024.0
+    return (f"metraw {command}: {USAGE_PREFIX}{user + system:.1f} s CPU ({user:.1f} user + {system:.1f} system), "
+            f"{wall_s:.1f} s wall, peak RSS {rss_mb:.0f} MB")

@@ -17,8 +17,6 @@ rule compress:
         runtime=20,  # minutes, a generous bound on the measured wall time
     log:
         "logs/compress/{point}.log",
-    benchmark:
-        "logs/benchmark/compress/{point}.tsv",
     shell:
         "metraw compress {input} --out {output} --step {params.codec[step]} --seed {params.codec[seed]}"
         " --overwrite 2> {log}"
@@ -61,7 +59,6 @@ rule aggregate:
         runtime=20,  # minutes, a generous bound on the measured wall time
     log:
         "logs/aggregate.log",
-    # no benchmark: record (Snakemake refuses one on a cached rule: a cache hit has no run to measure)
     shell:
         "metraw aggregate --params {input.params_file} --results results --out results"
         " --metrics-pattern 'results/points/{{point}}/metrics.json'"

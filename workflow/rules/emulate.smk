@@ -23,8 +23,6 @@ rule emulate:
         runtime=60,  # minutes, a generous bound on the measured wall time
     log:
         "logs/emulate/{point}.log",
-    benchmark:
-        "logs/benchmark/emulate/{point}.tsv",
     shell:
         "metraw emulate {input.decoded} {output} --params {input.params_file} --at-point {wildcards.point}"
         " --mode {params.emulation[mode]} --seed {params.emulation[seed]} --images {params.images} --workers {threads}"

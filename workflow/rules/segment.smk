@@ -33,8 +33,6 @@ if PRETRAIN["enabled"]:
                 runtime=60,  # minutes
             log:
                 "logs/pretrain_scenes.log",
-            benchmark:
-                "logs/benchmark/pretrain_scenes.tsv",
             shell:
                 "metraw scenes --n {params.n} --seed {params.seed}"
                 " --size {params.synthetic[size_px]} --camera {input.params_file} --out {output} --workers {threads}"
@@ -69,8 +67,6 @@ if PRETRAIN["enabled"]:
             runtime=60,  # minutes
         log:
             "logs/pretrain/{cfa_pattern}.log",
-        benchmark:
-            "logs/benchmark/pretrain/{cfa_pattern}.tsv",
         shell:
             "metraw pretrain {input.decoded} {params.extra} --codec-step {params.codec[step]} --out {output}"
             " --cfa-pattern {wildcards.cfa_pattern} --params {input.params_file} --workers {threads} 2> {log}"
@@ -95,8 +91,6 @@ rule train:
         runtime=60,  # minutes, a generous bound on the measured wall time
     log:
         "logs/train/{point}.log",
-    benchmark:
-        "logs/benchmark/train/{point}.tsv",
     shell:
         "metraw train {input.store} --source {input.source_decoded} --codec-step {params.codec[step]} {params.finetune}"
         " --out {output} --params {input.params_file} --workers {threads} 2> {log}"
@@ -115,8 +109,6 @@ rule evaluate:
         runtime=20,  # minutes, a generous bound on the measured wall time
     log:
         "logs/evaluate/{point}.log",
-    benchmark:
-        "logs/benchmark/evaluate/{point}.tsv",
     shell:
         "metraw evaluate {input.store} --model {input.model} --out {output} 2> {log}"
 
@@ -142,8 +134,6 @@ rule train_source:
         runtime=120,  # minutes, a generous bound on the measured wall time
     log:
         "logs/train/source.log",
-    benchmark:
-        "logs/benchmark/train/source.tsv",
     shell:
         "metraw train {input.decoded} --out {output} --params {input.params_file} --replicates 1"
         " --profile {params.profile} 2> {log}"
@@ -162,7 +152,5 @@ rule evaluate_source:
         runtime=20,  # minutes, a generous bound on the measured wall time
     log:
         "logs/evaluate/source.log",
-    benchmark:
-        "logs/benchmark/evaluate/source.tsv",
     shell:
         "metraw evaluate {input.store} --model {input.model} --out {output} 2> {log}"

@@ -22,8 +22,6 @@ rule real_store:
         runtime=20,  # minutes, a generous bound on the measured wall time
     log:
         "logs/real_store.log",
-    benchmark:
-        "logs/benchmark/real_store.tsv",
     shell:
         "metraw ingest {params.real[path]} --labels {params.labels} --camera {input.params_file} --gsd-m {params.real[gsd_m]}"
         " --white-fraction {params.white_fraction} --seed {params.seed} --out {output}"
@@ -49,8 +47,6 @@ rule emulate_real:
         runtime=30,  # minutes, a generous bound on the measured wall time
     log:
         "logs/emulate_real/{point}.log",
-    benchmark:
-        "logs/benchmark/emulate_real/{point}.tsv",
     shell:
         "metraw emulate {input.decoded} {output} --params {input.params_file} --at-point {wildcards.point}"
         " --mode {params.emulation[mode]} --seed {params.emulation[seed]} --images all --workers {threads}"
@@ -69,8 +65,6 @@ rule evaluate_real:
         runtime=20,  # minutes, a generous bound on the measured wall time
     log:
         "logs/evaluate_real/{point}.log",
-    benchmark:
-        "logs/benchmark/evaluate_real/{point}.tsv",
     shell:
         "metraw evaluate {input.store} --model {input.model} --split all --out {output} 2> {log}"
 
@@ -87,7 +81,5 @@ rule evaluate_source_real:
         runtime=20,  # minutes, a generous bound on the measured wall time
     log:
         "logs/evaluate_real/source.log",
-    benchmark:
-        "logs/benchmark/evaluate_real/source.tsv",
     shell:
         "metraw evaluate {input.store} --model {input.model} --split all --out {output} 2> {log}"

@@ -23,8 +23,6 @@ if config["source"]["dataset"] == "synthetic":
             runtime=60,  # minutes, a generous bound on the measured wall time
         log:
             "logs/source_store.log",
-        benchmark:
-            "logs/benchmark/source_store.tsv",
         shell:
             "metraw scenes --n {params.synthetic[n_scenes]} --seed {params.synthetic[seed]}"
             " --size {params.synthetic[size_px]} --camera {input.params_file} --out {output} --workers {threads}"
@@ -60,8 +58,6 @@ elif config["source"]["dataset"] == "raws":
             runtime=20,  # minutes
         log:
             "logs/source_camera.log",
-        benchmark:
-            "logs/benchmark/source_camera.tsv",
         shell:
             "metraw calibrate {params.command} --camera {input.params_file} --out {output.profile}"
             " --report {output.report}{params.gsd} > {log} 2>&1"
@@ -82,8 +78,6 @@ elif config["source"]["dataset"] == "raws":
             runtime=20,  # minutes
         log:
             "logs/source_store.log",
-        benchmark:
-            "logs/benchmark/source_store.tsv",
         shell:
             "metraw ingest {params.path} --labels {params.labels} --camera {input.camera} --out {output}"
             " --codec-step {params.codec[step]} --codec-seed {params.codec[seed]} 2> {log}"
@@ -107,8 +101,6 @@ else:
             runtime=20,  # minutes
         log:
             "logs/source_store.log",
-        benchmark:
-            "logs/benchmark/source_store.tsv",
         shell:
             "metraw ingest {params.photos[path]} --labels {params.labels} --camera {input.params_file}"
             " --gsd-m {params.photos[gsd_m]} --white-fraction {params.photos[white_fraction]}"
@@ -132,8 +124,6 @@ rule decode_store:
         runtime=20,  # minutes, a generous bound on the measured wall time
     log:
         "logs/decode_store/{name}.log",
-    benchmark:
-        "logs/benchmark/decode_store/{name}.tsv",
     shell:
         "metraw decode {input} {output} --threads {threads} 2> {log}"
 
@@ -149,7 +139,5 @@ rule calibrate_source:
         runtime=10,  # minutes, a generous bound on the measured wall time
     log:
         "logs/calibrate_source.log",
-    benchmark:
-        "logs/benchmark/calibrate_source.tsv",
     script:
         "../scripts/calibrate_store.py"

@@ -3,7 +3,9 @@
 Each subcommand lives in its own module ``metraw.cli.<name>`` exposing
 ``register(subparsers)``, which adds its parser and sets ``func(args) -> int``.
 Errors caused by the input (``MetrawError``, unreadable files) print one line on stderr
-and exit with status 2; nothing half-written is left (outputs are written atomically).
+and exit with status 2; nothing half-written is left (outputs are written atomically). With
+``METRAW_USAGE_LOG`` set (the workflow sets it), a command that succeeds ends with one line of the
+CPU, wall time and peak memory it used (``metraw.progress.usage_line``).
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ import importlib
 import importlib.util
 import sys
 
-from metraw import __version__, allocator
+from metraw import __version__, allocator, progress
 from metraw.errors import MetrawError
 
 #: Subcommand modules in the order shown by ``metraw --help``.
@@ -48,7 +50,10 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        return int(args.func(args) or 0)
+        rc = int(args.func(args) or 0)
+        if rc == 0 and progress.usage_wanted():
+            print(progress.usage_line(args.command), file=sys.stderr, flush=True)
+        return rc
     except MetrawError as exc:
         print(f"metraw {args.command}: error: {one_line(str(exc))}", file=sys.stderr)
         return 2
