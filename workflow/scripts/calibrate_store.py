@@ -14,6 +14,7 @@ import math
 
 import numpy as np
 
+from metraw import progress
 from metraw.calibrate import from_image
 from metraw.errors import MetrawError
 from metraw.io.store import RawStore
@@ -86,3 +87,6 @@ if "snakemake" in globals():
     report = calibrate_store(snakemake.input[0])  # noqa: F821 (injected by Snakemake)
     with open(snakemake.output[0], "w") as fh:  # noqa: F821
         json.dump(report, fh, indent=2)
+    if progress.usage_wanted():  # the job's log ends like a metraw command's (benchmarks/main_job.py reads it)
+        with open(snakemake.log[0], "a") as fh:  # noqa: F821
+            print(progress.usage_line("calibrate_store"), file=fh)
