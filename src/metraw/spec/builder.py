@@ -33,7 +33,7 @@ import numpy as np
 import yaml
 
 from metraw.atomic import atomic_path
-from metraw.errors import MetrawError
+from metraw.errors import MetrawError, read_yaml
 from metraw.raw.cfa import cfa_family
 from metraw.spec.property_model import WAVELENGTH_REF_M, PropertyModel, property_lines
 
@@ -165,14 +165,7 @@ class Specification:
 
     @classmethod
     def load(cls, path: str | Path) -> "Specification":
-        try:
-            data = yaml.safe_load(Path(path).read_text())
-        except FileNotFoundError:
-            raise MetrawError(f"spec file {path} not found") from None
-        except (OSError, UnicodeDecodeError) as exc:
-            raise MetrawError(f"cannot read spec file {path}: {getattr(exc, 'strerror', None) or exc}") from None
-        except yaml.YAMLError as exc:
-            raise MetrawError(f"spec file {path} is not valid YAML: {' '.join(str(exc).split())}") from None
+        data = read_yaml(path, "spec file")
         try:
             return cls.from_dict(data)
         except MetrawError as exc:

@@ -13,7 +13,7 @@ from typing import Any
 
 import yaml
 
-from metraw.errors import MetrawError
+from metraw.errors import MetrawError, read_yaml
 
 NOMINAL = "nominal"
 
@@ -22,14 +22,7 @@ def load_params(path: str | Path = "params.yaml", complete: bool = True) -> dict
     """Read params.yaml, validated against the workflow's JSON schema (``complete=False``: a file may
     hold only the sections a command reads, e.g. ``training`` for ``metraw train``)."""
     path = Path(path)
-    try:
-        params = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        raise MetrawError(f"parameter file {path} not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise MetrawError(f"cannot read parameter file {path}: {getattr(exc, 'strerror', None) or exc}") from None
-    except yaml.YAMLError as exc:
-        raise MetrawError(f"parameter file {path} is not valid YAML: {' '.join(str(exc).split())}") from None
+    params = read_yaml(path, "parameter file")
     if not isinstance(params, dict):
         raise MetrawError(f"parameter file {path} must hold a mapping")
     validate_params(params, path, complete)
