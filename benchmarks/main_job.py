@@ -26,10 +26,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+from metraw.progress import parse_usage_line
+
 STAMP = re.compile(r"^\[(\w{3} \w{3} +\d+ [\d:]+ \d{4})\]")
 RULE = re.compile(r"^(?:local)?rule (\w+):")
 LOG = re.compile(r"^\s+log: (.+)$")
-USAGE = re.compile(r"^metraw \S+: resources: ([\d.]+) s CPU .*, peak RSS ([\d.]+) MB$")
 JOBID = re.compile(r"^\s+jobid: (\d+)")
 DONE = re.compile(r"^Finished jobid: (\d+)")
 CORES = re.compile(r"^Provided cores: (\d+)")
@@ -83,8 +84,7 @@ def job_usage(log_files: list[str], root: Path) -> tuple[float, float] | None:
         path = root / name
         if path.is_file():
             for line in path.read_text(errors="replace").splitlines():
-                if m := USAGE.match(line):
-                    found = (float(m.group(1)), float(m.group(2)))
+                found = parse_usage_line(line) or found
     return found
 
 

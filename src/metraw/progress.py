@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import resource
 import sys
 import time
@@ -123,7 +124,7 @@ def step_log(total: int, desc: str, unit: str = "it", disable: bool | None = Non
 #: Environment variable that makes every successful ``metraw`` command end with `usage_line` on stderr (the
 #: workflow sets it, so each job's log ends with what the job used; ``benchmarks/main_job.py`` reads it).
 USAGE_ENV = "METRAW_USAGE_LOG"
-USAGE_PREFIX = "resources: "
+_USAGE = re.compile(r"^metraw \S+: resources: ([\d.]+) s CPU .*, peak RSS ([\d.]+) MB$")
 #: ``time.monotonic()`` when this module was first imported: for the command line, its start (`usage_line`'s wall)
 _IMPORTED_S = time.monotonic()
 
@@ -142,5 +143,11 @@ def usage_line(command: str, wall_s: float | None = None) -> str:
     me, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
     user, system = me.ru_utime + kids.ru_utime, me.ru_stime + kids.ru_stime
     rss_mb = max(me.ru_maxrss, kids.ru_maxrss) / 1024.0
-    return (f"metraw {command}: {USAGE_PREFIX}{user + system:.1f} s CPU ({user:.1f} user + {system:.1f} system), "
+    return (f"metraw {command}: resources: {user + system:.1f} s CPU ({user:.1f} user + {system:.1f} system), "
             f"{wall_s:.1f} s wall, peak RSS {rss_mb:.0f} MB")
+
+
+def parse_usage_line(line: str) -> tuple[float, float] | None:
+    """(CPU s, peak RSS MB) of a `usage_line`; None for any other line."""
+    m = _USAGE.match(line)
+    return (float(m.group(1)), float(m.group(2))) if m else None
