@@ -343,8 +343,8 @@ def encode(image: RawImage, step: float = 1.0, seed: int = 0, check_profile: boo
         return predictive.encode_buffers(buffers, acc), acc, measured, esc, np.flatnonzero(esc) + r0 * w
 
     results = _map_tiles(work, tiles)
-    esc = np.concatenate([r[3] for r in results]) if len(results) > 1 else results[0][3]
-    idx = np.concatenate([r[4] for r in results]) if len(results) > 1 else results[0][4]
+    esc = np.concatenate([r[3] for r in results])
+    idx = np.concatenate([r[4] for r in results])
     if idx.size:
         esc_idx = np.diff(idx, prepend=0).astype(np.int32)
         esc_blob = entropy.encode_streams([esc_idx, data.reshape(-1)[idx].astype(np.int32)])
