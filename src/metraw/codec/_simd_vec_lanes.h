@@ -168,6 +168,14 @@ int VN(metraw_decode_plane)(i64 *p, i64 h, i64 w, const int32_t *u, int32_t *sym
                              alpha, amax, words, xs, pos, pmin, esc, epos, eend, nl, two_vectors);
 }
 
+/* whether every lane of a mask (-1 / 0 lanes) is set */
+INLINE int vall(vi m)
+{
+    for (int j = 0; j < VL; j++)
+        if (!m[j]) return 0;
+    return 1;
+}
+
 /* u64 < 2^52 to double, exactly; trunc of 0 <= v < 2^52 as u64 */
 INLINE vd vu2d(vu a) { return (vd)(a | 0x4330000000000000ULL) - 0x1p52; }
 INLINE vu vtrunc(vd v)
@@ -176,44 +184,64 @@ INLINE vu vtrunc(vd v)
     return (vu)((vi)((vu)t - 0x4330000000000000ULL) + (vi)(t - 0x1p52 > v));
 }
 
-/* whether every lane of a mask (-1 / 0 lanes) is set */
-INLINE int vall(vi m)
-{
-#if defined(VEC_AVX2)
-    return _mm256_movemask_pd((__m256d)m) == 15;
-#else
-    for (int j = 0; j < VL; j++)
-        if (!m[j]) return 0;
-    return 1;
-#endif
-}
-
-/* rans_lanes of _simd.c: symbols k = lo - 1 .. 0 of 8 NV lanes side by side, VL to a vector. The words go out in
- * blocks of RANS_BLOCK steps: each step's slots and low words to a buffer (vector stores), then to out lane by lane.
- * Stores to out at slots that the lanes' states decide, among the loop's gathers, made the gathers wait for those
- * slots (the store addresses) and so for the states: canon_dng 1-thread, forced AVX2 on an AVX-512 Xeon, 17.4 ->
- * 8.4-9.1 ms (2026-11-28; gathering the reciprocals instead of dividing, or one gather of a per-symbol table entry
- * instead of two chained, measured slower). */
+/* rans_lanes of _simd.c: symbols k = lo - 1 .. 0 of 8 NV lanes side by side, VL to a vector, in blocks of RANS_BLOCK
+ * steps. Each step's slots and low words go to a buffer (vector stores), and after the block to out lane by lane:
+ * stores to out at slots that the lanes' states decide, among the loop's loads, made those loads wait for the states
+ * (canon_dng 1-thread, forced AVX2 on an AVX-512 Xeon, 17.4 -> 8.4-9.1 ms, 2026-11-28). On AVX2 each block first
+ * reads each lane's table entries (freq | cum << 32) in step order, by scalar loads as the lane's cursor walks its
+ * rows (no state decides them), and the steps load them in place of two chained gathers (symbol's entry, then the
+ * entry's frequencies): the rANS pass 0.82-0.85x the time (2026-11-29, same CPU); the portable build keeps the gathers
+ * (element loops there), 1.36x slower with the block's reads first. */
 #define RANS_BLOCK 32
+#if defined(VEC_AVX2)
+#define RANS_ENTRIES_FIRST 1
+#else
+#define RANS_ENTRIES_FIRST 0
+#endif
 INLINE void rans_lanes(const int NV, const int32_t *ent, const u64 *fc, const i64 *rs, const i64 *rl, uint16_t *out,
                        i64 lo, u64 *xs, i64 *nws, i64 *ci, i64 *ce, i64 *cq, const i64 *o)
 {
     const int NVV = 8 * NV / VL;
     vu X[16 / VL];
-    vi NW[16 / VL], I[16 / VL], E[16 / VL], Q[16 / VL], O[16 / VL];
+    vi NW[16 / VL], O[16 / VL];
     vi bat[RANS_BLOCK][16 / VL];
     vu bx[RANS_BLOCK][16 / VL];
+#if RANS_ENTRIES_FIRST
+    const int NL = 8 * NV;
+    u64 fcb[RANS_BLOCK][16] __attribute__((aligned(32)));
+    i64 I[16], E[16], Q[16];
+    for (int j = 0; j < NL; j++) { I[j] = ci[j]; E[j] = ce[j]; Q[j] = cq[j]; }
+#else
+    vi I[16 / VL], E[16 / VL], Q[16 / VL];
+    for (int v = 0; v < NVV; v++) {
+        memcpy(&I[v], ci + VL * v, sizeof(vi)); memcpy(&E[v], ce + VL * v, sizeof(vi));
+        memcpy(&Q[v], cq + VL * v, sizeof(vi));
+    }
+#endif
     for (int v = 0; v < NVV; v++) {
         memcpy(&X[v], xs + VL * v, sizeof(vi)); memcpy(&NW[v], nws + VL * v, sizeof(vi));
-        memcpy(&I[v], ci + VL * v, sizeof(vi)); memcpy(&E[v], ce + VL * v, sizeof(vi));
-        memcpy(&Q[v], cq + VL * v, sizeof(vi)); memcpy(&O[v], o + VL * v, sizeof(vi));
+        memcpy(&O[v], o + VL * v, sizeof(vi));
     }
     for (i64 k0 = lo - 1; k0 >= 0; k0 -= RANS_BLOCK) {
         const int nb = k0 + 1 < RANS_BLOCK ? (int)(k0 + 1) : RANS_BLOCK;
+#if RANS_ENTRIES_FIRST
+        for (int j = 0; j < NL; j++) {   /* enc_cursor's walk, lane by lane */
+            i64 i = I[j], e = E[j], q = Q[j];
+            for (int b = 0; b < nb; b++) {
+                fcb[b][j] = fc[ent[i]];
+                if (i > e) i -= 1;
+                else if (k0 - b > 0) { q -= 1; i = rs[q] + rl[q] - 1; e = rs[q]; }
+            }
+            I[j] = i; E[j] = e; Q[j] = q;
+        }
+#endif
         for (int b = 0; b < nb; b++) {
-            const i64 k = k0 - b;
             for (int v = 0; v < NVV; v++) {
+#if RANS_ENTRIES_FIRST
+                const vu FC = LOADV(vu, &fcb[b][VL * v]);
+#else
                 const vu FC = (vu)gather_64(fc, gather_s32(ent, I[v]));
+#endif
                 const vu F = FC & 0xFFFFFFFFULL, C = FC >> 32;
                 const vd R = 1.0 / vu2d(F);
                 const vi emit = (vi)(X[v] >= F << (32 - PROB_BITS));
@@ -225,7 +253,8 @@ INLINE void rans_lanes(const int NV, const int32_t *ent, const u64 *fc, const i6
                 const vu q = vtrunc(vu2d(Xs) * R + 1.52587890625e-05);
                 const vu rem = Xs - (vu)vmulu32((vi)q, (vi)F);
                 X[v] = (q << PROB_BITS) + rem + C;
-                if (k > 0) {
+#if !RANS_ENTRIES_FIRST
+                if (k0 - b > 0) {   /* enc_cursor */
                     const vi inrow = I[v] > E[v];
                     I[v] += inrow;
                     if (!vall(inrow))
@@ -237,6 +266,7 @@ INLINE void rans_lanes(const int NV, const int32_t *ent, const u64 *fc, const i6
                                 Q[v][j] = r;
                             }
                 }
+#endif
             }
         }
         for (int b = 0; b < nb; b++)   /* in order: a lane's slot holds its last word */
@@ -248,6 +278,7 @@ INLINE void rans_lanes(const int NV, const int32_t *ent, const u64 *fc, const i6
         memcpy(nws + VL * v, &NW[v], sizeof(vi));
     }
 }
+#undef RANS_ENTRIES_FIRST
 #undef RANS_BLOCK
 
 static void rans8(const int32_t *ent, const u64 *fc, const i64 *rs, const i64 *rl, uint16_t *out, i64 lo, u64 *xs,
