@@ -225,6 +225,28 @@ and after moving the escape mask into the tiles: canon_dng 2.75 / 3.01, 2.59 / 3
 3.23. The encoder's avx2 rANS pass spends its time at the gather of each symbol's table entry (16 lanes reading 16
 places of an 8 MB array); its residual pass is arithmetic on 4 x 64-bit lanes, so canon_dng's encode (1-thread 53 ms
 against 35 on avx512) stays under 3x JPEG-LS on two threads.
+
+Session of 2026-11-29 (issue #52; the same Emerald Rapids VM, quiet, load ~1; the codec path forced). The avx2 rANS pass
+now reads each block's table entries first, lane by lane in step order, by scalar loads (no gathers in the steps):
+in-process A/B of the two builds (``ctypes``, 25 alternating rounds, canon_dng's tile), 3.86 -> 3.23-3.25 ms (0.82-0.85x),
+the same streams; the portable build keeps its gathers (the block's reads first made it 1.36-1.53x slower).
+``--speed --paths avx2,avx512,portable --reps 11 --no-large`` after it, JPEG-LS / metraw 2-thread wall, encode / decode
+at steps 1 and 2: avx2 canon_dng 2.39 / 2.45, 2.77 / 2.91; micasense 3.01 / 2.58, 3.28 / 2.66; spacenet_pan 2.14 / 2.50,
+2.23 / 2.46 (cpu1 0.51-0.66; par 1.62-1.86); avx512 canon_dng 3.53 / 3.56, 2.83 / 3.43; micasense 4.12 / 4.07, 4.22 /
+3.66; portable 0.93-1.16 (cpu1 1.41-1.88). How far one run moves: JPEG-LS's own canon_dng encode, the same call in
+every row, took 67.7-81.7 ms across the rows of that run; one run's ratio is good to ~+-10 %.
+Where the time goes (1-thread, avx2, canon_dng, per tile of 1 MP; medians of 30 encodes): plane buffers 4 x 0.62 ms,
+models 4 x 0.9-1.0 (numba: normal equations 0.8, of which gathering the samples 0.58), residual pass 4 x 1.55, alphabet
+indices and counts 1.85, rANS 3.3 after the change above; ~2.3 ms after the last tile (escape masks and list, container)
+on one core. Tried and not taken: (1) each tile's planes and its section as separate tasks that either thread takes
+(a slower core takes fewer planes; the same bytes): canon_dng 2-thread encode 23.3-27.1 ms against 23.9-28.3 quiet, and
+42.7-46.2 against 44.4-45.0 with a spinning process on one core, no gain; (2) the 64-bit arithmetic shift as two
+shifts and a blend instead of a compare (no port-5 compare): residual pass 0.993x, encode and decode within the
+in-process A/B's +-4 % (whichever build ran first in a round was ~4 % faster); (3) the normal equations context by
+context (every sample's context first, then each context's samples: exactly the same sums) 0.98 ms against 0.79:
+slower (eight sweeps of the plane instead of one). The residual pass is bound by its instruction count (~115 vector
+instructions per 4 pixels, spread evenly in the sampling profile: 13 loads, 12 vpermd / vpmuldq / vpaddq taps, the
+context's 7 compares), not by one unit.
 """
 
 from __future__ import annotations
