@@ -174,6 +174,17 @@ def test_existing_output_is_kept(tmp_path, capsys):
     assert (out / "keep").read_text() == "x"
 
 
+@pytest.mark.parametrize("text, match", [("source: {camera: {cfa_pattern: RGGB\n", "is not valid YAML"),
+                                          ("source: {}\n", "no readable source.camera"),
+                                          ("[1, 2]\n", "no readable source.camera")])
+def test_camera_params_file_without_a_camera(tmp_path, capsys, text, match):
+    """``--camera params.yaml`` that is not YAML, or has no source.camera: one line naming the file."""
+    (tmp_path / "cam.yaml").write_text(text)
+    tifffile.imwrite(tmp_path / "a.tif", np.zeros((8, 8), np.uint16))
+    line = _ingest_fails(tmp_path, capsys, [tmp_path / "a.tif"], "--camera", str(tmp_path / "cam.yaml"))
+    assert match in line and "cam.yaml" in line
+
+
 def test_missing_input(tmp_path, capsys):
     assert "no such file or directory" in _ingest_fails(tmp_path, capsys, [tmp_path / "nope.dng"])
 

@@ -108,6 +108,21 @@ def test_area_iou_against_fractional_targets():
 
 
 # ----------------------------------------------------------------- training
+@pytest.mark.parametrize("text, match", [("training: {profiles: {default: {epochs: 2}\n", "is not valid YAML"),
+                                          ("[1, 2]\n", "has no training.profiles section"),
+                                          ("training: {profile: x}\n", "has no training.profiles section")])
+def test_load_config_refuses_a_file_without_training_profiles(tmp_path, text, match):
+    """One line naming the file, whatever is wrong with it (a YAML parser's error spans several lines)."""
+    from metraw.segment.train import load_config
+
+    (tmp_path / "p.yaml").write_text(text)
+    with pytest.raises(MetrawError) as err:
+        load_config(tmp_path / "p.yaml")
+    assert match in str(err.value) and "p.yaml" in str(err.value) and "\n" not in str(err.value)
+    with pytest.raises(MetrawError, match="not found"):
+        load_config(tmp_path / "none.yaml")
+
+
 @pytest.fixture(scope="module")
 def tiny_store(tmp_path_factory):
     path = tmp_path_factory.mktemp("seg") / "toy.zarr"

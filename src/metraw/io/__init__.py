@@ -19,7 +19,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from metraw.errors import MetrawError
+from metraw.errors import MetrawError, read_yaml
 from metraw.io._unknown import noise_model_known, unknown_fields
 from metraw.io.camera import RAW_SUFFIXES, read_camera_raw
 from metraw.io.headerless import HEADERLESS_SUFFIXES, read_headerless
@@ -128,16 +128,14 @@ def image_files(inputs: list[str | os.PathLike]) -> list[Path]:
 def default_camera(params_path: str | os.PathLike | None = None) -> CalibrationProfile:
     """The source camera of params.yaml (``source.camera``), from ``params_path``, the working
     directory or the repository this package is installed from."""
-    import yaml
-
     candidates = [Path(params_path)] if params_path else [Path.cwd() / "params.yaml",
                                                            Path(__file__).resolve().parents[3] / "params.yaml"]
     for candidate in candidates:
         if candidate.is_file():
+            params = read_yaml(candidate, "params file")
             try:
-                params = yaml.safe_load(candidate.read_text())
                 cam = dict(params["source"]["camera"])
-            except (yaml.YAMLError, KeyError, TypeError) as exc:
+            except (KeyError, TypeError, ValueError) as exc:
                 raise MetrawError(f"{candidate}: no readable source.camera ({exc})") from None
             try:
                 return check_claims(CalibrationProfile.from_dict({"schema_version": 1, **cam}))

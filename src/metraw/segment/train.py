@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from metraw.errors import MetrawError
+from metraw.errors import MetrawError, read_yaml
 from metraw.parallel import prefetch
 from metraw.raw.cfa import PACKED_CELL_PX, cfa_family
 from metraw.raw.sensor import rng_from_seed
@@ -138,13 +138,8 @@ class TrainConfig:
 
 def load_config(params_path: str | os.PathLike, profile: str | None = None) -> TrainConfig:
     """The ``training:`` section of params.yaml for ``profile`` (default: ``training.profile``)."""
-    import yaml
-
-    try:
-        params = yaml.safe_load(Path(params_path).read_text())
-    except (OSError, yaml.YAMLError) as exc:
-        raise MetrawError(f"cannot read params file {params_path}: {exc}") from None
-    tr = (params or {}).get("training")
+    params = read_yaml(params_path, "params file")
+    tr = params.get("training") if isinstance(params, dict) else None
     if not isinstance(tr, dict) or "profiles" not in tr:
         raise MetrawError(f"{params_path} has no training.profiles section")
     name = profile or tr.get("profile", "default")
