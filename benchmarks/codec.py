@@ -233,8 +233,13 @@ the same streams; the portable build keeps its gathers (the block's reads first 
 ``--speed --paths avx2,avx512,portable --reps 11 --no-large`` after it, JPEG-LS / metraw 2-thread wall, encode / decode
 at steps 1 and 2: avx2 canon_dng 2.39 / 2.45, 2.77 / 2.91; micasense 3.01 / 2.58, 3.28 / 2.66; spacenet_pan 2.14 / 2.50,
 2.23 / 2.46 (cpu1 0.51-0.66; par 1.62-1.86); avx512 canon_dng 3.53 / 3.56, 2.83 / 3.43; micasense 4.12 / 4.07, 4.22 /
-3.66; portable 0.93-1.16 (cpu1 1.41-1.88). How far one run moves: JPEG-LS's own canon_dng encode, the same call in
-every row, took 67.7-81.7 ms across the rows of that run; one run's ratio is good to ~+-10 %.
+3.66; portable 0.93-1.16 (cpu1 1.41-1.88). Two more runs right after (``--paths avx2,avx512``, 11 rounds each): avx2
+canon_dng 2.79 / 3.11, 2.64 / 2.79 and 2.53 / 2.98, 2.96 / 2.77; micasense 3.53 / 2.96, 3.62 / 2.86 and 3.71 / 3.20,
+3.48 / 3.01; avx512 canon_dng 3.11 / 4.07, 3.38 / 4.20 and 3.00 / 3.82, 3.17 / 3.82. How far one run moves: JPEG-LS's
+own canon_dng encode, the same call in every row, took 67.7-81.7 ms across the rows of the first run, and one case's
+per-round ratio (JPEG-LS / metraw, timed side by side) spread 2.0-3.4 over the 11 rounds (avx2 canon_dng encode): the
+median's own error is ~+-0.15, and a single run's ratio is good to ~+-10 %. The median of the per-round ratios instead
+of the ratio of the medians moved single rows by up to 0.3 in either direction, no steadier: not taken.
 Where the time goes (1-thread, avx2, canon_dng, per tile of 1 MP; medians of 30 encodes): plane buffers 4 x 0.62 ms,
 models 4 x 0.9-1.0 (numba: normal equations 0.8, of which gathering the samples 0.58), residual pass 4 x 1.55, alphabet
 indices and counts 1.85, rANS 3.3 after the change above; ~2.3 ms after the last tile (escape masks and list, container)
