@@ -239,7 +239,8 @@ canon_dng 2.79 / 3.11, 2.64 / 2.79 and 2.53 / 2.98, 2.96 / 2.77; micasense 3.53 
 own canon_dng encode, the same call in every row, took 67.7-81.7 ms across the rows of the first run, and one case's
 per-round ratio (JPEG-LS / metraw, timed side by side) spread 2.0-3.4 over the 11 rounds (avx2 canon_dng encode): the
 median's own error is ~+-0.15, and a single run's ratio is good to ~+-10 %. The median of the per-round ratios instead
-of the ratio of the medians moved single rows by up to 0.3 in either direction, no steadier: not taken.
+of the ratio of the medians moved the avx2 rows by -0.10 to +0.48 (mostly up) and was no steadier from run to run:
+not taken (the ratio of the medians stays the measure, comparable with the records above).
 Where the time goes (1-thread, avx2, canon_dng, per tile of 1 MP; medians of 30 encodes): plane buffers 4 x 0.62 ms,
 models 4 x 0.9-1.0 (numba: normal equations 0.8, of which gathering the samples 0.58), residual pass 4 x 1.55, alphabet
 indices and counts 1.85, rANS 3.3 after the change above; ~2.3 ms after the last tile (escape masks and list, container)
