@@ -89,45 +89,51 @@ def _gram_add(buf, n, ata_c, atb_c):
 def normal_equations(p, thr, stride, ata, atb):
     """Accumulate per-context X^T X (lower triangle) and X^T t of t = x - W on (n_i - W, 1) over
     the sampling lattice (rows every ``stride``, sheared columns: no column aliasing). Samples are
-    buffered per context (``LS_BLOCK``, cache resident) and added in vectorised blocks."""
+    buffered per context (``LS_BLOCK``, cache resident) and added in vectorised blocks. Unsigned
+    indices into flat views of ``p`` and the buffer: numba checks no index for wrap-around (0.78 ->
+    0.69 ms a canon_dng plane, the same sums)."""
     h = p.shape[0] - 2
     w = p.shape[1] - 4
     nact = thr.size + 1
     buf = np.empty((nact, 13, LS_BLOCK + 24))  # padded rows: no 4 KiB cache-set aliasing
-    fill = np.zeros(nact, np.int64)
+    fill = np.zeros(nact, np.uint64)
     sc = 1.0 / 65536.0
+    pf = p.reshape(-1)
+    bf = buf.reshape(-1)
+    one, two = np.uint64(1), np.uint64(2)
+    row = np.uint64(LS_BLOCK + 24)        # a buffer row
+    ws = np.uint64(p.shape[1])            # a row of p
     for y in range(0, h, stride):
-        yy = y + 2
-        r0 = p[yy]
-        r1 = p[yy - 1]
-        r2 = p[yy - 2]
         for x0 in range((y // stride) % stride, w, stride):
-            xx = x0 + 2
-            c = context_of(activity(p, yy, xx), thr)
+            b = np.uint64((y + 2) * p.shape[1] + x0 + 2)   # the pixel; its neighbours at b - 1, b - ws, ...
+            ref = pf[b - one]                               # W
+            n_, nw = pf[b - ws], pf[b - ws - one]
+            act = (abs(ref - nw) + abs(n_ - nw) + abs(n_ - pf[b - ws + one]) + abs(ref - pf[b - two])
+                   + abs(n_ - pf[b - two * ws]))          # ``activity``
+            c = context_of(act, thr)
             k = fill[c]
-            # buf[c, i, k], not a view buf[c] per sample: a view in the loop costs reference counting
-            ref = r0[xx - 1]
-            buf[c, 0, k] = (r1[xx] - ref) * sc
-            buf[c, 1, k] = (r1[xx - 1] - ref) * sc
-            buf[c, 2, k] = (r1[xx + 1] - ref) * sc
-            buf[c, 3, k] = (r0[xx - 2] - ref) * sc
-            buf[c, 4, k] = (r2[xx] - ref) * sc
-            buf[c, 5, k] = (r1[xx - 2] - ref) * sc
-            buf[c, 6, k] = (r2[xx - 1] - ref) * sc
-            buf[c, 7, k] = (r2[xx + 1] - ref) * sc
-            buf[c, 8, k] = (r1[xx + 2] - ref) * sc
-            buf[c, 9, k] = (r2[xx - 2] - ref) * sc
-            buf[c, 10, k] = (r2[xx + 2] - ref) * sc
-            buf[c, 11, k] = 1.0
-            buf[c, 12, k] = (r0[xx] - ref) * sc
-            k += 1
+            o = np.uint64(c) * np.uint64(13) * row + k      # buf[c, 0, k]
+            bf[o] = (n_ - ref) * sc
+            bf[o + row] = (nw - ref) * sc
+            bf[o + np.uint64(2) * row] = (pf[b - ws + one] - ref) * sc
+            bf[o + np.uint64(3) * row] = (pf[b - two] - ref) * sc
+            bf[o + np.uint64(4) * row] = (pf[b - two * ws] - ref) * sc
+            bf[o + np.uint64(5) * row] = (pf[b - ws - two] - ref) * sc
+            bf[o + np.uint64(6) * row] = (pf[b - two * ws - one] - ref) * sc
+            bf[o + np.uint64(7) * row] = (pf[b - two * ws + one] - ref) * sc
+            bf[o + np.uint64(8) * row] = (pf[b - ws + two] - ref) * sc
+            bf[o + np.uint64(9) * row] = (pf[b - two * ws - two] - ref) * sc
+            bf[o + np.uint64(10) * row] = (pf[b - two * ws + two] - ref) * sc
+            bf[o + np.uint64(11) * row] = 1.0
+            bf[o + np.uint64(12) * row] = (pf[b] - ref) * sc
+            k += one
             if k == LS_BLOCK:
-                _gram_add(buf[c], k, ata[c], atb[c])
-                k = 0
+                _gram_add(buf[c], LS_BLOCK, ata[c], atb[c])
+                k = np.uint64(0)
             fill[c] = k
     for c in range(nact):
         if fill[c]:
-            _gram_add(buf[c], fill[c], ata[c], atb[c])
+            _gram_add(buf[c], np.int64(fill[c]), ata[c], atb[c])
 
 
 #: Bins of ``order_statistics_shifted``'s histogram (values sample >> 8 at or past it are selected exactly apart)
