@@ -162,18 +162,21 @@ def _plane_dithers(seed: int, r0: int, r1: int, w: int, pattern: str) -> list[np
 
 
 @nb.njit(cache=True, nogil=True)
-def _hh_values(plane, vals, n):
-    """Append the finest diagonal Haar (S-transform HH) coefficients of the central 256 x 256 crop of
-    ``plane`` to ``vals`` from index ``n``; returns the new count. Compiled: no GIL, no copies."""
+def _hh_values(plane, vals, n, add=0, shift=0):
+    """Append the finest diagonal Haar (S-transform HH) coefficients of the central 256 x 256 crop of the symbols
+    (``plane`` + ``add``) >> ``shift`` to ``vals`` from index ``n``; returns the new count (``plane``: symbols, or
+    with add 32767 and shift 16 a causal buffer's interior, s 2^16 - floor(u 2^16) with floor(u 2^16) in
+    [-2^15, 2^15)). Compiled: no GIL, no copies."""
     ph, pw = plane.shape
     y0, x0 = max(0, ph // 2 - 128), max(0, pw // 2 - 128)
     h, w = min(256, ph - y0) // 2 * 2, min(256, pw - x0) // 2 * 2
     if h < 2 or w < 2:
         return n
     for i in range(y0, y0 + h, 2):
+        a, b = plane[i], plane[i + 1]
         for j in range(x0, x0 + w, 2):
-            top = np.float64(plane[i, j]) - plane[i, j + 1]
-            vals[n] = top - (np.float64(plane[i + 1, j]) - plane[i + 1, j + 1])
+            top = np.float64((a[j] + add) >> shift) - ((a[j + 1] + add) >> shift)
+            vals[n] = top - (np.float64((b[j] + add) >> shift) - ((b[j + 1] + add) >> shift))
             n += 1
     return n
 
@@ -184,10 +187,12 @@ def _mean_abs_dev(v):
     integer symbols) by a histogram: the same number as the sort (the median (a + b) / 2 of the two middle values as
     ``np.median``, and sums of multiples of 1/2 below 2^53: exact in any order), ~15x faster."""
     n = v.size
-    lo, hi = v.min(), v.max()
-    integral = hi - lo < 65536.0
+    lo, hi, integral = v[0], v[0], True   # one pass (v.min() and v.max() took twice its time); a NaN: not integral
     for i in range(n):
-        integral &= v[i] == np.floor(v[i])
+        x = v[i]
+        lo, hi = min(lo, x), max(hi, x)
+        integral &= x == np.floor(x)
+    integral &= hi - lo < 65536.0
     if not integral:
         med = np.median(v)
         return np.mean(np.abs(v - med))
@@ -210,12 +215,16 @@ def _mean_abs_dev(v):
     return total / n
 
 
-def _noise_sigma_of_planes(planes: list[np.ndarray], step: float) -> float | None:
-    """``measured_noise_sigma`` from the CFA planes' symbols."""
+def _noise_sigma_of_planes(planes: list[np.ndarray], step: float, buffers: bool = False) -> float | None:
+    """``measured_noise_sigma`` from the CFA planes' symbols, or (``buffers``) from their causal buffers (front, c0)
+    (the encoder's: no symbol arrays)."""
     vals = np.empty(len(planes) * 128 * 128, np.float64)
     n = 0
     for plane in planes:
-        n = _hh_values(plane, vals, n)
+        if buffers:   # the interior of (h + 2) x (w + 4)
+            n = _hh_values(plane[0][2:, 2:-2], vals, n, 32767, 16)
+        else:
+            n = _hh_values(plane, vals, n)
     if n < 256:
         return None
     var_hh = (_mean_abs_dev(vals[:n]) * math.sqrt(math.pi / 2)) ** 2
@@ -260,15 +269,6 @@ def _tile_buffers(data: np.ndarray, r0: int, r1: int, profile: CalibrationProfil
     keys, args = prepare.dither_keys(seed), prepare.forward_args(profile, step)
     return [native.plane_buffer(data[r0 + dy:r1:cell, dx::cell], keys, (r0 + dy) * w + dx, cell * w, cell, args)
             for dy, dx, _, _ in _plane_grid(r0, r1, w, profile.cfa_pattern)]
-
-
-def _buffer_symbols(front: np.ndarray) -> np.ndarray:
-    """The symbols of the central 256 x 256 crop of a plane from its causal buffer (front = s 2^16 - floor(u 2^16),
-    floor(u 2^16) in [-2^15, 2^15)): all that ``_noise_sigma_of_planes`` reads of a plane (``_hh_values``)."""
-    ph, pw = predictive.buffer_shape(front)
-    y0, x0 = max(0, ph // 2 - 128), max(0, pw // 2 - 128)
-    crop = front[2 + y0:2 + y0 + min(256, ph - y0), 2 + x0:2 + x0 + min(256, pw - x0)]
-    return (crop + 32767) >> 16
 
 
 def _check_encode_args(image, step, seed, caller: str) -> tuple[float, int]:
@@ -334,8 +334,7 @@ def encode(image: RawImage, step: float = 1.0, seed: int = 0, check_profile: boo
         r0, r1 = tile
         buffers = _tile_buffers(data, r0, r1, prof, step, seed)
         # the profile check looks at the first row tile only (half the frame at most: plenty)
-        measured = (_noise_sigma_of_planes([_buffer_symbols(f) for f, _ in buffers], step)
-                    if check_profile and r0 == 0 else None)
+        measured = _noise_sigma_of_planes(buffers, step, buffers=True) if check_profile and r0 == 0 else None
         acc = [] if account is not None else None
         # the tile's escapes (saturated or below the transform's domain) here, in the tile's thread, not in one pass
         # over the frame after the tiles (canon_dng: 1.2 ms that ran on one core)
