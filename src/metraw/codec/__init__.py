@@ -342,7 +342,6 @@ def encode(image: RawImage, step: float = 1.0, seed: int = 0, check_profile: boo
         return predictive.encode_buffers(buffers, acc), acc, measured, esc, np.flatnonzero(esc) + r0 * w
 
     results = _map_tiles(work, tiles)
-    esc = np.concatenate([r[3] for r in results])
     idx = np.concatenate([r[4] for r in results])
     if idx.size:
         esc_idx = np.diff(idx, prepend=0).astype(np.int32)
@@ -350,13 +349,13 @@ def encode(image: RawImage, step: float = 1.0, seed: int = 0, check_profile: boo
     else:
         esc_blob = b""
     if check_profile:
-        _check_profile(results[0][2], esc[:tiles[0][1]])
+        _check_profile(results[0][2], results[0][3])   # the first tile's noise and escapes
     meta = ({"profile": prof.to_dict(), "provenance": image.provenance, "meta": image.meta}
             if embed_profile else None)
     header = container.Header((h, w), step, seed, tiles, meta)
     blob = container.pack(header, [r[0] for r in results] + [esc_blob])
     if account is not None:
-        _account(account, blob, results, tiles, esc, esc_blob, pattern, w)
+        _account(account, blob, results, tiles, np.concatenate([r[3] for r in results]), esc_blob, pattern, w)
     return blob
 
 
