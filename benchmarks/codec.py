@@ -241,6 +241,12 @@ per-round ratio (JPEG-LS / metraw, timed side by side) spread 2.0-3.4 over the 1
 median's own error is ~+-0.15, and a single run's ratio is good to ~+-10 %. The median of the per-round ratios instead
 of the ratio of the medians moved the avx2 rows by -0.10 to +0.48 (mostly up) and was no steadier from run to run:
 not taken (the ratio of the medians stays the measure, comparable with the records above).
+Then, the same bytes and values: the normal equations through unsigned indices (numba checks no index for wrap-around;
+0.78 -> 0.69 ms a canon_dng plane); the profile check on the first tile's buffers in place and the HH band's range in
+one pass (1.16 -> ~0.7 ms on that tile's thread); the frame's escape mask concatenated only for the bit account
+(-0.29 ms of the ~1.4 ms that run on one core after the tiles: escape list 0.5, container 0.4 there). canon_dng
+2-thread encode against the build before them, three alternating processes each: 21.8-28.6 ms against 21.9-26.3, no
+difference this host resolves (JPEG-LS's own time in the same processes: 62.6-83.0 ms).
 Where the time goes (1-thread, avx2, canon_dng, per tile of 1 MP; medians of 30 encodes): plane buffers 4 x 0.62 ms,
 models 4 x 0.9-1.0 (numba: normal equations 0.8, of which gathering the samples 0.58), residual pass 4 x 1.55, alphabet
 indices and counts 1.85, rANS 3.3 after the change above; ~2.3 ms after the last tile (escape masks and list, container)
