@@ -247,7 +247,7 @@ one pass (1.16 -> ~0.7 ms on that tile's thread); the frame's escape mask concat
 (-0.29 ms of the ~1.4 ms that run on one core after the tiles: escape list 0.5, container 0.4 there). canon_dng
 2-thread encode against the build before them, three alternating processes each: 21.8-28.6 ms against 21.9-26.3, no
 difference this host resolves (JPEG-LS's own time in the same processes: 62.6-83.0 ms). Not taken: the alphabet
-counts in four sub-histograms instead of two, 2.31 against 2.44 ms a frame (the counts step only, avx2, 30 alternating
+counts in four sub-histograms instead of two, 2.31 against 2.44 ms a frame (indices and counts, avx2, 30 alternating
 rounds; avx512 2.73 against 2.87): 0.1 ms.
 Where the time goes (1-thread, avx2, canon_dng, per tile of 1 MP; medians of 30 encodes): plane buffers 4 x 0.62 ms,
 models 4 x 0.9-1.0 (numba: normal equations 0.8, of which gathering the samples 0.58), residual pass 4 x 1.55, alphabet
