@@ -277,9 +277,11 @@ INLINE SIMD_FN void rans_lanes(const int NV, const int32_t *ent, const u64 *fc, 
                                     _mm512_cvtepi64_epi32(_mm512_and_si512(X[v], m16)), 2);
             NW[v] = _mm512_mask_add_epi64(NW[v], emit, NW[v], one);
             const __m512i Xs = _mm512_mask_srli_epi64(X[v], emit, X[v], 16);
-            const int rn = _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC;
-            __m512d prod = _mm512_mul_round_pd(_mm512_cvtepu64_pd(Xs), R, rn);
-            __m512i q = _mm512_cvttpd_epu64(_mm512_add_round_pd(prod, eps, rn));
+            /* the rounding mode as a constant expression: clang takes no variable there, not even a const one */
+#define RN (_MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC)
+            __m512d prod = _mm512_mul_round_pd(_mm512_cvtepu64_pd(Xs), R, RN);
+            __m512i q = _mm512_cvttpd_epu64(_mm512_add_round_pd(prod, eps, RN));
+#undef RN
             __m512i rem = _mm512_sub_epi64(Xs, _mm512_mul_epu32(q, F));
             X[v] = _mm512_add_epi64(_mm512_add_epi64(_mm512_slli_epi64(q, PROB_BITS), rem), C);
             if (k > 0) {
