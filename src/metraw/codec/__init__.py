@@ -215,16 +215,12 @@ def _mean_abs_dev(v):
     return total / n
 
 
-def _noise_sigma_of_planes(planes: list[np.ndarray], step: float, buffers: bool = False) -> float | None:
-    """``measured_noise_sigma`` from the CFA planes' symbols, or (``buffers``) from their causal buffers (front, c0)
-    (the encoder's: no symbol arrays)."""
+def _noise_sigma_of_planes(planes: list[np.ndarray], step: float, add: int = 0, shift: int = 0) -> float | None:
+    """``measured_noise_sigma`` from the CFA planes' symbols (``planes`` + ``add``) >> ``shift`` (``_hh_values``)."""
     vals = np.empty(len(planes) * 128 * 128, np.float64)
     n = 0
     for plane in planes:
-        if buffers:   # the interior of (h + 2) x (w + 4)
-            n = _hh_values(plane[0][2:, 2:-2], vals, n, 32767, 16)
-        else:
-            n = _hh_values(plane, vals, n)
+        n = _hh_values(plane, vals, n, add, shift)
     if n < 256:
         return None
     var_hh = (_mean_abs_dev(vals[:n]) * math.sqrt(math.pi / 2)) ** 2
@@ -334,7 +330,9 @@ def encode(image: RawImage, step: float = 1.0, seed: int = 0, check_profile: boo
         r0, r1 = tile
         buffers = _tile_buffers(data, r0, r1, prof, step, seed)
         # the profile check looks at the first row tile only (half the frame at most: plenty)
-        measured = _noise_sigma_of_planes(buffers, step, buffers=True) if check_profile and r0 == 0 else None
+        # (on the causal buffers' interiors, (h + 2) x (w + 4) less the pads: no symbol arrays made)
+        measured = (_noise_sigma_of_planes([f[2:, 2:-2] for f, _ in buffers], step, 32767, 16)
+                    if check_profile and r0 == 0 else None)
         acc = [] if account is not None else None
         # the tile's escapes (saturated or below the transform's domain) here, in the tile's thread, not in one pass
         # over the frame after the tiles (canon_dng: 1.2 ms that ran on one core)
