@@ -320,10 +320,17 @@ void VN(metraw_inverse_dn)(const int32_t *sym, i64 rows, i64 cols, u64 k1, u64 k
             /* the 8 DN's low words: dwords 0, 2 of each 128-bit half hold them */
             const __m256i d32 = _mm256_permute4x64_epi64(_mm256_castps_si256(_mm256_shuffle_ps(
                 _mm256_castsi256_ps(dn2[0]), _mm256_castsi256_ps(dn2[1]), _MM_SHUFFLE(2, 0, 2, 0))), _MM_SHUFFLE(3, 1, 2, 0));
-            const __m128i d16 = _mm_packus_epi32(_mm256_castsi256_si128(d32), _mm256_extracti128_si256(d32, 1));
             if (out_col_stride == 1) {
-                _mm_storeu_si128((__m128i *)(void *)(o + j), d16);
+                _mm_storeu_si128((__m128i *)(void *)(o + j),
+                                 _mm_packus_epi32(_mm256_castsi256_si128(d32), _mm256_extracti128_si256(d32, 1)));
+            } else if (out_col_stride == 2 && j + 8 < cols) {
+                /* as inverse_dn_avx512: the 8 DN into the low halves of 8 32-bit words, whose high halves (the next
+                 * plane's pixels, in this row and this thread's tile) are kept */
+                __m256i *w32 = (__m256i *)(void *)(o + 2 * j);
+                const __m256i keep = _mm256_and_si256(_mm256_loadu_si256(w32), _mm256_set1_epi32((int)0xFFFF0000u));
+                _mm256_storeu_si256(w32, _mm256_or_si256(keep, d32));
             } else {
+                const __m128i d16 = _mm_packus_epi32(_mm256_castsi256_si128(d32), _mm256_extracti128_si256(d32, 1));
                 uint16_t *oj = o + j * out_col_stride;
                 oj[0] = (uint16_t)_mm_extract_epi16(d16, 0); oj[out_col_stride] = (uint16_t)_mm_extract_epi16(d16, 1);
                 oj[2 * out_col_stride] = (uint16_t)_mm_extract_epi16(d16, 2);

@@ -279,7 +279,9 @@ def inverse_dn(sym: np.ndarray, keys: tuple[int, int], start: int, row_step: int
                k: float, offset: float, out: np.ndarray) -> None:
     """``prepare._inverse_dn_kernel`` (the same uint16 DN into ``out``) with the dither of ``prepare.dither_grid``
     (``keys`` from ``prepare.dither_keys``, pixels start + i row_step + j col_step) made on the way: ``sym`` int32
-    (h, w) C-contiguous, ``out`` uint16 (h, w) at any positive strides (a CFA plane of the frame)."""
+    (h, w) C-contiguous, ``out`` uint16 (h, w) at any positive strides (a CFA plane of the frame). At a column stride
+    of 2 (2-pixel cells) the compiled paths store 32-bit words whose other halves (the pixels between, in the same row)
+    they read and write back unchanged: no other thread may write those meanwhile (the decoder's tiles are rows)."""
     h, w = sym.shape
     rs, cs = (st // out.itemsize for st in out.strides)
     if out.dtype != np.uint16 or out.shape != sym.shape or rs <= 0 or cs <= 0:
