@@ -501,6 +501,31 @@ def test_round_trip_equals_decode_of_encode(pattern, shape, step):
     assert np.array_equal(img.data, data)  # the input is left as it was
 
 
+@pytest.mark.parametrize("nthreads", [1, 2, 3])
+def test_frame_escape_list_on_any_thread_and_corrupt_ones_refused(monkeypatch, nthreads):
+    """The frame's escape list (decoded by whichever thread is free first after its tile, its DN put in after every
+    tile) gives the same pixels on 1-3 threads; one re-packed with a right CRC but an index past the frame, a
+    negative or too large DN, or fewer values than indices fails with one clear error."""
+    from metraw.codec import container, entropy
+
+    img = _scene((300, 64))   # 2 row tiles
+    data = img.data.copy()
+    data.reshape(-1)[::53] = 16000
+    img = RawImage(data, img.profile)
+    blob = codec.encode(img, 1.0, 3, check_profile=False)
+    monkeypatch.setattr(codec, "THREADS", nthreads)
+    dec = codec.decode(blob).data
+    assert np.array_equal(dec.reshape(-1)[::53], data.reshape(-1)[::53])
+    assert np.array_equal(dec, codec.round_trip(img, 1.0, 3))
+    header, sections = container.unpack(blob)
+    n = data.size
+    for diffs, vals in [([5, n], [16000, 16000]), ([5, 7], [16000, -1]), ([5, 7], [16000, 65536]), ([5, 7], [1])]:
+        esc = entropy.encode_streams([np.array(diffs, np.int32), np.array(vals, np.int32)])
+        bad = container.pack(header, [bytes(sec) for sec in sections[:-1]] + [esc])
+        with pytest.raises(MetrawError, match="escape list is corrupt"):
+            codec.decode(bad)
+
+
 def test_round_trip_bad_input_errors():
     img = _scene((8, 8))
     with pytest.raises(MetrawError, match="codec.round_trip needs a RawImage"):
