@@ -269,6 +269,7 @@ import io
 import math
 import os
 import sys
+import threading
 import time
 import warnings
 from pathlib import Path
@@ -464,6 +465,17 @@ def _print_host() -> None:
           f"{os.environ.get('METRAW_NATIVE', '')!r}), available: {', '.join(native.AVAILABLE) or 'none'}")
 
 
+def two_at_once(fn) -> float:
+    """Wall time [s] of two calls of ``fn`` at once, one on a helper thread (``fn`` must release the GIL, as CharLS
+    does): against one call's, what two threads of independent work give on this host."""
+    t = time.perf_counter()
+    helper = threading.Thread(target=fn)
+    helper.start()
+    fn()
+    helper.join()
+    return time.perf_counter() - t
+
+
 def speed_main() -> int:
     """``--speed``: only the speed comparison with lossless JPEG-LS on the real frames (steps 1, 2), for every codec
     path (``--paths``; default: each compiled path this host runs and numba).
@@ -493,6 +505,7 @@ def speed_main() -> int:
             cases.append((name, step, img, blob, jl))
     # per path and case: [2-thread walls, 2-thread cpus, 1-thread cpus], each 4 lists (enc, dec, jls enc, jls dec)
     samples = {p: [[[[] for _ in range(4)] for _ in range(3)] for _ in cases] for p in paths}
+    capacity = [([], []) for _ in range(2)]   # JPEG-LS encode, decode: (one call's walls, two at once)
     threads, before = codec.THREADS, native.PATH
     try:
         with warnings.catch_warnings():
@@ -511,6 +524,14 @@ def speed_main() -> int:
                                 if walls is not None:
                                     walls[k] += w[k]
                                 cpus[k] += c[k]
+                # the host's 2-thread capacity in the same rounds: a JPEG-LS call alone, then two at once
+                d, jl = cases[0][2].data, cases[0][4]
+                for (one, two), fn in zip(capacity, (lambda: imagecodecs.jpegls_encode(d),
+                                                     lambda: imagecodecs.jpegls_decode(jl))):
+                    t = time.perf_counter()
+                    fn()
+                    one.append(time.perf_counter() - t)
+                    two.append(two_at_once(fn))
     finally:
         codec.THREADS = threads
         native.use(before)
@@ -532,6 +553,10 @@ def speed_main() -> int:
           "on 1 thread / JPEG-LS CPU time; par = metraw CPU / wall on 2 threads (2: tiles fully concurrent); "
           "won = share of rounds in which metraw's 2-thread wall time beat JPEG-LS's; Mpx/s e2/d2 = megapixels per "
           "second of wall time on 2 threads, e1/d1 per second of CPU time on 1 thread")
+    cap = [2 * float(np.median(one)) / float(np.median(two)) for one, two in capacity]
+    print(f"# host: two JPEG-LS calls at once on 2 threads ({cases[0][0]}, the same rounds) do x{cap[0]:.2f} / "
+          f"x{cap[1]:.2f} (encode / decode) the work of one in one call's time; at that capacity wall2 >= 3 needs "
+          f"cpu1 <= {cap[0] / 3:.2f} / {cap[1] / 3:.2f} (before metraw's own 2-thread overheads)")
     print(f"# load: {os.getloadavg()} at the end")
     if "--no-large" not in sys.argv[1:]:
         print(f"# the 20 MP frame on the path at import, {native.PATH}")
