@@ -135,12 +135,13 @@ int decode_plane_with(steady_fn steady8, steady_fn steady16, i64 *p, i64 h, i64 
                               epos + s0, eend + s0))
                 return 0;
         }
-    }
-    for (i64 y = 0; y < h; y++) {
-        const i64 *row = pf + (y + 2) * ws + 2;
-        const int32_t *uy = u + y * w;
-        int32_t *sy = sym + y * w;
-        for (i64 x = 0; x < w; x++) sy[x] = (int32_t)((row[x] + uy[x]) >> 16);
+        /* the group's symbols while its rows are in cache (not in a pass over the plane after the groups) */
+        for (i64 y = y0; y < y0 + nl && y < h; y++) {
+            const i64 *row = pf + (y + 2) * ws + 2;
+            const int32_t *uy = u + y * w;
+            int32_t *sy = sym + y * w;
+            for (i64 x = 0; x < w; x++) sy[x] = (int32_t)((row[x] + uy[x]) >> 16);
+        }
     }
     return 1;
 }
