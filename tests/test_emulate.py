@@ -386,8 +386,8 @@ def test_cli_emulate_writes_store_atomically(tmp_path, capsys):
     rc = main(["emulate", str(src_path), str(bad), "--params", str(params), "--point", "diameter_m=30,exposure_s=1"])
     assert rc == 2 and "times more light" in capsys.readouterr().err
     assert not bad.exists() and not any(p.name.startswith(".bad.zarr") for p in tmp_path.iterdir())
-    # --at-point NAME: the params file's point, merged once in metraw.study.points; the same store as the full list of
-    # its fields as overrides (what the workflow passed before), ints of the params file held as floats alike
+    # --at-point NAME: the parameter file's point, merged once in metraw.study.points; the same store as the full list of
+    # its fields as overrides (what the workflow passed before), ints of the parameter file held as floats alike
     from metraw.study.points import target_params
 
     full["target"]["nominal"]["black_level_dn"] = 64  # an int in the file

@@ -19,7 +19,7 @@ def register(subparsers) -> None:
     p.add_argument("--out", required=True, help="output model directory")
     p.add_argument("--extra", action="append", default=[],
                    help="a store of further scenes that belong to no test set (repeatable)")
-    p.add_argument("--params", default="params.yaml", help="params file (nominal target, training profile and "
+    p.add_argument("--params", default="params.yaml", help="parameter file (nominal target, training profile and "
                    "training.pretrain; default: params.yaml)")
     p.add_argument("--profile", default=None, help="training profile name (default: training.profile in params)")
     p.add_argument("--cfa-pattern", default=None,

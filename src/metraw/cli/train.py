@@ -18,7 +18,7 @@ def register(subparsers) -> None:
                               "(the same bytes for the same store, params and machine; the time goes to stderr).")
     p.add_argument("store", help="input RawStore (.zarr) with car masks")
     p.add_argument("--out", required=True, help="output directory for the checkpoint and training metrics")
-    p.add_argument("--params", default="params.yaml", help="params file with a training: section (default: params.yaml)")
+    p.add_argument("--params", default="params.yaml", help="parameter file with a training: section (default: params.yaml)")
     p.add_argument("--profile", default=None, help="training profile name (default: training.profile in params)")
     p.add_argument("--device", default=None, help="torch device (default: cuda when present, else cpu)")
     p.add_argument("--epochs", type=int, default=None, help="override the profile's number of epochs")

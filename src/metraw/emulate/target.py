@@ -69,7 +69,7 @@ class TargetSystem:
     name: str = "target"
 
     def __post_init__(self) -> None:
-        # one typed object: every float field holds a float, however it was given (64 or 64.0 in a params file, a
+        # one typed object: every float field holds a float, however it was given (64 or 64.0 in a parameter file, a
         # value parsed from a command line), so a target states itself the same way on every route
         for f in dataclasses.fields(self):
             v = getattr(self, f.name)

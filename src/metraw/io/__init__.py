@@ -132,7 +132,7 @@ def default_camera(params_path: str | os.PathLike | None = None) -> CalibrationP
                                                            Path(__file__).resolve().parents[3] / "params.yaml"]
     for candidate in candidates:
         if candidate.is_file():
-            params = read_yaml(candidate, "params file")
+            params = read_yaml(candidate, "parameter file")
             try:
                 cam = dict(params["source"]["camera"])
             except (KeyError, TypeError, ValueError) as exc:

@@ -138,7 +138,7 @@ class TrainConfig:
 
 def load_config(params_path: str | os.PathLike, profile: str | None = None) -> TrainConfig:
     """The ``training:`` section of params.yaml for ``profile`` (default: ``training.profile``)."""
-    params = read_yaml(params_path, "params file")
+    params = read_yaml(params_path, "parameter file")
     tr = params.get("training") if isinstance(params, dict) else None
     if not isinstance(tr, dict) or "profiles" not in tr:
         raise MetrawError(f"{params_path} has no training.profiles section")
