@@ -261,6 +261,28 @@ context (every sample's context first, then each context's samples: exactly the 
 slower (eight sweeps of the plane instead of one). The residual pass is bound by its instruction count (~115 vector
 instructions per 4 pixels, spread evenly in the sampling profile: 13 loads, 12 vpermd / vpmuldq / vpaddq taps, the
 context's 7 compares), not by one unit.
+
+Later on 2026-11-29 (issue #52; the same VM). What the host gives two threads: the same 1-thread call on both CPUs at
+once (two processes, each pinned, 16 rounds alternating with the call alone) takes 0.97x (JPEG-LS decode), 0.98x
+(JPEG-LS encode), 1.03x (metraw decode) and 1.10x (metraw encode) its time alone, and two JPEG-LS calls on two threads
+of one process do x1.82-2.05 the work of one (``--speed`` now prints this, measured in its own rounds). metraw's par
+(1.75-1.86) is at that capacity, so a 2-thread wall ratio of 3 needs a 1-thread CPU ratio of ~0.61-0.68 or less here.
+The VM's speed drifts by up to 1.5x within minutes (one 1-thread canon_dng decode: 37-63 ms in consecutive processes;
+JPEG-LS's decode 62-92 ms): hence in-process A/Bs with alternating order. Taken, the same bytes and values: the avx2
+inverse transform merges a 2-pixel-cell plane's 8 DN into 32-bit words (as the AVX-512 path does) instead of 8 word
+stores, canon_dng's 4 planes 4.86 -> 4.28 ms; the frame's escape list is one more work item of the decoder's threads
+(canon_dng 2-thread decode 0.95-1.00x, median ~0.97, 8 runs); a row group's symbols are taken from the causal buffer
+right after the group (decode_plane replayed, 300 rounds: 0.994x). Tried, not taken: (1) the escape stream coded
+likewise by the first free thread in the encoder: canon_dng 0.97-1.00x, micasense 1.02-1.03x (4 runs); (2) the dither
+hashed in the avx2 steady loop instead of gathered from the dither plane: canon_dng decode 1.09x, micasense 1.00x
+(with the dither pass still made; it is 0.9 ms a frame): ~13 vector instructions a vector step cost more than the
+gather here; (3) one fused table by slot (symbol << 24 | (freq - 1) << 12 | slot - cum: one lookup instead of the
+symbol's then its (freq, cum)) on every path: decode 0.987x / 1.026x (avx2 canon_dng / micasense), 1.009x (avx512
+canon_dng): a plane's table grows from 128 to 512 KB and its build from 0.28 to 0.34 ms a tile; (4) the codec's two
+threads pinned to the two CPUs: 0.98-1.02x. The avx2 decoder's steady loop runs ~230 instructions a vector step of 4
+lanes (~57 a pixel; ~34 cycles a pixel at the VM's 2.3 GHz), its samples piling up after the symbol table's and the
+(freq, cum) gathers (18 % and 14 %): what would cut it is a steady loop with the lanes' values in 32 bits (8 lanes a
+register), a rewrite of the AVX2 kernel not begun.
 """
 
 from __future__ import annotations
