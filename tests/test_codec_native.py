@@ -108,6 +108,44 @@ def _decode_planes_both(blob, us, monkeypatch):
 
 
 @needs_native
+def test_compiled_decoder_runs_in_a_row_groups_buffer(monkeypatch):
+    """The compiled loop decodes each row group into the buffer's rows 2 .. and moves the group's last two rows up: a
+    buffer of exactly a group's rows + 2 gives the symbols of a plane-size one (the numba loop's), a row fewer is
+    refused, and the rows past a group's are never touched (a plane-size buffer's rows beyond stay as they were)."""
+    calls = []
+    original = native.decode_plane
+
+    def spy(*args):
+        calls.append([a.copy() if isinstance(a, np.ndarray) else a for a in args])
+        return original(*args)
+
+    # 2 row tiles of 2^17 pixels (lanes, not a shared model), planes of 203 rows: 12 groups of 16 and a short one
+    img = _image(4 * 203, 2 * 161, "RGGB", 3000.0, seed=3)
+    blob = codec.encode(img, 1.0, check_profile=False)
+    with monkeypatch.context() as m:
+        m.setattr(native, "decode_plane", spy)
+        codec.decode(blob)
+    p, u, sym = calls[0][:3]
+    lanes = calls[0][11].size
+    assert p.shape[0] == min(u.shape[0], lanes) + 2 < u.shape[0]   # the decoder allocates a group's buffer
+    results = []
+    for rows in (p.shape[0], u.shape[0] + 2):
+        args = [a.copy() if isinstance(a, np.ndarray) else a for a in calls[0]]
+        big = np.full((rows, p.shape[1]), 123456789, np.int64)
+        big[:3] = p[:3]
+        args[0] = big
+        assert original(*args)
+        results.append(args[2])
+        if rows > p.shape[0]:
+            assert np.all(big[p.shape[0]:] == 123456789)
+    assert np.array_equal(results[0], results[1])
+    args = [a.copy() if isinstance(a, np.ndarray) else a for a in calls[0]]
+    args[0] = args[0][:-1]
+    with pytest.raises(ValueError, match="row group"):
+        original(*args)
+
+
+@needs_native
 @pytest.mark.parametrize("lanes", [8, 16])
 @pytest.mark.parametrize("pattern", ["RGGB", "mono"])
 def test_compiled_encoder_passes_write_the_numba_encoders_bytes(pattern, lanes, monkeypatch):

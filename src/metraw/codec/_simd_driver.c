@@ -114,11 +114,15 @@ static int decode_group(steady_fn steady8, steady_fn steady16, i64 *pf, i64 y0, 
     return general_steps(pf, 0, w + 3 * (nr - 1), y0, nr, w, u, m, xs, pos, pmin, epos, eend);
 }
 
-/* metraw.codec.decoder.decode_plane: p the (h + 2) x (w + 4) padded buffer, u the fixed-point dither (h x w),
- * sym the symbols out (h x w); lut and words readable 4 bytes past their ends (gathers read 32 bits); groups of 8
- * or 16 lanes run the path's steady part: 16 lanes as two vectors side by side where two_vectors is 1, else as two
- * groups of 8 rows one after the other (lane j's rows in the same order, so the same values). Returns 1, or 0 when a
- * lane ran past its words or escapes (corrupt stream). */
+/* metraw.codec.decoder.decode_plane: p the padded buffer's first rows (w + 4 values each: the two rows above the
+ * plane and its first row's left pads as decoder._init_front sets them, then room for one row group: nl + 2 rows at
+ * least), u the fixed-point dither (h x w), sym the symbols out (h x w); lut and words readable 4 bytes past their ends
+ * (gathers read 32 bits); groups of 8 or 16 lanes run the path's steady part: 16 lanes as two vectors side by side
+ * where two_vectors is 1, else as two groups of 8 rows one after the other (lane j's rows in the same order, so the
+ * same values). A group's rows are decoded into rows 2 .. of p (the kernels index it by plane row: a base pointer
+ * y0 rows before p), its symbols taken out, its last two rows moved up to rows 0 and 1 as the next group's rows above:
+ * p stays in cache, not a buffer of the plane's size. Returns 1, or 0 when a lane ran past its words or escapes
+ * (corrupt stream). */
 int decode_plane_with(steady_fn steady8, steady_fn steady16, i64 *p, i64 h, i64 w, const int32_t *u, int32_t *sym,
                       const i64 *thr7, const i64 *coef8x13, i64 tab0, i64 pshift, const void *lut, int lut16,
                       const uint32_t *fcum, i64 alpha, i64 amax, const uint16_t *words, u64 *xs, i64 *pos,
@@ -126,22 +130,25 @@ int decode_plane_with(steady_fn steady8, steady_fn steady16, i64 *p, i64 h, i64 
 {
     model_t m = {thr7, coef8x13, tab0, pshift, alpha, amax, lut, lut16, fcum, words, esc};
     const i64 ws = w + 4;
-    i64 *pf = p;
     const i64 sub = nl == 16 && !two_vectors ? 8 : nl;
     for (i64 y0 = 0; y0 < h; y0 += nl) {
+        /* plane row y at p[(y - y0 + 2) ws]: the kernels' pf[(y + 2) ws], pf = p - y0 ws (as an address: p's rows
+         * are the only ones read or written) */
+        i64 *pf = (i64 *)(uintptr_t)((uintptr_t)p - (uintptr_t)(y0 * ws) * sizeof(i64));
         for (i64 s0 = 0; s0 < nl && y0 + s0 < h; s0 += sub) {
             const i64 nr = sub < h - y0 - s0 ? sub : h - y0 - s0;
             if (!decode_group(steady8, steady16, pf, y0 + s0, nr, sub, w, u, &m, xs + s0, pos + s0, pmin + s0,
                               epos + s0, eend + s0))
                 return 0;
         }
-        /* the group's symbols while its rows are in cache (not in a pass over the plane after the groups) */
-        for (i64 y = y0; y < y0 + nl && y < h; y++) {
-            const i64 *row = pf + (y + 2) * ws + 2;
-            const int32_t *uy = u + y * w;
-            int32_t *sy = sym + y * w;
+        const i64 rows = nl < h - y0 ? nl : h - y0;
+        for (i64 y = 0; y < rows; y++) {
+            const i64 *row = p + (y + 2) * ws + 2;
+            const int32_t *uy = u + (y0 + y) * w;
+            int32_t *sy = sym + (y0 + y) * w;
             for (i64 x = 0; x < w; x++) sy[x] = (int32_t)((row[x] + uy[x]) >> 16);
         }
+        if (rows == nl) memcpy(p, p + nl * ws, 2 * ws * sizeof(i64));   /* the next group's two rows above */
     }
     return 1;
 }

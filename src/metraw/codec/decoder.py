@@ -449,16 +449,21 @@ def _decode(mv: memoryview, dithers: list[np.ndarray], outs) -> list[np.ndarray]
     pos = pmin + np.array(nwords, np.int64)
     if outs is None:
         outs = [np.empty(u.shape, np.int32) for u in dithers]
-    # one padded buffer for the planes in turn (``_init_front`` sets what the decoder reads before writing)
-    buf = np.empty(max((u.shape[0] + 2) * (u.shape[1] + 4) for u in dithers), np.int64)
+    # one padded buffer for the planes in turn (``_init_front`` sets what the decoder reads before writing); the
+    # compiled loop needs only a row group's rows and the two above them (it moves them up after each group)
     compiled = native.LIB is not None and nl in native.LANE_COUNTS
+
+    def buffer_rows(h):
+        return (min(h, nl) if compiled else h) + 2
+
+    buf = np.empty(max(buffer_rows(u.shape[0]) * (u.shape[1] + 4) for u in dithers), np.int64)
     for k, u in enumerate(dithers):
         g = 0 if shared else k
         thr, coef, bias = heads[g]
         thr7 = np.concatenate([thr, np.full(MAX_NACT - 1 - thr.size, np.iinfo(np.int64).max, np.int64)])
         coef13 = predictor_table(coef, bias).reshape(-1)
         h, w = u.shape
-        p = buf[:(h + 2) * (w + 4)].reshape(h + 2, w + 4)
+        p = buf[:buffer_rows(h) * (w + 4)].reshape(buffer_rows(h), w + 4)
         _init_front(p, np.int64(c0s[k]) << 16)
         u16 = (np.ascontiguousarray(u) if u.dtype == np.int32
                else fixed_dither(np.ascontiguousarray(u, np.float64)))

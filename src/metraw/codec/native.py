@@ -211,8 +211,13 @@ def _eight_contexts(table: np.ndarray) -> np.ndarray:
 def decode_plane(p, u, sym, thr7, coef13, tab0, pshift, lut, fcum, amax, words, xs, pos, pmin, esc, epos, eend) -> bool:
     """``decoder.decode_plane`` (same arguments but ``ctab``, same results) in the compiled loop; a compiled path must
     run and ``xs.size`` in ``LANE_COUNTS``. ``lut`` and ``words`` must be readable ``READ_PAST_END_BYTES`` past
-    their ends (``decoder`` allocates them so); ``coef13`` holds 13 values per context (padded here to 8 contexts)."""
-    h, w = p.shape[0] - 2, p.shape[1] - 4
+    their ends (``decoder`` allocates them so); ``coef13`` holds 13 values per context (padded here to 8 contexts).
+    ``p``: the padded buffer's first min(h, lanes) + 2 rows or more (w + 4 columns; ``decoder._init_front`` set), in
+    which the loop decodes one row group after the other (its contents after the call: the last group's rows)."""
+    h, w = u.shape
+    if p.ndim != 2 or p.shape[1] != w + 4 or p.shape[0] < min(h, xs.size) + 2 or sym.shape != u.shape:
+        raise ValueError("native decoder: the buffer needs w + 4 columns and a row group's rows + 2, the symbols the "
+                         "dither's shape")
     coef = _eight_contexts(coef13.reshape(-1, 13))
     lut16 = lut.dtype == np.int16
     ok = _F.decode_plane(
