@@ -38,14 +38,16 @@ PROF = CalibrationProfile(gain_dn_per_e=0.5, black_level_dn=100, read_noise_e=3,
 def _decode_both(blob, monkeypatch):
     """(compiled, numba) decodes of ``blob``, and the symbol-table dtypes the compiled loop was given."""
     seen = []
-    compiled_plane = native.decode_plane
 
-    def spy(*args):
-        seen.append(args[7].dtype)   # lut
-        return compiled_plane(*args)
+    def spy(fn):
+        def call(*args):
+            seen.append(args[7].dtype)   # lut
+            return fn(*args)
+        return call
 
     with monkeypatch.context() as m:
-        m.setattr(native, "decode_plane", spy)
+        m.setattr(native, "decode_plane", spy(native.decode_plane))
+        m.setattr(native, "decode_plane_dn", spy(native.decode_plane_dn))
         got = codec.decode(blob).data
     with monkeypatch.context() as m:
         m.setattr(native, "LIB", None)
@@ -111,7 +113,11 @@ def _decode_planes_both(blob, us, monkeypatch):
 def test_compiled_decoder_runs_in_a_row_groups_buffer(monkeypatch):
     """The compiled loop decodes each row group into the buffer's rows 2 .. and moves the group's last two rows up: a
     buffer of exactly a group's rows + 2 gives the symbols of a plane-size one (the numba loop's), a row fewer is
-    refused, and the rows past a group's are never touched (a plane-size buffer's rows beyond stay as they were)."""
+    refused, and the rows past a group's are never touched (a plane-size buffer's rows beyond stay as they were).
+    Decoding to DN a row group at a time (``decode_planes_dn``: the dither made and the DN put out per group) gives
+    the DN of the plane's symbols."""
+    from metraw.codec import container, decoder, prepare
+
     calls = []
     original = native.decode_plane
 
@@ -122,9 +128,15 @@ def test_compiled_decoder_runs_in_a_row_groups_buffer(monkeypatch):
     # 2 row tiles of 2^17 pixels (lanes, not a shared model), planes of 203 rows: 12 groups of 16 and a short one
     img = _image(4 * 203, 2 * 161, "RGGB", 3000.0, seed=3)
     blob = codec.encode(img, 1.0, check_profile=False)
+    header, sections = container.unpack(blob)
+    (r0, r1), w = header.tiles[0], img.data.shape[1]
+    keys, inv = prepare.dither_keys(0), prepare.inverse_args(img.profile, 1.0)
+    grid = [(dy, dx) for dy in (0, 1) for dx in (0, 1)]
+    dithers = [native.dither_fixed(*keys, (r0 + dy) * w + dx, (r1 - r0 - dy + 1) // 2, w // 2, 2 * w, 2)
+               for dy, dx in grid]
     with monkeypatch.context() as m:
         m.setattr(native, "decode_plane", spy)
-        codec.decode(blob)
+        syms = decoder.decode_planes(sections[0], dithers)
     p, u, sym = calls[0][:3]
     lanes = calls[0][11].size
     assert p.shape[0] == min(u.shape[0], lanes) + 2 < u.shape[0]   # the decoder allocates a group's buffer
@@ -138,11 +150,18 @@ def test_compiled_decoder_runs_in_a_row_groups_buffer(monkeypatch):
         results.append(args[2])
         if rows > p.shape[0]:
             assert np.all(big[p.shape[0]:] == 123456789)
-    assert np.array_equal(results[0], results[1])
+    assert np.array_equal(results[0], results[1]) and np.array_equal(results[0], syms[0])
     args = [a.copy() if isinstance(a, np.ndarray) else a for a in calls[0]]
     args[0] = args[0][:-1]
     with pytest.raises(ValueError, match="row group"):
         original(*args)
+    frame = np.full(img.data.shape, 7777, np.uint16)
+    ref = frame.copy()
+    for (dy, dx), s in zip(grid, syms):
+        native.inverse_dn(s, keys, (r0 + dy) * w + dx, 2 * w, 2, *inv, ref[r0 + dy:r1:2, dx::2])
+    decoder.decode_planes_dn(sections[0], [decoder.PlaneDN(keys, (r0 + dy) * w + dx, 2 * w, 2, inv,
+                                                           frame[r0 + dy:r1:2, dx::2]) for dy, dx in grid])
+    assert np.array_equal(frame, ref) and np.all(frame[r1:] == 7777)
 
 
 @needs_native

@@ -12,8 +12,10 @@ of at most ``TILE_PIXELS`` each beyond 5 MP; the tiling depends on the frame onl
 parallel threads (the kernels release the GIL), each tile's CFA planes as contiguous arrays and
 with 16 interleaved rANS lanes; small tiles share one model across their planes. Escape lists
 use ``metraw.codec.entropy``. The blob has a compact binary header with an optional embedded
-profile and a CRC-32C (``metraw.codec.container``). The per-pixel loops run in C with AVX-512
-where ``metraw.codec.native`` is built, else in numba: the same bytes and values.
+profile and a CRC-32C (``metraw.codec.container``). The per-pixel loops run in C (AVX-512, AVX2
+or portable C, chosen at import) where ``metraw.codec.native`` is built, else in numba: the same
+bytes and values. The compiled decoder makes a plane's dither and puts out its DN a row group at
+a time, with no plane-size intermediate arrays.
 
 Only the pixel array is coded; ``mask`` and ``flags`` are not part of the blob.
 """
@@ -30,7 +32,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numba as nb
 import numpy as np
 
-from metraw.codec import container, entropy, native, predictive, prepare
+from metraw.codec import container, decoder, entropy, native, predictive, prepare
 from metraw.errors import MetrawError
 from metraw.raw.cfa import plane_offsets, cell_size
 from metraw.raw.image import RawImage
@@ -444,13 +446,12 @@ def decode(blob: bytes | memoryview, profile: CalibrationProfile | None = None) 
             for (dy, dx, _, _), sym, u in zip(_plane_grid(r0, r1, w, pattern), syms, us):
                 prepare.inverse_dn(sym, prof, step, u, out[r0 + dy:r1:cell, dx::cell])
             return
-        # compiled: the fixed-point dither for the decoder, and the inverse making its float dither on the way (no
-        # float dither arrays); the same values
-        grid, keys, inv = _plane_grid(r0, r1, w, pattern), prepare.dither_keys(seed), prepare.inverse_args(prof, step)
-        syms = predictive.decode_planes(sec, [native.dither_fixed(*keys, (r0 + dy) * w + dx, ph, pw, cell * w, cell)
-                                              for dy, dx, ph, pw in grid])
-        for (dy, dx, _, _), sym in zip(grid, syms):
-            native.inverse_dn(sym, keys, (r0 + dy) * w + dx, cell * w, cell, *inv, out[r0 + dy:r1:cell, dx::cell])
+        # compiled: the fixed-point dither for the decoder and the inverse (making its float dither on the way) a row
+        # group at a time inside the decoding loop (no plane-size dither or symbol arrays); the same values
+        keys, inv = prepare.dither_keys(seed), prepare.inverse_args(prof, step)
+        decoder.decode_planes_dn(sec, [
+            decoder.PlaneDN(keys, (r0 + dy) * w + dx, cell * w, cell, inv, out[r0 + dy:r1:cell, dx::cell])
+            for dy, dx, _, _ in _plane_grid(r0, r1, w, pattern)])
 
     # the escape list, if any, as one more item: decoded by whichever thread is free first after its tile (canon_dng:
     # 0.3 ms that ran on one core after the tiles), its DN put in after every tile

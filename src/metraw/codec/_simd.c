@@ -362,8 +362,17 @@ int metraw_decode_plane_avx512(i64 *p, i64 h, i64 w, const int32_t *u, int32_t *
                                int two_vectors)
 {
     return decode_plane_with(steady8, steady16, p, h, w, u, sym, thr7, coef8x13, tab0, pshift, lut, lut16, fcum,
-                             alpha, amax, words, xs, pos, pmin, esc, epos, eend, nl, two_vectors);
+                             alpha, amax, words, xs, pos, pmin, esc, epos, eend, nl, two_vectors, NULL);
 }
+
+/* _simd_prepare.c's kernels of this path */
+void metraw_dither_fixed_avx512(u64 k1, u64 k2, i64 start, i64 rows, i64 cols, i64 row_step, i64 col_step,
+                                int32_t *out);
+void metraw_inverse_dn_avx512(const int32_t *sym, i64 rows, i64 cols, u64 k1, u64 k2, i64 start, i64 row_step,
+                              i64 col_step, double half_step, double k, double offset, uint16_t *out,
+                              i64 out_row_stride, i64 out_col_stride);
+
+DECODE_PLANE_DN(metraw_decode_plane_dn_avx512, metraw_dither_fixed_avx512, metraw_inverse_dn_avx512)
 
 i64 metraw_residuals_avx512(const i64 *pf, i64 h, i64 w, const i64 *thr, i64 nthr, const i64 *coef13, i64 tab0,
                             i64 pshift, int32_t *r_out, int32_t *t_out)

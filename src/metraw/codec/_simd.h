@@ -55,11 +55,43 @@ typedef int (*steady_fn)(i64 *pf, i64 y0, i64 w, const int32_t *u, const model_t
 typedef void (*rans_fn)(const int32_t *ent, const u64 *fc, const i64 *rs, const i64 *rl, uint16_t *out, i64 lo,
                         u64 *xs, i64 *nws, i64 *ci, i64 *ce, i64 *cq, const i64 *o);
 
+/* A plane's dither made and its DN put out a row group at a time by the decoder (decode_plane_dn): the path's
+ * dither_fixed and inverse_dn kernels, two buffers of a group's rows (w each: the dither, the symbols), the plane's
+ * dither keys and pixel indices (start + i row_step + j col_step), the transform (prepare.inverse_args) and the DN out
+ * (a CFA plane of the frame, strides in elements) */
+typedef struct {
+    void (*dither)(u64 k1, u64 k2, i64 start, i64 rows, i64 cols, i64 row_step, i64 col_step, int32_t *out);
+    void (*inverse)(const int32_t *sym, i64 rows, i64 cols, u64 k1, u64 k2, i64 start, i64 row_step, i64 col_step,
+                    double half_step, double k, double offset, uint16_t *out, i64 out_row_stride, i64 out_col_stride);
+    int32_t *u, *sym;
+    u64 k1, k2;
+    i64 start, row_step, col_step;
+    double half_step, k, offset;
+    uint16_t *out;
+    i64 out_row_stride, out_col_stride;
+} dn_t;
+
+/* A path's metraw_decode_plane_dn_<path>: decode_plane with the plane's dither made and its DN put out a row group at a
+ * time (dn_t; u and sym: a group's rows), by the path's steady8 / steady16 and its dither and inverse kernels */
+#define DECODE_PLANE_DN(name, dither_fn, inverse_fn) \
+    int name(i64 *p, i64 h, i64 w, int32_t *u, int32_t *sym, const i64 *thr7, const i64 *coef8x13, i64 tab0, \
+             i64 pshift, const void *lut, int lut16, const uint32_t *fcum, i64 alpha, i64 amax, \
+             const uint16_t *words, u64 *xs, i64 *pos, const i64 *pmin, const int32_t *esc, i64 *epos, \
+             const i64 *eend, i64 nl, int two_vectors, u64 k1, u64 k2, i64 start, i64 row_step, i64 col_step, \
+             double half_step, double k, double offset, uint16_t *out, i64 out_row_stride, i64 out_col_stride) \
+    { \
+        const dn_t dn = {dither_fn, inverse_fn, u, sym, k1, k2, start, row_step, col_step, half_step, k, offset, out, \
+                         out_row_stride, out_col_stride}; \
+        return decode_plane_with(steady8, steady16, p, h, w, NULL, NULL, thr7, coef8x13, tab0, pshift, lut, lut16, \
+                                 fcum, alpha, amax, words, xs, pos, pmin, esc, epos, eend, nl, two_vectors, &dn); \
+    }
+
 /* _simd_driver.c: the decoder's plane and the encoder's rANS pass with a path's kernels; the per-table counts */
 int decode_plane_with(steady_fn steady8, steady_fn steady16, i64 *p, i64 h, i64 w, const int32_t *u, int32_t *sym,
                       const i64 *thr7, const i64 *coef8x13, i64 tab0, i64 pshift, const void *lut, int lut16,
                       const uint32_t *fcum, i64 alpha, i64 amax, const uint16_t *words, u64 *xs, i64 *pos,
-                      const i64 *pmin, const int32_t *esc, i64 *epos, const i64 *eend, i64 nl, int two_vectors);
+                      const i64 *pmin, const int32_t *esc, i64 *epos, const i64 *eend, i64 nl, int two_vectors,
+                      const dn_t *dn);
 void rans_encode_with(rans_fn rans8, rans_fn rans16, const int32_t *idx, const int32_t *tab, i64 n, i64 ntab,
                       i64 alpha, const i64 *freq, const i64 *cum, const double *rcp, const i64 *rs, const i64 *rl,
                       const i64 *lr, const i64 *ls, i64 nl, uint16_t *out, u64 *xs, i64 *nws);

@@ -121,33 +121,45 @@ static int decode_group(steady_fn steady8, steady_fn steady16, i64 *pf, i64 y0, 
  * where two_vectors is 1, else as two groups of 8 rows one after the other (lane j's rows in the same order, so the
  * same values). A group's rows are decoded into rows 2 .. of p (the kernels index it by plane row: a base pointer
  * y0 rows before p), its symbols taken out, its last two rows moved up to rows 0 and 1 as the next group's rows above:
- * p stays in cache, not a buffer of the plane's size. Returns 1, or 0 when a lane ran past its words or escapes
- * (corrupt stream). */
+ * p stays in cache, not a buffer of the plane's size. With dn (u and sym then unused), each group's dither is made
+ * into dn->u before it and its symbols into dn->sym, then their DN put out: no plane-size array at all. Returns 1, or
+ * 0 when a lane ran past its words or escapes (corrupt stream). */
 int decode_plane_with(steady_fn steady8, steady_fn steady16, i64 *p, i64 h, i64 w, const int32_t *u, int32_t *sym,
                       const i64 *thr7, const i64 *coef8x13, i64 tab0, i64 pshift, const void *lut, int lut16,
                       const uint32_t *fcum, i64 alpha, i64 amax, const uint16_t *words, u64 *xs, i64 *pos,
-                      const i64 *pmin, const int32_t *esc, i64 *epos, const i64 *eend, i64 nl, int two_vectors)
+                      const i64 *pmin, const int32_t *esc, i64 *epos, const i64 *eend, i64 nl, int two_vectors,
+                      const dn_t *dn)
 {
     model_t m = {thr7, coef8x13, tab0, pshift, alpha, amax, lut, lut16, fcum, words, esc};
     const i64 ws = w + 4;
     const i64 sub = nl == 16 && !two_vectors ? 8 : nl;
     for (i64 y0 = 0; y0 < h; y0 += nl) {
+        const i64 rows = nl < h - y0 ? nl : h - y0;
         /* plane row y at p[(y - y0 + 2) ws]: the kernels' pf[(y + 2) ws], pf = p - y0 ws (as an address: p's rows
-         * are the only ones read or written) */
+         * are the only ones read or written); with dn, the dither's row y at dn->u[(y - y0) w] likewise */
         i64 *pf = (i64 *)(uintptr_t)((uintptr_t)p - (uintptr_t)(y0 * ws) * sizeof(i64));
+        const int32_t *ug = u;
+        int32_t *sg = dn ? dn->sym : sym + y0 * w;
+        if (dn) {
+            dn->dither(dn->k1, dn->k2, dn->start + y0 * dn->row_step, rows, w, dn->row_step, dn->col_step, dn->u);
+            ug = (const int32_t *)(uintptr_t)((uintptr_t)dn->u - (uintptr_t)(y0 * w) * sizeof(int32_t));
+        }
         for (i64 s0 = 0; s0 < nl && y0 + s0 < h; s0 += sub) {
             const i64 nr = sub < h - y0 - s0 ? sub : h - y0 - s0;
-            if (!decode_group(steady8, steady16, pf, y0 + s0, nr, sub, w, u, &m, xs + s0, pos + s0, pmin + s0,
+            if (!decode_group(steady8, steady16, pf, y0 + s0, nr, sub, w, ug, &m, xs + s0, pos + s0, pmin + s0,
                               epos + s0, eend + s0))
                 return 0;
         }
-        const i64 rows = nl < h - y0 ? nl : h - y0;
         for (i64 y = 0; y < rows; y++) {
             const i64 *row = p + (y + 2) * ws + 2;
-            const int32_t *uy = u + (y0 + y) * w;
-            int32_t *sy = sym + (y0 + y) * w;
+            const int32_t *uy = ug + (y0 + y) * w;
+            int32_t *sy = sg + y * w;
             for (i64 x = 0; x < w; x++) sy[x] = (int32_t)((row[x] + uy[x]) >> 16);
         }
+        if (dn)
+            dn->inverse(dn->sym, rows, w, dn->k1, dn->k2, dn->start + y0 * dn->row_step, dn->row_step, dn->col_step,
+                        dn->half_step, dn->k, dn->offset, dn->out + y0 * dn->out_row_stride, dn->out_row_stride,
+                        dn->out_col_stride);
         if (rows == nl) memcpy(p, p + nl * ws, 2 * ws * sizeof(i64));   /* the next group's two rows above */
     }
     return 1;
@@ -249,8 +261,8 @@ void index_counts(const int32_t *t, const int32_t *idx, i64 n, i64 alpha, i64 nt
 
 /* The functions' signatures and meaning, version: metraw.codec.native.ABI must match it, so a library built from an
  * older source (an editable install is not rebuilt by a pull) is left unused rather than called wrongly. 4: the
- * functions per path (metraw_<name>_<path>) and metraw_simd_paths. */
-int metraw_simd_abi(void) { return 4; }
+ * functions per path (metraw_<name>_<path>) and metraw_simd_paths; 5: decode_plane_dn. */
+int metraw_simd_abi(void) { return 5; }
 
 /* 1 where the steady part of 16-lane groups should run its two vectors side by side (AMD: their overlap hides the
  * gathers' latency, 2026-11-28 on Zen 5: 15 % faster than 8 lanes), 0 where as two groups of 8 (Intel: measured

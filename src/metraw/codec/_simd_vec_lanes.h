@@ -165,8 +165,10 @@ int VN(metraw_decode_plane)(i64 *p, i64 h, i64 w, const int32_t *u, int32_t *sym
                             const i64 *pmin, const int32_t *esc, i64 *epos, const i64 *eend, i64 nl, int two_vectors)
 {
     return decode_plane_with(steady8, steady16, p, h, w, u, sym, thr7, coef8x13, tab0, pshift, lut, lut16, fcum,
-                             alpha, amax, words, xs, pos, pmin, esc, epos, eend, nl, two_vectors);
+                             alpha, amax, words, xs, pos, pmin, esc, epos, eend, nl, two_vectors, NULL);
 }
+
+DECODE_PLANE_DN(VN(metraw_decode_plane_dn), VN(metraw_dither_fixed), VN(metraw_inverse_dn))
 
 /* whether every lane of a mask (-1 / 0 lanes) is set */
 INLINE int vall(vi m)

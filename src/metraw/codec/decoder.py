@@ -20,6 +20,7 @@ there, an atomic operation per pixel).
 from __future__ import annotations
 
 import struct
+from typing import NamedTuple
 
 import numba as nb
 import numpy as np
@@ -393,7 +394,33 @@ def decode_planes(blob, dithers: list[np.ndarray], outs: list[np.ndarray] | None
         raise MetrawError(f"codec stream is corrupt: {exc}") from None
 
 
-def _decode(mv: memoryview, dithers: list[np.ndarray], outs) -> list[np.ndarray]:
+class PlaneDN(NamedTuple):
+    """Where a plane's DN go and how (``decode_planes_dn``): dither keys (``prepare.dither_keys``), the plane's pixel
+    indices start + i row_step + j col_step, the inverse transform (``prepare.inverse_args``), the DN out (uint16, the
+    plane's shape: a CFA plane of the frame)."""
+
+    keys: tuple[int, int]
+    start: int
+    row_step: int
+    col_step: int
+    inv: tuple[float, float, float]
+    out: np.ndarray
+
+
+def decode_planes_dn(blob, planes: list[PlaneDN]) -> None:
+    """``decode_planes`` then the inverse transform into each plane's ``out``, the fixed-point dither made from its keys
+    (``native.dither_fixed``'s values; the compiled path needed): in the compiled loop a row group at a time, so
+    neither the dither nor the symbols of a whole plane are made. The same DN as those three steps."""
+    try:
+        _decode(memoryview(blob), [pl.out.shape for pl in planes], None, planes)
+    except (struct.error, ValueError, IndexError) as exc:
+        raise MetrawError(f"codec stream is corrupt: {exc}") from None
+
+
+def _decode(mv: memoryview, dithers: list, outs, dn: list[PlaneDN] | None = None) -> list[np.ndarray] | None:
+    """``decode_planes`` (``dithers`` the dither arrays), or with ``dn`` ``decode_planes_dn`` (``dithers`` the planes'
+    shapes)."""
+    shapes = [tuple(u) if dn is not None else u.shape for u in dithers]
     npl, nact, pshift, shared, nl, tabbits, amax = _HEAD.unpack_from(mv, 0)
     off = _HEAD.size
     if (npl != len(dithers) or not 1 <= nact <= MAX_NACT or shared > 1 or amax > MAX_RESID or not 1 <= nl <= 16
@@ -433,7 +460,7 @@ def _decode(mv: memoryview, dithers: list[np.ndarray], outs) -> list[np.ndarray]
     # words of lane j at [pmin_j + 1, pmin_j + n_j], after ``pad`` zero words (words[pmin_j] the last of
     # them: branch-free renormalisation); escapes followed by ``pad`` zeros. The decoder's steady part
     # checks a lane's limits once per group of rows and reads at most a row's width past them.
-    pad = max([u.shape[1] for u in dithers] + [0]) + 16
+    pad = max([w for _, w in shapes] + [0]) + 16
     pmin = (np.cumsum(np.array(nwords, np.int64) + pad) - np.array(nwords, np.int64) - 1).astype(np.int64)
     # + 2 words: the compiled decoder's 32-bit gathers read one word past the last
     words = np.zeros(int(sum(nwords)) + nl * pad + 2, np.uint16)
@@ -447,7 +474,7 @@ def _decode(mv: memoryview, dithers: list[np.ndarray], outs) -> list[np.ndarray]
     eend = epos + np.array(nesc, np.int64)
     xs = np.array([ln[0] for ln in lanes], np.uint64)
     pos = pmin + np.array(nwords, np.int64)
-    if outs is None:
+    if outs is None and dn is None:
         outs = [np.empty(u.shape, np.int32) for u in dithers]
     # one padded buffer for the planes in turn (``_init_front`` sets what the decoder reads before writing); the
     # compiled loop needs only a row group's rows and the two above them (it moves them up after each group)
@@ -456,15 +483,34 @@ def _decode(mv: memoryview, dithers: list[np.ndarray], outs) -> list[np.ndarray]
     def buffer_rows(h):
         return (min(h, nl) if compiled else h) + 2
 
-    buf = np.empty(max(buffer_rows(u.shape[0]) * (u.shape[1] + 4) for u in dithers), np.int64)
+    buf = np.empty(max(buffer_rows(h) * (w + 4) for h, w in shapes), np.int64)
+    if dn is not None and compiled:   # a row group's dither and symbols
+        group_u, group_sym = (np.empty(max(min(h, nl) * w for h, w in shapes), np.int32) for _ in range(2))
     for k, u in enumerate(dithers):
         g = 0 if shared else k
         thr, coef, bias = heads[g]
         thr7 = np.concatenate([thr, np.full(MAX_NACT - 1 - thr.size, np.iinfo(np.int64).max, np.int64)])
         coef13 = predictor_table(coef, bias).reshape(-1)
-        h, w = u.shape
+        h, w = shapes[k]
         p = buf[:buffer_rows(h) * (w + 4)].reshape(buffer_rows(h), w + 4)
         _init_front(p, np.int64(c0s[k]) << 16)
+        if dn is not None:
+            pl = dn[k]
+            if compiled:
+                r = min(h, nl)
+                ok = native.decode_plane_dn(p, group_u[:r * w].reshape(r, w), group_sym[:r * w].reshape(r, w), thr7,
+                                            coef13, g * nact * nph, pshift, lut, fcum, amax, words, xs, pos, pmin, esc,
+                                            epos, eend, pl.keys, pl.start, pl.row_step, pl.col_step, pl.inv, pl.out)
+            else:   # a shared model's few lanes: the numba loop, then the compiled inverse
+                sym = np.empty((h, w), np.int32)
+                ok = decode_plane(p, native.dither_fixed(*pl.keys, pl.start, h, w, pl.row_step, pl.col_step), sym, thr7,
+                                  context_table(thr), coef13, g * nact * nph, pshift, lut, fcum, amax, words, xs, pos,
+                                  pmin, esc, epos, eend)
+                if ok:
+                    native.inverse_dn(sym, pl.keys, pl.start, pl.row_step, pl.col_step, *pl.inv, pl.out)
+            if not ok:
+                raise ValueError("coded data ran out")
+            continue
         u16 = (np.ascontiguousarray(u) if u.dtype == np.int32
                else fixed_dither(np.ascontiguousarray(u, np.float64)))
         if compiled:

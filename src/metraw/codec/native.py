@@ -45,7 +45,7 @@ LANE_COUNTS = (8, 16)
 READ_PAST_END_BYTES = 4
 #: The library's interface version (``metraw_simd_abi`` in ``_simd_driver.c``): raised with any change of its
 #: functions.
-ABI = 4
+ABI = 5
 #: The compiled paths, best first, and their bits in ``metraw_simd_paths()`` (``_simd.h``).
 PATHS = ("avx512", "avx2", "portable")
 #: The compiled paths auto-selection may pick, best first: those measured faster than the numba loops (1-thread CPU,
@@ -59,8 +59,8 @@ PATHS = ("avx512", "avx2", "portable")
 AUTO = ("avx512", "avx2")
 _PATH_BITS = {"portable": 1, "avx2": 2, "avx512": 4}
 #: The functions every path exports as ``metraw_<name>_<path>``.
-_NAMES = ("decode_plane", "residuals", "rans_encode", "dither_grid", "forward", "plane_buffer", "dither_fixed",
-          "inverse_dn", "front", "index")
+_NAMES = ("decode_plane", "decode_plane_dn", "residuals", "rans_encode", "dither_grid", "forward", "plane_buffer",
+          "dither_fixed", "inverse_dn", "front", "index")
 
 
 def _open() -> tuple[ctypes.CDLL | None, tuple[str, ...]]:
@@ -100,6 +100,8 @@ def _declare(lib: ctypes.CDLL, path: str) -> types.SimpleNamespace:
     sig = {
         "decode_plane": ([p, i64, i64, p, p, p, p, i64, i64, p, c_int, p, i64, i64, p, p, p, p, p, p, p, i64, c_int],
                          c_int),
+        "decode_plane_dn": ([p, i64, i64, p, p, p, p, i64, i64, p, c_int, p, i64, i64, p, p, p, p, p, p, p, i64, c_int,
+                             u64, u64, i64, i64, i64, f64, f64, f64, p, i64, i64], c_int),
         "residuals": ([p, i64, i64, p, i64, p, i64, i64, p, p], i64),
         "rans_encode": ([p, p, i64, i64, i64, p, p, p, p, p, p, p, i64, p, p, p], None),
         "dither_grid": ([u64, u64, i64, i64, i64, i64, i64, p], None),
@@ -218,16 +220,41 @@ def decode_plane(p, u, sym, thr7, coef13, tab0, pshift, lut, fcum, amax, words, 
     if p.ndim != 2 or p.shape[1] != w + 4 or p.shape[0] < min(h, xs.size) + 2 or sym.shape != u.shape:
         raise ValueError("native decoder: the buffer needs w + 4 columns and a row group's rows + 2, the symbols the "
                          "dither's shape")
-    coef = _eight_contexts(coef13.reshape(-1, 13))
+    coef = _eight_contexts(coef13.reshape(-1, 13))   # held here while the C function runs
+    return bool(_F.decode_plane(*_decoder_args(p, h, w, u, sym, thr7, coef, tab0, pshift, lut, fcum, amax, words, xs,
+                                               pos, pmin, esc, epos, eend)))
+
+
+def _decoder_args(p, h, w, u, sym, thr7, coef, tab0, pshift, lut, fcum, amax, words, xs, pos, pmin, esc, epos,
+                  eend) -> list:
+    """The arguments decode_plane and decode_plane_dn share, as the C functions take them (addresses: the caller
+    holds the arrays, ``coef`` from ``_eight_contexts`` included, until the call returns)."""
     lut16 = lut.dtype == np.int16
-    ok = _F.decode_plane(
-        _addr(p, np.int64), h, w, _addr(u, np.int32), _addr(sym, np.int32), _addr(thr7, np.int64),
-        _addr(coef, np.int64),
-        int(tab0), int(pshift), _addr(lut, np.int16 if lut16 else np.uint8), int(lut16), _addr(fcum, np.uint32),
-        fcum.shape[1], int(amax), _addr(words, np.uint16), _addr(xs, np.uint64), _addr(pos, np.int64),
-        _addr(pmin, np.int64), _addr(esc, np.int32), _addr(epos, np.int64), _addr(eend, np.int64), xs.size,
-        int(TWO_VECTORS))
-    return bool(ok)
+    return [_addr(p, np.int64), h, w, _addr(u, np.int32), _addr(sym, np.int32), _addr(thr7, np.int64),
+            _addr(coef, np.int64), int(tab0), int(pshift), _addr(lut, np.int16 if lut16 else np.uint8), int(lut16),
+            _addr(fcum, np.uint32), fcum.shape[1], int(amax), _addr(words, np.uint16), _addr(xs, np.uint64),
+            _addr(pos, np.int64), _addr(pmin, np.int64), _addr(esc, np.int32), _addr(epos, np.int64),
+            _addr(eend, np.int64), xs.size, int(TWO_VECTORS)]
+
+
+def decode_plane_dn(p, u_rows, sym_rows, thr7, coef13, tab0, pshift, lut, fcum, amax, words, xs, pos, pmin, esc, epos,
+                    eend, keys: tuple[int, int], start: int, row_step: int, col_step: int, inv: tuple, out) -> bool:
+    """``decode_plane`` then ``inverse_dn`` into ``out`` (uint16, the plane's shape, positive strides: a CFA plane of the
+    frame), the plane's fixed-point dither made on the way (``dither_fixed``'s, pixels start + i row_step + j col_step),
+    a row group at a time: ``u_rows``, ``sym_rows`` int32 buffers of a group's rows (min(h, lanes) x w), so no array of
+    the plane's size is made or read. The same DN as the three calls. ``inv``: ``prepare.inverse_args``."""
+    h, w = out.shape
+    rows = min(h, xs.size)
+    rs, cs = (st // out.itemsize for st in out.strides)
+    if (p.ndim != 2 or p.shape[1] != w + 4 or p.shape[0] < rows + 2 or u_rows.shape != (rows, w)
+            or sym_rows.shape != (rows, w) or out.dtype != np.uint16 or rs <= 0 or cs <= 0):
+        raise ValueError("native decoder: the buffer needs w + 4 columns and a row group's rows + 2, the dither and "
+                         "symbol buffers a row group's rows, the output uint16 at positive strides")
+    coef = _eight_contexts(coef13.reshape(-1, 13))   # held here while the C function runs
+    return bool(_F.decode_plane_dn(*_decoder_args(p, h, w, u_rows, sym_rows, thr7, coef, tab0, pshift, lut, fcum,
+                                                  amax, words, xs, pos, pmin, esc, epos, eend),
+                                   keys[0], keys[1], int(start), int(row_step), int(col_step),
+                                   *(float(v) for v in inv), out.ctypes.data, rs, cs))
 
 
 def residuals(p, thr, table, tab0, pshift, r_out, t_out, off) -> int:
