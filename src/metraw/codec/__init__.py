@@ -23,6 +23,7 @@ Only the pixel array is coded; ``mask`` and ``flags`` are not part of the blob.
 from __future__ import annotations
 
 import contextlib
+import functools
 import math
 import os
 import threading
@@ -217,15 +218,20 @@ def _mean_abs_dev(v):
     return total / n
 
 
-def _noise_sigma_of_planes(planes: list[np.ndarray], step: float, add: int = 0, shift: int = 0) -> float | None:
-    """``measured_noise_sigma`` from the CFA planes' symbols (``planes`` + ``add``) >> ``shift`` (``_hh_values``)."""
+def _noise_sigma_of_planes(planes: list[np.ndarray], step: float) -> float | None:
+    """``measured_noise_sigma`` from the CFA planes' symbols."""
     vals = np.empty(len(planes) * 128 * 128, np.float64)
     n = 0
     for plane in planes:
-        n = _hh_values(plane, vals, n, add, shift)
-    if n < 256:
+        n = _hh_values(plane, vals, n)
+    return _noise_sigma_of_hh(vals[:n], step)
+
+
+def _noise_sigma_of_hh(vals: np.ndarray, step: float) -> float | None:
+    """``measured_noise_sigma`` from the planes' HH band values (``_hh_values``)."""
+    if vals.size < 256:
         return None
-    var_hh = (_mean_abs_dev(vals[:n]) * math.sqrt(math.pi / 2)) ** 2
+    var_hh = (_mean_abs_dev(vals) * math.sqrt(math.pi / 2)) ** 2
     var_pix = var_hh / 4.0 - 1.0 / 6.0
     return math.sqrt(max(var_pix, 0.0)) * step
 
@@ -258,15 +264,17 @@ def _tile_buffers(data: np.ndarray, r0: int, r1: int, profile: CalibrationProfil
                   seed: int) -> list[tuple[np.ndarray, int]]:
     """Per CFA plane of the row tile r0 .. r1 - 1 of ``data``: its causal buffer (front, c0) as
     ``predictive.encode_planes`` makes it from ``_tile_symbols``, made straight from the DN in one compiled pass per
-    plane where ``metraw.codec.native`` is built (no dither or symbol arrays: less memory traffic) and ``data``'s
-    strides are positive, else from ``_tile_symbols``."""
+    plane where ``metraw.codec.native`` is built (no dither or symbol arrays: less memory traffic; as a
+    ``predictive.LazyBuffer``) and ``data``'s strides are positive, else from ``_tile_symbols``."""
     if native.LIB is None or min(data.strides) <= 0:
         return [predictive._causal_buffer(s, u) for _, u, s in _tile_symbols(data, r0, r1, profile, step, seed)]
     w = data.shape[1]
     cell = cell_size(profile.cfa_pattern)
     keys, args = prepare.dither_keys(seed), prepare.forward_args(profile, step)
-    return [native.plane_buffer(data[r0 + dy:r1:cell, dx::cell], keys, (r0 + dy) * w + dx, cell * w, cell, args)
-            for dy, dx, _, _ in _plane_grid(r0, r1, w, profile.cfa_pattern)]
+    # made when the coder reaches the plane (predictive.LazyBuffer): one plane's buffer in cache at a time
+    return [predictive.LazyBuffer((ph, pw), functools.partial(native.plane_buffer, data[r0 + dy:r1:cell, dx::cell], keys,
+                                                              (r0 + dy) * w + dx, cell * w, cell, args))
+            for dy, dx, ph, pw in _plane_grid(r0, r1, w, profile.cfa_pattern)]
 
 
 def _check_encode_args(image, step, seed, caller: str) -> tuple[float, int]:
@@ -331,15 +339,19 @@ def encode(image: RawImage, step: float = 1.0, seed: int = 0, check_profile: boo
     def work(tile):
         r0, r1 = tile
         buffers = _tile_buffers(data, r0, r1, prof, step, seed)
-        # the profile check looks at the first row tile only (half the frame at most: plenty)
-        # (on the causal buffers' interiors, (h + 2) x (w + 4) less the pads: no symbol arrays made)
-        measured = (_noise_sigma_of_planes([f[2:, 2:-2] for f, _ in buffers], step, 32767, 16)
-                    if check_profile and r0 == 0 else None)
+        # the profile check looks at the first row tile only (half the frame at most: plenty), on the causal buffers'
+        # interiors ((h + 2) x (w + 4) less the pads: no symbol arrays made) as the coder makes them
+        hh, on_buffer = [np.empty(len(buffers) * 128 * 128, np.float64), 0], None
+        if check_profile and r0 == 0:
+            def on_buffer(front):
+                hh[1] = _hh_values(front[2:, 2:-2], hh[0], hh[1], 32767, 16)
         acc = [] if account is not None else None
         # the tile's escapes (saturated or below the transform's domain) here, in the tile's thread, not in one pass
         # over the frame after the tiles (canon_dng: 1.2 ms that ran on one core)
         esc = prepare.escape_mask(data[r0:r1], prof)
-        return predictive.encode_buffers(buffers, acc), acc, measured, esc, np.flatnonzero(esc) + r0 * w
+        section = predictive.encode_buffers(buffers, acc, on_buffer)
+        measured = _noise_sigma_of_hh(hh[0][:hh[1]], step) if on_buffer is not None else None
+        return section, acc, measured, esc, np.flatnonzero(esc) + r0 * w
 
     results = _map_tiles(work, tiles)
     idx = np.concatenate([r[4] for r in results])

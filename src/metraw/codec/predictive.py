@@ -51,6 +51,7 @@ makes each CFA plane's dither and symbols as its own array): the vectorised pass
 from __future__ import annotations
 
 import struct
+from typing import Callable, NamedTuple
 
 import numba as nb
 import numpy as np
@@ -351,6 +352,27 @@ def _plane_symbol_bits(idx, tab, freq, bounds, esc_i):
     return out
 
 
+class LazyBuffer(NamedTuple):
+    """A plane's causal buffer made only when the coder reaches the plane: its (rows, columns) and a function giving
+    (front, c0). With per-plane models, each plane is then made, fitted and passed over before the next one is made
+    (one buffer in cache at a time instead of a tile's)."""
+
+    shape: tuple[int, int]
+    make: Callable[[], tuple[np.ndarray, int]]
+
+
+def _plane_shape(buffer) -> tuple[int, int]:
+    return buffer.shape if isinstance(buffer, LazyBuffer) else buffer_shape(buffer[0])
+
+
+def _made(buffer, on_buffer) -> tuple[np.ndarray, int]:
+    """(front, c0) of a buffer or a ``LazyBuffer``, shown to ``on_buffer`` (if given) once made."""
+    front, c0 = buffer.make() if isinstance(buffer, LazyBuffer) else buffer
+    if on_buffer is not None:
+        on_buffer(front)
+    return front, c0
+
+
 def buffer_shape(front: np.ndarray) -> tuple[int, int]:
     """The plane's (rows, columns) of its causal buffer ``front`` ((h + 2) x (w + 4): two rows above, two columns each
     side)."""
@@ -460,9 +482,10 @@ def encode_planes(planes: list[tuple[np.ndarray, np.ndarray]], account: list | N
     return encode_buffers([_causal_buffer(s, u) for s, u in planes], account)
 
 
-def encode_buffers(buffers: list[tuple[np.ndarray, int]], account: list | None = None) -> bytes:
+def encode_buffers(buffers: list, account: list | None = None, on_buffer=None) -> bytes:
     """Code planes given by their causal buffers, (front, c0) pairs (``_causal_buffer``, or straight from the DN by
-    ``native.plane_buffer``; front (h + 2) x (w + 4) int64), into one section.
+    ``native.plane_buffer``; front (h + 2) x (w + 4) int64) or ``LazyBuffer``s, into one section. ``on_buffer(front)``
+    (if given) sees each plane's front once made.
 
     Tiles of >= ``SHARED_BELOW`` pixels: per-plane models, ``model.n_activity_contexts`` contexts x
     ``NPH`` phase bins, 12-bit tables, ``LANES`` rANS lanes. Smaller tiles: one model for all planes,
@@ -472,9 +495,10 @@ def encode_buffers(buffers: list[tuple[np.ndarray, int]], account: list | None =
     8 len(section): the plane's ideal code length (``_plane_symbol_bits``), plus its group's side
     information (predictor, thresholds, tables; split by pixels where planes share a model), plus
     a share of the common overhead (plane header, rANS flush) proportional to its code length."""
-    sizes = [h * w for h, w in (buffer_shape(f) for f, _ in buffers)]
+    sizes = [h * w for h, w in map(_plane_shape, buffers)]
     if sum(sizes) >= SHARED_BELOW:
-        return _encode_planes(buffers, False, model.n_activity_contexts(min(sizes)), 0, account)
+        return _encode_planes(buffers, False, model.n_activity_contexts(min(sizes)), 0, account, on_buffer=on_buffer)
+    buffers = [_made(b, on_buffer) for b in buffers]   # one model for all planes: every plane at once
     best, best_acc = None, None
     memo = {}  # the candidates share buffers, activities and (same nact) the whole model
     for nact, pshift in ((1, 2), (1, 0), (2, 0)):
@@ -511,12 +535,14 @@ def _shared_model(buffers, nact: int, memo: dict):
 
 
 def _encode_planes(buffers, shared: bool, nact: int, pshift: int, account: list | None = None,
-                   memo: dict | None = None) -> bytes:
-    """One section of the planes of causal ``buffers`` with the given model layout (``memo``: see ``_shared_model``).
-    The numerical work runs in a few compiled calls that release the GIL (per plane ``model.model_of_front`` and the
-    residual pass, then ``_code_section``), so row tiles coded in parallel threads seldom wait for each other."""
+                   memo: dict | None = None, on_buffer=None) -> bytes:
+    """One section of the planes of causal ``buffers`` with the given model layout (``memo``: see ``_shared_model``;
+    ``buffers`` made already where ``shared``, else possibly ``LazyBuffer``s, made plane by plane, ``on_buffer``: see
+    ``encode_buffers``). The numerical work runs in a few compiled calls that release the GIL (per plane
+    ``model.model_of_front`` and the residual pass, then ``_code_section``), so row tiles coded in parallel threads
+    seldom wait for each other."""
     npl = len(buffers)
-    shapes = [buffer_shape(f) for f, _ in buffers]
+    shapes = [_plane_shape(b) for b in buffers]
     sizes = [h * w for h, w in shapes]
     total = sum(sizes)
     nph = NPH >> pshift
@@ -525,20 +551,24 @@ def _encode_planes(buffers, shared: bool, nact: int, pshift: int, account: list 
     t_all = np.empty(total, np.int32)
     c0s, group_heads = [], []
     rmax = 0
+    def residual_pass(front, thr, coef, bias, tab0, off) -> int:
+        if native.LIB is not None:
+            return native.residuals(front, thr, predictor_table(coef, bias), tab0, pshift, r_all, t_all, off)
+        return int(_residuals(front, thr, coef, bias, tab0, pshift, r_all, t_all, off))
+
+    offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
     if shared:  # one model for all planes: activities and normal equations pooled over the planes
         c0s, models = _shared_model(buffers, nact, {} if memo is None else memo)
-    else:
+        for off, (front, thr, coef, bias, tab0) in zip(offsets, models):
+            rmax = max(rmax, residual_pass(front, thr, coef, bias, tab0, int(off)))
+    else:   # plane by plane: its buffer made, its model fitted and its residuals taken while the buffer is in cache
         models = []
-        for k, ((front, c0), n) in enumerate(zip(buffers, sizes)):
+        for k, (b, n, off) in enumerate(zip(buffers, sizes, offsets)):
+            front, c0 = _made(b, on_buffer)
             c0s.append(int(c0))
-            models.append((front, *model.model_of_front(front, nact, model.ls_stride(n)), k * nact * nph))
-    off = 0
-    for n, (front, thr, coef, bias, tab0) in zip(sizes, models):
-        if native.LIB is not None:
-            rmax = max(rmax, native.residuals(front, thr, predictor_table(coef, bias), tab0, pshift, r_all, t_all, off))
-        else:
-            rmax = max(rmax, int(_residuals(front, thr, coef, bias, tab0, pshift, r_all, t_all, off)))
-        off += n
+            models.append((None, *model.model_of_front(front, nact, model.ls_stride(n)), k * nact * nph))
+            rmax = max(rmax, residual_pass(front, *models[-1][1:], int(off)))
+            del front
     for _, thr, coef, bias, _ in models[:1] if shared else models:
         group_heads.append((thr >> 8).astype("<u4").tobytes() + coef.astype("<i2").tobytes()
                            + np.clip(bias, -2**31, 2**31 - 1).astype("<i4").tobytes())
