@@ -185,6 +185,31 @@ def test_compiled_encoder_passes_write_the_numba_encoders_bytes(pattern, lanes, 
 
 
 @needs_native
+def test_escape_index_is_the_escape_masks_flat_indices():
+    """The compiled escape index gives ``np.flatnonzero(prepare.escape_mask)`` + offset: DN at and beside both bounds
+    (a white level that is not an integer, a domain bound below 0 and one above), lengths that are not a multiple of
+    the 256-DN blocks, no escapes, a few, and more than the first buffer holds."""
+    from metraw.codec import prepare
+
+    rng = np.random.default_rng(21)
+    for white, black, n, share in [(16000.0, 100.0, 1, 0.5), (15999.5, 100.0, 1000, 0.01), (16000.0, 0.0, 70001, 0.0),
+                                   (4095.0, 200.0, 70001, 0.003), (65535.0, 4000.0, 513, 0.2)]:
+        prof = PROF.replace(white_level_dn=white, black_level_dn=black)
+        low = prof.black_level_dn - prof.gain_dn_per_e * prepare.offset_e(prof)
+        data = rng.integers(max(int(low) + 2, 0), int(white) - 1, n).astype(np.uint16)
+        k = int(share * n)
+        places = rng.choice(n, k, replace=False)
+        edges = np.array([int(np.ceil(white)), int(np.ceil(white)) - 1, max(int(np.floor(low)), 0),
+                          max(int(np.floor(low)) + 1, 0), 0, 65535], np.uint16)
+        data[places] = rng.choice(edges, k)
+        offset = int(rng.integers(0, 2**40))
+        ref = np.flatnonzero(prepare.escape_mask(data, prof)) + offset
+        got = prepare.escape_index(data, prof, offset)
+        assert got.dtype == np.int64 and np.array_equal(got, ref), (white, n)
+    assert k > 64 and ref.size > 64   # the last case overflows the first buffer
+
+
+@needs_native
 def test_compiled_dither_and_transform_give_numbas_values():
     """The dither (16 pixels a vector, 32-bit lanes = numba's index arithmetic mod 2^32, starts past 2^32 too) and
     the forward transform (contiguous rows and CFA-plane strides, row tails, the last row read element by element,

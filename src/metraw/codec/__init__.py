@@ -348,10 +348,10 @@ def encode(image: RawImage, step: float = 1.0, seed: int = 0, check_profile: boo
         acc = [] if account is not None else None
         # the tile's escapes (saturated or below the transform's domain) here, in the tile's thread, not in one pass
         # over the frame after the tiles (canon_dng: 1.2 ms that ran on one core)
-        esc = prepare.escape_mask(data[r0:r1], prof)
+        esc = prepare.escape_index(data[r0:r1], prof, r0 * w)
         section = predictive.encode_buffers(buffers, acc, on_buffer)
         measured = _noise_sigma_of_hh(hh[0][:hh[1]], step) if on_buffer is not None else None
-        return section, acc, measured, esc, np.flatnonzero(esc) + r0 * w
+        return section, acc, measured, (r1 - r0) * w, esc
 
     results = _map_tiles(work, tiles)
     idx = np.concatenate([r[4] for r in results])
@@ -361,13 +361,15 @@ def encode(image: RawImage, step: float = 1.0, seed: int = 0, check_profile: boo
     else:
         esc_blob = b""
     if check_profile:
-        _check_profile(results[0][2], results[0][3])   # the first tile's noise and escapes
+        _check_profile(results[0][2], results[0][4].size, results[0][3])   # the first tile's noise and escapes
     meta = ({"profile": prof.to_dict(), "provenance": image.provenance, "meta": image.meta}
             if embed_profile else None)
     header = container.Header((h, w), step, seed, tiles, meta)
     blob = container.pack(header, [r[0] for r in results] + [esc_blob])
     if account is not None:
-        _account(account, blob, results, tiles, np.concatenate([r[3] for r in results]), esc_blob, pattern, w)
+        esc = np.zeros(h * w, np.bool_)
+        esc[idx] = True
+        _account(account, blob, results, tiles, esc.reshape(h, w), esc_blob, pattern, w)
     return blob
 
 
@@ -397,10 +399,10 @@ def _account(account: dict, blob: bytes, results, tiles, esc: np.ndarray, esc_bl
     account["pixels"] = pix
 
 
-def _check_profile(measured: float | None, esc: np.ndarray) -> None:
+def _check_profile(measured: float | None, escaped: int, pixels: int) -> None:
     """Warn when the noise ``measured`` in a tile (``measured_noise_sigma``) contradicts the profile,
-    unless most of the tile's pixels are escapes (``esc``: saturated or below black)."""
-    if 2 * np.count_nonzero(esc) > esc.size:
+    unless most of the tile's ``pixels`` are escapes (``escaped`` of them: saturated or below black)."""
+    if 2 * escaped > pixels:
         return
     if measured is not None and abs(measured - 1.0) > MISMATCH_TOLERANCE:
         warnings.warn(

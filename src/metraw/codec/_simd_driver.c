@@ -259,9 +259,31 @@ void index_counts(const int32_t *t, const int32_t *idx, i64 n, i64 alpha, i64 nt
     free(odd);
 }
 
+/* The escaped DN of n (prepare.escape_mask: >= white or <= low; white and low integers): their indices + offset into
+ * out, in order, the first cap of them; returns their count. Each block of 256 DN is first tested whole (an OR of
+ * compares, which the compiler vectorises): escapes are rare. */
+i64 metraw_escape_index(const uint16_t *d, i64 n, i64 white, i64 low, i64 offset, i64 *out, i64 cap)
+{
+    const int32_t wt = (int32_t)(white < 0 ? 0 : white > 65536 ? 65536 : white);
+    const int32_t lw = (int32_t)(low < -1 ? -1 : low > 65535 ? 65535 : low);
+    i64 k = 0;
+    for (i64 b = 0; b < n; b += 256) {
+        const i64 e = b + 256 < n ? b + 256 : n;
+        int any = 0;
+        for (i64 i = b; i < e; i++) any |= ((int32_t)d[i] >= wt) | ((int32_t)d[i] <= lw);
+        if (!any) continue;
+        for (i64 i = b; i < e; i++)
+            if ((int32_t)d[i] >= wt || (int32_t)d[i] <= lw) {
+                if (k < cap) out[k] = i + offset;
+                k++;
+            }
+    }
+    return k;
+}
+
 /* The functions' signatures and meaning, version: metraw.codec.native.ABI must match it, so a library built from an
  * older source (an editable install is not rebuilt by a pull) is left unused rather than called wrongly. 4: the
- * functions per path (metraw_<name>_<path>) and metraw_simd_paths; 5: decode_plane_dn. */
+ * functions per path (metraw_<name>_<path>) and metraw_simd_paths; 5: decode_plane_dn, metraw_escape_index. */
 int metraw_simd_abi(void) { return 5; }
 
 /* 1 where the steady part of 16-lane groups should run its two vectors side by side (AMD: their overlap hides the

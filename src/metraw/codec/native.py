@@ -87,6 +87,9 @@ def _open() -> tuple[ctypes.CDLL | None, tuple[str, ...]]:
         available = tuple(p for p in PATHS if bits & _PATH_BITS[p])
         for p in available:
             _declare(lib, p)
+        lib.metraw_escape_index.restype = ctypes.c_int64
+        lib.metraw_escape_index.argtypes = [ctypes.c_void_p, ctypes.c_int64, ctypes.c_int64, ctypes.c_int64,
+                                            ctypes.c_int64, ctypes.c_void_p, ctypes.c_int64]
     except AttributeError as exc:   # the interface number matches but a function is missing: a broken build
         warnings.warn(f"{spec.origin} lacks a function this code calls ({exc}): the codec runs its numba loops; "
                       f"rebuild it with pip install -e .", stacklevel=2)
@@ -367,6 +370,19 @@ def plane_buffer(data: np.ndarray, keys: tuple[int, int], start: int, row_step: 
     p[:2] = c0 << 16
     p[2, :2] = c0 << 16
     return p, c0
+
+
+def escape_index(data: np.ndarray, white: int, low: int, offset: int) -> np.ndarray:
+    """The flat indices (+ ``offset``, int64, in order) of the DN of ``data`` (uint16, C-contiguous) >= ``white`` or <=
+    ``low`` (integers): ``np.flatnonzero`` of ``prepare.escape_mask`` in one pass that skips escape-free blocks."""
+    if data.dtype != np.uint16 or not data.flags.c_contiguous:
+        raise TypeError("native escape index: C-contiguous uint16 data are needed")
+    out = np.empty(64, np.int64)
+    n = _LIB.metraw_escape_index(data.ctypes.data, data.size, int(white), int(low), int(offset), out.ctypes.data, 64)
+    if n > out.size:
+        out = np.empty(n, np.int64)
+        _LIB.metraw_escape_index(data.ctypes.data, data.size, int(white), int(low), int(offset), out.ctypes.data, n)
+    return out[:n]
 
 
 def index(r: np.ndarray, t: np.ndarray, amax: int, ntab: int) -> tuple[np.ndarray, np.ndarray]:

@@ -24,6 +24,8 @@ below black that the transform is undefined (x + c <= 0).
 
 from __future__ import annotations
 
+import math
+
 import numba as nb
 import numpy as np
 
@@ -119,6 +121,17 @@ def escape_mask(data: np.ndarray, profile: CalibrationProfile) -> np.ndarray:
         _escape_kernel(data.reshape(-1), float(profile.white_level_dn), float(low), out.reshape(-1))
         return out
     return (data >= profile.white_level_dn) | (data <= low)
+
+
+def escape_index(data: np.ndarray, profile: CalibrationProfile, offset: int = 0) -> np.ndarray:
+    """``np.flatnonzero(escape_mask(data, profile)) + offset`` (int64): in one compiled pass where
+    ``metraw.codec.native`` is built and ``data`` is C-contiguous uint16 (the bounds as integers: the same pixels)."""
+    data = np.asarray(data)
+    if native.LIB is None or data.dtype != np.uint16 or not data.flags.c_contiguous:
+        return np.flatnonzero(escape_mask(data, profile)) + offset
+    low = profile.black_level_dn - profile.gain_dn_per_e * offset_e(profile)
+    return native.escape_index(data, math.ceil(min(profile.white_level_dn, 65536.0)), math.floor(max(low, -1.0)),
+                               offset)
 
 
 @nb.njit(cache=True, nogil=True)
