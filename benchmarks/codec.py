@@ -268,11 +268,23 @@ once (two processes, each pinned, 16 rounds alternating with the call alone) tak
 of one process do x1.82-2.05 the work of one (``--speed`` now prints this, measured in its own rounds). metraw's par
 (1.75-1.86) is at that capacity, so a 2-thread wall ratio of 3 needs a 1-thread CPU ratio of ~0.61-0.68 or less here.
 The VM's speed drifts by up to 1.5x within minutes (one 1-thread canon_dng decode: 37-63 ms in consecutive processes;
-JPEG-LS's decode 62-92 ms): hence in-process A/Bs with alternating order. Taken, the same bytes and values: the avx2
-inverse transform merges a 2-pixel-cell plane's 8 DN into 32-bit words (as the AVX-512 path does) instead of 8 word
-stores, canon_dng's 4 planes 4.86 -> 4.28 ms; the frame's escape list is one more work item of the decoder's threads
-(canon_dng 2-thread decode 0.95-1.00x, median ~0.97, 8 runs); a row group's symbols are taken from the causal buffer
-right after the group (decode_plane replayed, 300 rounds: 0.994x). Tried, not taken: (1) the escape stream coded
+JPEG-LS's decode 62-92 ms): hence in-process A/Bs with alternating order. metraw's time moves more than JPEG-LS's
+with the host's mood (avx2 canon_dng 1-thread encode 38.0 ms in the day's first ``--speed`` run, 59.1 ms in this
+session's first, +55 %, while JPEG-LS's went from 67.5 to 91.4 ms, +35 %): it moves far more memory per pixel. Taken, the same bytes and values: the avx2 inverse transform merges a 2-pixel-cell plane's 8 DN into
+32-bit words (as the AVX-512 path does) instead of 8 word stores, canon_dng's 4 planes 4.86 -> 4.28 ms; the frame's
+escape list is one more work item of the decoder's threads (canon_dng 2-thread decode 0.95-1.00x, median ~0.97, 8
+runs); a row group's symbols are taken from the causal buffer right after the group (decode_plane replayed, 300
+rounds: 0.994x). Then less memory: the decoder decodes a plane in a buffer of one row group's rows (+2 above, moved up
+after each group) instead of the plane's (canon_dng 2 -> 0.2 MB a plane, micasense 4.8 -> 0.15 MB; decode_plane
+replayed, 200 rounds: avx2 canon_dng 0.933-0.940x, micasense 0.956-0.967x; avx512 0.970-0.982x), and makes each
+group's dither and puts out its DN right after it (no plane-size dither or symbol arrays; 2-thread decode against
+the former, 30 rounds: avx2 canon_dng 0.934-0.939x, micasense 0.887-0.916x, spacenet_pan 0.945x; avx512
+0.956-0.992x); the encoder makes, fits and passes over a tile's planes one after the other (one 2 MB causal buffer in
+cache instead of four made first): 2-thread encode avx2 canon_dng 0.951-0.975x (1 thread 0.991x), single-plane tiles
+unchanged; the tile's escapes as flat indices in one C pass that tests blocks of 256 DN whole (0.54 ms a canon_dng
+tile for the mask and np.flatnonzero before): encode 0.982-0.991x. What stays on one core after the tiles: the escape
+stream (``entropy.encode_streams``, 0.38 ms for canon_dng's 14 escapes, Python over small arrays) and the container
+(0.27 ms). Tried, not taken: (1) the escape stream coded
 likewise by the first free thread in the encoder: canon_dng 0.97-1.00x, micasense 1.02-1.03x (4 runs); (2) the dither
 hashed in the avx2 steady loop instead of gathered from the dither plane: canon_dng decode 1.09x, micasense 1.00x
 (with the dither pass still made; it is 0.9 ms a frame): ~13 vector instructions a vector step cost more than the
