@@ -341,8 +341,10 @@ def encode(image: RawImage, step: float = 1.0, seed: int = 0, check_profile: boo
         buffers = _tile_buffers(data, r0, r1, prof, step, seed)
         # the profile check looks at the first row tile only (half the frame at most: plenty), on the causal buffers'
         # interiors ((h + 2) x (w + 4) less the pads: no symbol arrays made) as the coder makes them
-        hh, on_buffer = [np.empty(len(buffers) * 128 * 128, np.float64), 0], None
+        on_buffer = None
         if check_profile and r0 == 0:
+            hh = [np.empty(len(buffers) * 128 * 128, np.float64), 0]   # the HH values, their count
+
             def on_buffer(front):
                 hh[1] = _hh_values(front[2:, 2:-2], hh[0], hh[1], 32767, 16)
         acc = [] if account is not None else None

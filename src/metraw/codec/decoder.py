@@ -389,7 +389,7 @@ def decode_planes(blob, dithers: list[np.ndarray], outs: list[np.ndarray] | None
     their fixed-point values floor(u 2^16) as int32 (``fixed_dither``). The symbols (int32) go to ``outs`` (arrays
     or views of the planes' shapes) if given."""
     try:
-        return _decode(memoryview(blob), dithers, outs)
+        return _decode(memoryview(blob), [u.shape for u in dithers], dithers, outs)
     except (struct.error, ValueError, IndexError) as exc:
         raise MetrawError(f"codec stream is corrupt: {exc}") from None
 
@@ -412,18 +412,18 @@ def decode_planes_dn(blob, planes: list[PlaneDN]) -> None:
     (``native.dither_fixed``'s values; the compiled path needed): in the compiled loop a row group at a time, so
     neither the dither nor the symbols of a whole plane are made. The same DN as those three steps."""
     try:
-        _decode(memoryview(blob), [pl.out.shape for pl in planes], None, planes)
+        _decode(memoryview(blob), [pl.out.shape for pl in planes], dn=planes)
     except (struct.error, ValueError, IndexError) as exc:
         raise MetrawError(f"codec stream is corrupt: {exc}") from None
 
 
-def _decode(mv: memoryview, dithers: list, outs, dn: list[PlaneDN] | None = None) -> list[np.ndarray] | None:
-    """``decode_planes`` (``dithers`` the dither arrays), or with ``dn`` ``decode_planes_dn`` (``dithers`` the planes'
-    shapes)."""
-    shapes = [tuple(u) if dn is not None else u.shape for u in dithers]
+def _decode(mv: memoryview, shapes: list[tuple[int, int]], dithers: list[np.ndarray] | None = None, outs=None,
+            dn: list[PlaneDN] | None = None) -> list[np.ndarray] | None:
+    """The planes (of ``shapes``) of a section: ``decode_planes`` (``dithers`` given), or ``decode_planes_dn``
+    (``dn`` given)."""
     npl, nact, pshift, shared, nl, tabbits, amax = _HEAD.unpack_from(mv, 0)
     off = _HEAD.size
-    if (npl != len(dithers) or not 1 <= nact <= MAX_NACT or shared > 1 or amax > MAX_RESID or not 1 <= nl <= 16
+    if (npl != len(shapes) or not 1 <= nact <= MAX_NACT or shared > 1 or amax > MAX_RESID or not 1 <= nl <= 16
             or pshift not in (0, 2) or tabbits not in (8, 16)):
         raise ValueError("plane header does not match the frame")
     lanes = []
@@ -475,7 +475,7 @@ def _decode(mv: memoryview, dithers: list, outs, dn: list[PlaneDN] | None = None
     xs = np.array([ln[0] for ln in lanes], np.uint64)
     pos = pmin + np.array(nwords, np.int64)
     if outs is None and dn is None:
-        outs = [np.empty(u.shape, np.int32) for u in dithers]
+        outs = [np.empty(shape, np.int32) for shape in shapes]
     # one padded buffer for the planes in turn (``_init_front`` sets what the decoder reads before writing); the
     # compiled loop needs only a row group's rows and the two above them (it moves them up after each group)
     compiled = native.LIB is not None and nl in native.LANE_COUNTS
@@ -486,7 +486,7 @@ def _decode(mv: memoryview, dithers: list, outs, dn: list[PlaneDN] | None = None
     buf = np.empty(max(buffer_rows(h) * (w + 4) for h, w in shapes), np.int64)
     if dn is not None and compiled:   # a row group's dither and symbols
         group_u, group_sym = (np.empty(max(min(h, nl) * w for h, w in shapes), np.int32) for _ in range(2))
-    for k, u in enumerate(dithers):
+    for k in range(npl):
         g = 0 if shared else k
         thr, coef, bias = heads[g]
         thr7 = np.concatenate([thr, np.full(MAX_NACT - 1 - thr.size, np.iinfo(np.int64).max, np.int64)])
@@ -511,6 +511,7 @@ def _decode(mv: memoryview, dithers: list, outs, dn: list[PlaneDN] | None = None
             if not ok:
                 raise ValueError("coded data ran out")
             continue
+        u = dithers[k]
         u16 = (np.ascontiguousarray(u) if u.dtype == np.int32
                else fixed_dither(np.ascontiguousarray(u, np.float64)))
         if compiled:

@@ -556,18 +556,19 @@ def _encode_planes(buffers, shared: bool, nact: int, pshift: int, account: list 
             return native.residuals(front, thr, predictor_table(coef, bias), tab0, pshift, r_all, t_all, off)
         return int(_residuals(front, thr, coef, bias, tab0, pshift, r_all, t_all, off))
 
-    offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
+    offsets = [0, *np.cumsum(sizes[:-1]).tolist()]   # each plane's first residual
     if shared:  # one model for all planes: activities and normal equations pooled over the planes
         c0s, models = _shared_model(buffers, nact, {} if memo is None else memo)
         for off, (front, thr, coef, bias, tab0) in zip(offsets, models):
-            rmax = max(rmax, residual_pass(front, thr, coef, bias, tab0, int(off)))
+            rmax = max(rmax, residual_pass(front, thr, coef, bias, tab0, off))
     else:   # plane by plane: its buffer made, its model fitted and its residuals taken while the buffer is in cache
         models = []
         for k, (b, n, off) in enumerate(zip(buffers, sizes, offsets)):
             front, c0 = _made(b, on_buffer)
             c0s.append(int(c0))
-            models.append((None, *model.model_of_front(front, nact, model.ls_stride(n)), k * nact * nph))
-            rmax = max(rmax, residual_pass(front, *models[-1][1:], int(off)))
+            thr, coef, bias = model.model_of_front(front, nact, model.ls_stride(n))
+            models.append((None, thr, coef, bias, k * nact * nph))   # the front is not kept (the next plane's turn)
+            rmax = max(rmax, residual_pass(front, thr, coef, bias, k * nact * nph, off))
             del front
     for _, thr, coef, bias, _ in models[:1] if shared else models:
         group_heads.append((thr >> 8).astype("<u4").tobytes() + coef.astype("<i2").tobytes()

@@ -112,9 +112,14 @@ def _escape_kernel(data, white, low, out):
         out[i] = (v >= white) | (v <= low)
 
 
+def _domain_low_dn(profile: CalibrationProfile) -> float:
+    """The DN at or below which the transform is undefined (x + c <= 0): escaped."""
+    return profile.black_level_dn - profile.gain_dn_per_e * offset_e(profile)
+
+
 def escape_mask(data: np.ndarray, profile: CalibrationProfile) -> np.ndarray:
     """Pixels stored losslessly: saturated (>= white) or below the transform's domain."""
-    low = profile.black_level_dn - profile.gain_dn_per_e * offset_e(profile)
+    low = _domain_low_dn(profile)
     data = np.asarray(data)
     if data.dtype == np.uint16 and data.flags.c_contiguous:  # one compiled pass, no temporaries
         out = np.empty(data.shape, np.bool_)
@@ -129,9 +134,8 @@ def escape_index(data: np.ndarray, profile: CalibrationProfile, offset: int = 0)
     data = np.asarray(data)
     if native.LIB is None or data.dtype != np.uint16 or not data.flags.c_contiguous:
         return np.flatnonzero(escape_mask(data, profile)) + offset
-    low = profile.black_level_dn - profile.gain_dn_per_e * offset_e(profile)
-    return native.escape_index(data, math.ceil(min(profile.white_level_dn, 65536.0)), math.floor(max(low, -1.0)),
-                               offset)
+    return native.escape_index(data, math.ceil(min(profile.white_level_dn, 65536.0)),
+                               math.floor(max(_domain_low_dn(profile), -1.0)), offset)
 
 
 @nb.njit(cache=True, nogil=True)
