@@ -51,9 +51,12 @@ typedef struct {
  * its words or escapes. */
 typedef int (*steady_fn)(i64 *pf, i64 y0, i64 w, const int32_t *u, const model_t *m, u64 *xs, i64 *pos,
                          const i64 *pmin, i64 *epos, const i64 *eend, i64 xs0, i64 x_last);
-/* The rANS pass's symbols k = lo - 1 .. 0 of 8 (rans8) or 16 (rans16) lanes side by side (see _simd_driver.c) */
-typedef void (*rans_fn)(const int32_t *ent, const u64 *fc, const i64 *rs, const i64 *rl, uint16_t *out, i64 lo,
-                        u64 *xs, i64 *nws, i64 *ci, i64 *ce, i64 *cq, const i64 *o);
+/* The rANS pass's symbols k = lo - 1 .. 0 of 8 (rans8) or 16 (rans16) lanes side by side (see _simd_driver.c).
+ * Symbol i's table entry is tab[i] alpha + idx[i]; ent holds them all where the path asks the driver for that array
+ * (rans_encode_with's with_ent), else NULL */
+typedef void (*rans_fn)(const int32_t *idx, const int32_t *tab, i64 alpha, const int32_t *ent, const u64 *fc,
+                        const i64 *rs, const i64 *rl, uint16_t *out, i64 lo, u64 *xs, i64 *nws, i64 *ci, i64 *ce,
+                        i64 *cq, const i64 *o);
 
 /* A plane's dither made and its DN put out a row group at a time by the decoder (decode_plane_dn): the path's
  * dither_fixed and inverse_dn kernels, two buffers of a group's rows (w each: the dither, the symbols), the plane's
@@ -92,7 +95,7 @@ int decode_plane_with(steady_fn steady8, steady_fn steady16, i64 *p, i64 h, i64 
                       const uint32_t *fcum, i64 alpha, i64 amax, const uint16_t *words, u64 *xs, i64 *pos,
                       const i64 *pmin, const int32_t *esc, i64 *epos, const i64 *eend, i64 nl, int two_vectors,
                       const dn_t *dn);
-void rans_encode_with(rans_fn rans8, rans_fn rans16, const int32_t *idx, const int32_t *tab, i64 n, i64 ntab,
+void rans_encode_with(rans_fn rans8, rans_fn rans16, int with_ent, const int32_t *idx, const int32_t *tab, i64 n, i64 ntab,
                       i64 alpha, const i64 *freq, const i64 *cum, const double *rcp, const i64 *rs, const i64 *rl,
                       const i64 *lr, const i64 *ls, i64 nl, uint16_t *out, u64 *xs, i64 *nws);
 void index_counts(const int32_t *t, const int32_t *idx, i64 n, i64 alpha, i64 nt, i64 *counts);

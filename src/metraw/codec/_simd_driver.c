@@ -171,8 +171,9 @@ int decode_plane_with(steady_fn steady8, steady_fn steady16, i64 *p, i64 h, i64 
  * x < 2^32 (see the numba function; no fused multiply-add: built with -ffp-contract=off and explicit rounding). The
  * lanes' streams are independent, so their order does not change the bytes: the symbols past the shortest lane's
  * length go one lane at a time (scalar), the rest 16 lanes at a time in AVX-512 (two vectors of 8 side by side: their
- * dependency chains overlap; 8 for a last group of 8; 2026-11-28 on Zen 5: 5.5 -> 4.0 ms a 2 MP frame). States to
- * xs_out, word counts to nws_out (nl each). */
+ * dependency chains overlap; 8 for a last group of 8; 2026-11-28 on Zen 5: 5.5 -> 4.0 ms a 2 MP frame). The lanes
+ * read each symbol's entry from tab and idx, or with_ent from an array of the entries made here first (the portable
+ * path: its element gathers read one array faster than two). States to xs_out, word counts to nws_out (nl each). */
 INLINE void enc_symbol(const int32_t *idx, const int32_t *tab, i64 alpha, const i64 *freq, const i64 *cum,
                        const double *rcp, uint16_t *out, i64 o, i64 *nw, u64 *xp, i64 i)
 {
@@ -194,7 +195,7 @@ INLINE void enc_cursor(i64 *i, i64 *e, i64 *q, const i64 *rs, const i64 *rl, int
     if (more) { i64 r = *q - 1; *i = rs[r] + rl[r] - 1; *e = rs[r]; *q = r; }
 }
 
-void rans_encode_with(rans_fn rans8, rans_fn rans16, const int32_t *idx, const int32_t *tab, i64 n, i64 ntab,
+void rans_encode_with(rans_fn rans8, rans_fn rans16, int with_ent, const int32_t *idx, const int32_t *tab, i64 n, i64 ntab,
                       i64 alpha, const i64 *freq, const i64 *cum, const double *rcp, const i64 *rs, const i64 *rl,
                       const i64 *lr, const i64 *ls, i64 nl, uint16_t *out, u64 *xs, i64 *nws)
 {
@@ -218,9 +219,9 @@ void rans_encode_with(rans_fn rans8, rans_fn rans16, const int32_t *idx, const i
         /* one gather of each symbol's table entry and one of the entry's frequency and cumulative frequency in the
          * lanes' loop, instead of five (symbol, table, frequency, cumulative frequency, reciprocal); without the
          * memory for them, the scalar coder codes every symbol */
-        ent = (int32_t *)malloc((size_t)(n > 0 ? n : 1) * sizeof(int32_t));
+        if (with_ent) ent = (int32_t *)malloc((size_t)(n > 0 ? n : 1) * sizeof(int32_t));
         fc = (u64 *)malloc((size_t)(ntab * alpha > 0 ? ntab * alpha : 1) * sizeof(u64));
-        if (ent && fc) lo = shortest;
+        if ((ent || !with_ent) && fc) lo = shortest;
     }
     for (i64 k = longest - 1; k >= lo; k--) {
         for (i64 j = 0; j < nl; j++) {
@@ -231,10 +232,12 @@ void rans_encode_with(rans_fn rans8, rans_fn rans16, const int32_t *idx, const i
     }
     if (lo > 0) {
         const uint32_t a32 = (uint32_t)alpha;   /* tab alpha + idx mod 2^32, as int32 */
-        for (i64 i = 0; i < n; i++) ent[i] = (int32_t)((uint32_t)tab[i] * a32 + (uint32_t)idx[i]);
+        if (ent)
+            for (i64 i = 0; i < n; i++) ent[i] = (int32_t)((uint32_t)tab[i] * a32 + (uint32_t)idx[i]);
         for (i64 e = 0; e < ntab * alpha; e++) fc[e] = (u64)freq[e] | ((u64)cum[e] << 32);
         for (i64 g = 0; g < nl; g += 16)
-            (g + 16 <= nl ? rans16 : rans8)(ent, fc, rs, rl, out, lo, xs + g, nws + g, ci + g, ce + g, cq + g, ls + g);
+            (g + 16 <= nl ? rans16 : rans8)(idx, tab, alpha, ent, fc, rs, rl, out, lo, xs + g, nws + g, ci + g, ce + g,
+                                            cq + g, ls + g);
     }
     free(ent);
     free(fc);

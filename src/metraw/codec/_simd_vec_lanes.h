@@ -192,16 +192,19 @@ INLINE vu vtrunc(vd v)
  * (canon_dng 1-thread, forced AVX2 on an AVX-512 Xeon, 17.4 -> 8.4-9.1 ms, 2026-11-28). On AVX2 each block first
  * reads each lane's table entries (freq | cum << 32) in step order, by scalar loads as the lane's cursor walks its
  * rows (no state decides them), and the steps load them in place of two chained gathers (symbol's entry, then the
- * entry's frequencies): the rANS pass 0.82-0.85x the time (2026-11-29, same CPU); the portable build keeps the gathers
- * (element loops there), 1.36x slower with the block's reads first. */
+ * entry's frequencies): the rANS pass 0.82-0.85x the time (2026-11-29, same CPU). The walk reads the entry as
+ * tab alpha + idx, not from an array of the entries that the driver would make first: 0.92-0.93x more. The portable
+ * build keeps the gathers (element loops there), 1.36x slower with the block's reads first, and the driver's array
+ * of the entries (1.33x slower with two gathers in its place). */
 #define RANS_BLOCK 32
 #if defined(VEC_AVX2)
 #define RANS_ENTRIES_FIRST 1
 #else
 #define RANS_ENTRIES_FIRST 0
 #endif
-INLINE void rans_lanes(const int NV, const int32_t *ent, const u64 *fc, const i64 *rs, const i64 *rl, uint16_t *out,
-                       i64 lo, u64 *xs, i64 *nws, i64 *ci, i64 *ce, i64 *cq, const i64 *o)
+INLINE void rans_lanes(const int NV, const int32_t *idx, const int32_t *tab, i64 alpha, const int32_t *ent,
+                       const u64 *fc, const i64 *rs, const i64 *rl, uint16_t *out, i64 lo, u64 *xs, i64 *nws, i64 *ci,
+                       i64 *ce, i64 *cq, const i64 *o)
 {
     const int NVV = 8 * NV / VL;
     vu X[16 / VL];
@@ -231,7 +234,7 @@ INLINE void rans_lanes(const int NV, const int32_t *ent, const u64 *fc, const i6
                                              * _simd_driver.c here measured 4-10 % slower, 2026-11-29) */
             i64 i = I[j], e = E[j], q = Q[j];
             for (int b = 0; b < nb; b++) {
-                fcb[b][j] = fc[ent[i]];
+                fcb[b][j] = fc[(uint32_t)tab[i] * (uint32_t)alpha + (uint32_t)idx[i]];
                 if (i > e) i -= 1;
                 else if (k0 - b > 0) { q -= 1; i = rs[q] + rl[q] - 1; e = rs[q]; }
             }
@@ -281,19 +284,22 @@ INLINE void rans_lanes(const int NV, const int32_t *ent, const u64 *fc, const i6
         memcpy(nws + VL * v, &NW[v], sizeof(vi));
     }
 }
-#undef RANS_ENTRIES_FIRST
-#undef RANS_BLOCK
 
-static void rans8(const int32_t *ent, const u64 *fc, const i64 *rs, const i64 *rl, uint16_t *out, i64 lo, u64 *xs,
-                  i64 *nws, i64 *ci, i64 *ce, i64 *cq, const i64 *o)
-{ rans_lanes(1, ent, fc, rs, rl, out, lo, xs, nws, ci, ce, cq, o); }
-static void rans16(const int32_t *ent, const u64 *fc, const i64 *rs, const i64 *rl, uint16_t *out, i64 lo, u64 *xs,
-                   i64 *nws, i64 *ci, i64 *ce, i64 *cq, const i64 *o)
-{ rans_lanes(2, ent, fc, rs, rl, out, lo, xs, nws, ci, ce, cq, o); }
+#define RANS_LANES_FN(NAME, NV)                                                                                        \
+    static void NAME(const int32_t *idx, const int32_t *tab, i64 alpha, const int32_t *ent, const u64 *fc,           \
+                     const i64 *rs, const i64 *rl, uint16_t *out, i64 lo, u64 *xs, i64 *nws, i64 *ci, i64 *ce,       \
+                     i64 *cq, const i64 *o)                                                                            \
+    { rans_lanes(NV, idx, tab, alpha, ent, fc, rs, rl, out, lo, xs, nws, ci, ce, cq, o); }
+RANS_LANES_FN(rans8, 1)
+RANS_LANES_FN(rans16, 2)
+#undef RANS_LANES_FN
 
 void VN(metraw_rans_encode)(const int32_t *idx, const int32_t *tab, i64 n, i64 ntab, i64 alpha, const i64 *freq,
                             const i64 *cum, const double *rcp, const i64 *rs, const i64 *rl, const i64 *lr,
                             const i64 *ls, i64 nl, uint16_t *out, u64 *xs, i64 *nws)
 {
-    rans_encode_with(rans8, rans16, idx, tab, n, ntab, alpha, freq, cum, rcp, rs, rl, lr, ls, nl, out, xs, nws);
+    rans_encode_with(rans8, rans16, !RANS_ENTRIES_FIRST, idx, tab, n, ntab, alpha, freq, cum, rcp, rs, rl, lr, ls, nl,
+                     out, xs, nws);
 }
+#undef RANS_ENTRIES_FIRST
+#undef RANS_BLOCK
