@@ -295,6 +295,21 @@ threads pinned to the two CPUs: 0.98-1.02x. The avx2 decoder's steady loop runs 
 lanes (~57 a pixel; ~34 cycles a pixel at the VM's 2.3 GHz), its samples piling up after the symbol table's and the
 (freq, cum) gathers (18 % and 14 %): what would cut it is a steady loop with the lanes' values in 32 bits (8 lanes a
 register), a rewrite of the AVX2 kernel not begun.
+
+Later still on 2026-11-29 (the next session; the same VM). The encoder's time per canon_dng tile on AVX2
+(1 MP, 2 threads, the host slow): planes 4 x 0.82 ms, models 4 x 1.23, residuals 4 x 1.88, alphabet indices 2.1,
+rANS 4.9. In the rANS pass, the lanes' walk over their rows took ~40 % (one entry load and store a symbol, ~2.3
+cycles), and making the array of entries tab alpha + idx before it 13 %: the walk now reads tab and idx itself
+(AVX-512: two gathers in place of one), with no array made first: the pass 0.86-0.93x (AVX2) and 0.68-0.73x
+(AVX-512) on the three frames, replayed in one process against the former build; 1-thread canon_dng encode 0.93x
+(AVX2) and 0.92x (AVX-512) in one such A/B, 0.98-0.99x in another (the VM's drift). The portable path keeps the array
+(two element gathers: 1.33x slower). Tried, not taken: (1) the reciprocal 1 / freq loaded in the walk beside the
+entry instead of divided in the step (AVX2): 1.03x, the division was not what bound the step; (2) the extension
+built with -falign-loops=32: the rANS pass 0.98x, encode and decode within the noise; the code's layout moves the
+rANS pass by up to 8 % between builds of the same source (the same walk loop at another address), so each A/B here
+compares builds of one layout where it matters; (3) the least-squares Gram matrix in 2 x 2 register blocks instead
+of one dot product a pair: its block 7.6 -> 5.4 us (0.1 ms a plane), but it changes the sums' order and so the
+coefficients' last bits and the stream's bytes, for ~3 % of an encode: not taken.
 """
 
 from __future__ import annotations

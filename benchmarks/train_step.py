@@ -6,14 +6,22 @@ The ``default`` profile's network (depth-2 U-Net, base 16, conditioned on the pa
 side (36: the pretraining box's typical packed crop), through ``metraw.segment.train.train_loop`` itself (seeded,
 deterministic algorithms, precision ``auto``, the prefetch thread, the one-cycle schedule), so what it times is what
 a training pays per step less the draws. Each variant runs ``steps`` steps after as many of warm-up and prints
-milliseconds per step of wall and of process CPU time. Then the profiler's tables for 16 steps: by self device time
-and by self CPU time (``cudaLaunchKernel`` counts the launches on a GPU).
+milliseconds per step of wall and of process CPU time, and the step's arithmetic rate: the floating-point operations
+of its convolutions and matrix products, forward and backward (counted once by ``torch.utils.flop_counter``), per
+second of CPU time. Then the profiler's tables for 16 steps: by self device time and by self CPU time
+(``cudaLaunchKernel`` counts the launches on a GPU).
 
 Measured 2026-11-27 on one NVIDIA H100 (torch 2.11 + CUDA 13, 16 cores), 300 steps, side 36: as ``train_loop``
 (bfloat16) 16.45 ms wall / 16.47 ms CPU; float32 13.36; not deterministic + cudnn.benchmark 14.62; no prefetch
 thread 15.04. The profiler: 25.8 ms of kernels in 16 steps (1.6 ms a step), 12088 kernel launches (755 a step),
 5622 ``fill_`` (deterministic mode initialises every new tensor). The GPU waits on the CPU that launches its
 kernels: see docs/training.md, "GPUs". On the project's 2-core CPU (1 torch thread) the same loop takes ~22 ms a step.
+
+Measured 2026-11-29 on the 2-core Intel Xeon VM (Emerald Rapids, ~2.3 GHz), 1 torch thread, side 36: a step is 1.53
+GFLOP; float32 run as on an AVX2-only CPU (``ATEN_CPU_CAPABILITY=avx2 ONEDNN_MAX_CPU_ISA=AVX2``) 44.1 ms of CPU, 35
+GFLOP/s, about half of what one core's two 8-wide float32 FMA units give at 2.3 GHz (74 GFLOP/s); with AVX-512 34.8
+ms, 44 GFLOP/s. The step is bound by its arithmetic: no faster implementation of the same network on the same core
+buys more than ~2x (docs/benchmarks.md, the main job on an AVX2 CPU).
 """
 
 from __future__ import annotations
@@ -37,6 +45,8 @@ def main() -> None:
     import metraw.segment.train as train
     from metraw.segment.condition import CONDITION_FEATURES
     from metraw.segment.train import TrainConfig, build_model, set_determinism, train_loop
+
+    from torch.utils.flop_counter import FlopCounterMode
 
     dev, n = args.device, args.steps
     base = TrainConfig(epochs=1, learning_rate=8e-3, batch_size=8, crop_px=64, base_channels=16, depth=2,
@@ -67,10 +77,18 @@ def main() -> None:
         train_loop(model, epoch, n, cfg, dev, False)
         sync()
         wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
-        print(f"{label:<46} {1e3 * wall / n:8.2f} ms/step wall {1e3 * cpu / n:8.2f} ms CPU", flush=True)
+        print(f"{label:<46} {1e3 * wall / n:8.2f} ms/step wall {1e3 * cpu / n:8.2f} ms CPU"
+              f" {step_flops * n / cpu / 1e9:7.1f} GFLOP/s of CPU time", flush=True)
+
+    set_determinism(0, 1, dev)
+    with FlopCounterMode(display=False) as counter:
+        train_loop(build_model(4, base, 1, 1).to(dev), lambda _: iter(batches[:1]), 1, base, dev, False)
+    step_flops = counter.get_total_flops()
 
     print(f"torch {torch.__version__}, device {dev}"
-          + (f" ({torch.cuda.get_device_name(0)})" if dev != "cpu" else "") + f", {n} steps, batches {shape}")
+          + (f" ({torch.cuda.get_device_name(0)})" if dev != "cpu" else "") + f", {n} steps, batches {shape}; "
+          f"CPU capability {torch.backends.cpu.get_cpu_capability()}; a step {step_flops / 1e9:.3f} GFLOP "
+          "(convolutions and matrix products, forward and backward)")
     run("as train_loop (precision auto, deterministic)")
     run("float32", precision="float32")
     run("not deterministic, cudnn.benchmark", deterministic=False)

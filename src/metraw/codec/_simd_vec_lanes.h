@@ -193,7 +193,7 @@ INLINE vu vtrunc(vd v)
  * reads each lane's table entries (freq | cum << 32) in step order, by scalar loads as the lane's cursor walks its
  * rows (no state decides them), and the steps load them in place of two chained gathers (symbol's entry, then the
  * entry's frequencies): the rANS pass 0.82-0.85x the time (2026-11-29, same CPU). The walk reads the entry as
- * tab alpha + idx, not from an array of the entries that the driver would make first: 0.92-0.93x more. The portable
+ * tab alpha + idx, not from an array of the entries that the driver would make first: 0.86-0.93x more. The portable
  * build keeps the gathers (element loops there), 1.36x slower with the block's reads first, and the driver's array
  * of the entries (1.33x slower with two gathers in its place). */
 #define RANS_BLOCK 32
