@@ -10,6 +10,9 @@ Compiled loops against numba (1-thread CPU, the real frames at step 1, same proc
 nice -n 5 python benchmarks/codec.py --native
 Both time every codec path the host runs (native.AVAILABLE, then numba; --paths avx2,numba picks some; --reps N
 rounds for --speed, --no-large skips its 20 MP frame) and print the CPU's model and flags and the path at import.
+--as-avx2-host runs either as on a CPU without AVX-512 (``AVX2_HOST_ENV``: the codec's AVX2 loops, numba's code
+generated for an x86-64-v3 CPU, numpy's and OpenBLAS's AVX-512 kernels off), so that an AVX-512 host measures what
+an AVX2-only one would run; CharLS has no such dispatch. ``--help`` lists the options.
 
 Where the time goes (issue #18; CPU ms on one core, THREADS = 1, step 1, medians of 7 calls per
 stage, 2 shared cores under load 2-9 from other users: +-10 %). Before = commit e5cee37, after =
@@ -314,6 +317,7 @@ coefficients' last bits and the stream's bytes, for ~3 % of an encode: not taken
 
 from __future__ import annotations
 
+import argparse
 import io
 import math
 import os
@@ -494,24 +498,71 @@ SPEED_REPS = 21
 SPEED_BATCH = 5
 
 
-def _arg(flag: str, default: str) -> str:
-    """The value after ``flag`` on the command line, else ``default``."""
-    argv = sys.argv[1:]
-    return argv[argv.index(flag) + 1] if flag in argv[:-1] else default
+#: What ``--as-avx2-host`` sets before the benchmark starts again in a fresh process: the codec's AVX2 loops, numba's
+#: code for a generic AVX2 + FMA + BMI2 CPU (its cache is kept per CPU name), numpy's dispatch and OpenBLAS's kernels
+#: without AVX-512.
+AVX2_HOST_ENV = {"METRAW_NATIVE": "avx2", "NUMBA_CPU_NAME": "x86-64-v3", "NUMBA_CPU_FEATURES": "",
+                 "NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL AVX512_SPR", "OPENBLAS_CORETYPE": "Haswell"}
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0],
+                                 epilog="The module's docstring keeps the measurements and how they were made.")
+    mode = ap.add_mutually_exclusive_group()
+    mode.add_argument("--speed", action="store_true",
+                      help="only the speed against JPEG-LS (real frames, steps 1 and 2; then the 20 MP frame)")
+    mode.add_argument("--native", action="store_true",
+                      help="the compiled loops against numba (1-thread CPU, real frames, step 1)")
+    ap.add_argument("--paths", help="codec paths to time, comma-separated (default: every compiled path this host "
+                                    "runs, then numba; with --as-avx2-host: avx2,portable,numba)")
+    ap.add_argument("--reps", type=int, default=SPEED_REPS, help=f"rounds of --speed (default {SPEED_REPS})")
+    ap.add_argument("--no-large", action="store_true", help="--speed without the 20 MP frame")
+    ap.add_argument("--as-avx2-host", action="store_true",
+                    help="run as on a CPU without AVX-512 (AVX2_HOST_ENV, in a fresh process)")
+    args = ap.parse_args(argv)
+    if args.reps < 1:
+        ap.error("--reps must be >= 1")
+    return args
+
+
+#: The command line's options (``parse_args``; ``main`` sets them).
+ARGS = parse_args([])
 
 
 def _paths() -> list[str]:
     """The codec paths to time: ``--paths a,b`` or every compiled path this host runs, then numba."""
     from metraw.codec import native
 
-    return _arg("--paths", ",".join(native.AVAILABLE + ("numba",))).split(",")
+    if ARGS.paths:
+        return ARGS.paths.split(",")
+    avail = [p for p in native.AVAILABLE if not (ARGS.as_avx2_host and p == "avx512")]
+    return avail + ["numba"]
+
+
+def _as_avx2_host() -> None:
+    """Start this benchmark again with ``AVX2_HOST_ENV`` set (numba and numpy read theirs at import)."""
+    if all(os.environ.get(k) == v for k, v in AVX2_HOST_ENV.items()):
+        return
+    print("# run as an AVX2-only host: " + " ".join(f"{k}={v!r}" for k, v in AVX2_HOST_ENV.items()), flush=True)
+    os.execve(sys.executable, [sys.executable, *sys.argv], {**os.environ, **AVX2_HOST_ENV})
 
 
 def _print_host() -> None:
     from metraw.codec import native
 
     print(f"# CPU: {native.cpu()}; codec path at import: {native.PATH} (METRAW_NATIVE="
-          f"{os.environ.get('METRAW_NATIVE', '')!r}), available: {', '.join(native.AVAILABLE) or 'none'}")
+          f"{os.environ.get('METRAW_NATIVE', '')!r}), available: {', '.join(native.AVAILABLE) or 'none'}; numba's "
+          f"code for {os.environ.get('NUMBA_CPU_NAME') or 'this CPU'}; numpy's AVX-512 kernels "
+          f"{'on' if _numpy_avx512() else 'off'}")
+
+
+def _numpy_avx512() -> bool:
+    """Whether numpy's runtime dispatch runs AVX-512 kernels (``NPY_DISABLE_CPU_FEATURES`` turns them off)."""
+    try:
+        from numpy._core._multiarray_umath import __cpu_features__
+    except ImportError:  # numpy < 2 or a layout without it: say what the CPU has
+        return "avx512f" in open("/proc/cpuinfo").read() if os.path.exists("/proc/cpuinfo") else False
+    return bool(__cpu_features__.get("X86_V4", __cpu_features__.get("AVX512_SKX", False)))
 
 
 def two_at_once(fn) -> float:
@@ -534,7 +585,7 @@ def speed_main() -> int:
     gives this process one core then hits every case alike instead of one row."""
     from metraw.codec import native
 
-    reps, paths = int(_arg("--reps", str(SPEED_REPS))), _paths()
+    reps, paths = ARGS.reps, _paths()
     _print_host()
     print(f"# load: {os.getloadavg()} at the start; medians of {reps} rounds, all cases "
           f"round-robin, each interleaved with JPEG-LS (CharLS); a sample = mean of {SPEED_BATCH} consecutive calls")
@@ -607,7 +658,7 @@ def speed_main() -> int:
           f"x{cap[1]:.2f} (encode / decode) the work of one in one call's time; at that capacity wall2 >= 3 needs "
           f"cpu1 <= {cap[0] / 3:.2f} / {cap[1] / 3:.2f} (before metraw's own 2-thread overheads)")
     print(f"# load: {os.getloadavg()} at the end")
-    if "--no-large" not in sys.argv[1:]:
+    if not ARGS.no_large:
         print(f"# the 20 MP frame on the path at import, {native.PATH}")
         speed_large()
     return 0
@@ -709,9 +760,13 @@ def native_main(rounds: int = 11) -> int:
 
 
 def main() -> int:
-    if "--speed" in sys.argv[1:]:
+    global ARGS
+    ARGS = parse_args()
+    if ARGS.as_avx2_host:
+        _as_avx2_host()
+    if ARGS.speed:
         return speed_main()
-    if "--native" in sys.argv[1:]:
+    if ARGS.native:
         return native_main()
     print(f"# load: {os.getloadavg()} at the start (2 cores)")
     rows = []
