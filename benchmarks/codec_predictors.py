@@ -1,7 +1,7 @@
 """Issue #18: what a faster stream version's predictor would cost in bits, before building one.
 
 The decoder's sequential loop is bound by its per-pixel work (12 taps with per-context coefficients; see
-``benchmarks/codec.py``'s docstring). A loop that leaves most taps to a vectorised pass before each row needs
+docs/codec-speed.md). A loop that leaves most taps to a vectorised pass before each row needs
 coefficients that do not depend on the pixel's activity context (which needs W, the pixel just decoded).
 This script measures, on the shared real frames (``benchmarks/codec.py``'s ``frames()``), the empirical code
 length H(r | activity context, dither-phase bin) of the coded residual r (the codec's definitions: 8 activity

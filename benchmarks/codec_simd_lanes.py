@@ -2,7 +2,7 @@
 
 The numba decoder's steady loop (``metraw.codec.decoder.decode_plane``) runs 4 lanes (rows 3 pixels apart) as scalar
 code;
-the record in ``benchmarks/codec.py`` leaves "lanes that SIMD can run side by side" as the route to a decoder that
+the record in docs/codec-speed.md leaves "lanes that SIMD can run side by side" as the route to a decoder that
 does less per pixel. Every lane's pixel needs indexed loads (its neighbours at a lane's own buffer offset, the
 context's coefficients, two rANS table entries, the next stream word), i.e. gather instructions once vectorised.
 
@@ -16,7 +16,7 @@ store may alias any indexed load, the likely reason such loops stay scalar; a pu
 Outcome (2026-11-28): numba did not; hand-written AVX-512 in C does. ``metraw.codec._simd`` (``src/metraw/codec/
 _simd.c``, an optional extension, loaded by ``metraw.codec.native``) runs the 8 lanes of a row group in one register,
 the neighbours as register histories shifted across lanes instead of gathers from the buffer; the decoder became
-~1.5x faster on one thread at the same values (``benchmarks/codec.py``'s record).
+~1.5x faster on one thread at the same values (docs/codec-speed.md).
 
 Run: python benchmarks/codec_simd_lanes.py [--lanes 4,8,16]
 """
