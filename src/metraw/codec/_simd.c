@@ -248,10 +248,10 @@ SIMD_FN static i64 residuals_avx512(const i64 *pf, i64 h, i64 w, const i64 *thr,
 
 
 /* The encoder's rANS pass (rans_encode_with in _simd_driver.c), AVX-512 part: symbols k = lo - 1 .. 0 of lanes g ..
- * g + 8 NV - 1 (every lane has them), the lanes side by side. Each
- * symbol's table entry tab alpha + idx from two gathers (< 2^31: the tables' size), not from an array of the entries
- * made first (the rANS pass 0.82x, 2026-11-29, Xeon); fc: each entry's freq | cum << 32; x / freq by the reciprocal
- * 1 / freq, computed here (an IEEE division: the table's value) */
+ * g + 8 NV - 1 (every lane has them), the lanes side by side. Each symbol's table entry tab alpha + idx from two
+ * gathers (< 2^31: the tables' size), not from an array of the entries made first (the rANS pass 0.68-0.73x,
+ * 2026-11-29, Xeon); fc: each entry's freq | cum << 32; x / freq by the reciprocal 1 / freq, computed here (an IEEE
+ * division: the table's value) */
 INLINE SIMD_FN void rans_lanes(const int NV, const int32_t *idx, const int32_t *tab, i64 alpha, const u64 *fc,
                                const i64 *rs, const i64 *rl, uint16_t *out, i64 lo, u64 *xs, i64 *nws, i64 *ci,
                                i64 *ce, i64 *cq, const i64 *o)
@@ -267,7 +267,8 @@ INLINE SIMD_FN void rans_lanes(const int NV, const int32_t *idx, const int32_t *
     const __m512d eps = _mm512_set1_pd(1.52587890625e-05), oned = _mm512_set1_pd(1.0);
     for (i64 k = lo - 1; k >= 0; k--) {
         for (int v = 0; v < NV; v++) {
-            const __m512i J = _mm512_add_epi64(_mm512_mul_epu32(_mm512_cvtepi32_epi64(_mm512_i64gather_epi32(I[v], tab, 4)), A),
+            const __m512i T = _mm512_cvtepi32_epi64(_mm512_i64gather_epi32(I[v], tab, 4));
+            const __m512i J = _mm512_add_epi64(_mm512_mul_epu32(T, A),
                                                _mm512_cvtepi32_epi64(_mm512_i64gather_epi32(I[v], idx, 4)));
             const __m512i FC = _mm512_i64gather_epi64(J, (const long long *)fc, 8);
             const __m512i F = _mm512_and_si512(FC, m32), C = _mm512_srli_epi64(FC, 32);
@@ -388,8 +389,8 @@ void metraw_rans_encode_avx512(const int32_t *idx, const int32_t *tab, i64 n, i6
                                const i64 *cum, const double *rcp, const i64 *rs, const i64 *rl, const i64 *lr,
                                const i64 *ls, i64 nl, uint16_t *out, u64 *xs, i64 *nws)
 {
-    rans_encode_with(rans_lanes8, rans_lanes16, 0, idx, tab, n, ntab, alpha, freq, cum, rcp, rs, rl, lr, ls, nl, out, xs,
-                     nws);
+    rans_encode_with(rans_lanes8, rans_lanes16, 0, idx, tab, n, ntab, alpha, freq, cum, rcp, rs, rl, lr, ls, nl, out,
+                     xs, nws);
 }
 
 void metraw_front_avx512(const int32_t *s, const double *u, i64 h, i64 w, i64 c0s, i64 *p)

@@ -95,9 +95,9 @@ int decode_plane_with(steady_fn steady8, steady_fn steady16, i64 *p, i64 h, i64 
                       const uint32_t *fcum, i64 alpha, i64 amax, const uint16_t *words, u64 *xs, i64 *pos,
                       const i64 *pmin, const int32_t *esc, i64 *epos, const i64 *eend, i64 nl, int two_vectors,
                       const dn_t *dn);
-void rans_encode_with(rans_fn rans8, rans_fn rans16, int with_ent, const int32_t *idx, const int32_t *tab, i64 n, i64 ntab,
-                      i64 alpha, const i64 *freq, const i64 *cum, const double *rcp, const i64 *rs, const i64 *rl,
-                      const i64 *lr, const i64 *ls, i64 nl, uint16_t *out, u64 *xs, i64 *nws);
+void rans_encode_with(rans_fn rans8, rans_fn rans16, int with_ent, const int32_t *idx, const int32_t *tab, i64 n,
+                      i64 ntab, i64 alpha, const i64 *freq, const i64 *cum, const double *rcp, const i64 *rs,
+                      const i64 *rl, const i64 *lr, const i64 *ls, i64 nl, uint16_t *out, u64 *xs, i64 *nws);
 void index_counts(const int32_t *t, const int32_t *idx, i64 n, i64 alpha, i64 nt, i64 *counts);
 
 #endif

@@ -195,9 +195,9 @@ INLINE void enc_cursor(i64 *i, i64 *e, i64 *q, const i64 *rs, const i64 *rl, int
     if (more) { i64 r = *q - 1; *i = rs[r] + rl[r] - 1; *e = rs[r]; *q = r; }
 }
 
-void rans_encode_with(rans_fn rans8, rans_fn rans16, int with_ent, const int32_t *idx, const int32_t *tab, i64 n, i64 ntab,
-                      i64 alpha, const i64 *freq, const i64 *cum, const double *rcp, const i64 *rs, const i64 *rl,
-                      const i64 *lr, const i64 *ls, i64 nl, uint16_t *out, u64 *xs, i64 *nws)
+void rans_encode_with(rans_fn rans8, rans_fn rans16, int with_ent, const int32_t *idx, const int32_t *tab, i64 n,
+                      i64 ntab, i64 alpha, const i64 *freq, const i64 *cum, const double *rcp, const i64 *rs,
+                      const i64 *rl, const i64 *lr, const i64 *ls, i64 nl, uint16_t *out, u64 *xs, i64 *nws)
 {
     i64 ci[16], ce[16], cq[16];
     i64 longest = 0, shortest = -1;
@@ -216,9 +216,9 @@ void rans_encode_with(rans_fn rans8, rans_fn rans16, int with_ent, const int32_t
     int32_t *ent = NULL;
     u64 *fc = NULL;
     if (rans8 && nl % 8 == 0 && shortest >= 16) {   /* >= 16 symbols: the scatter stays in the lane */
-        /* one gather of each symbol's table entry and one of the entry's frequency and cumulative frequency in the
-         * lanes' loop, instead of five (symbol, table, frequency, cumulative frequency, reciprocal); without the
-         * memory for them, the scalar coder codes every symbol */
+        /* in the lanes' loop each symbol's table entry (tab alpha + idx, or ent's) and then one read of the entry's
+         * frequency and cumulative frequency (fc), instead of five (symbol, table, frequency, cumulative frequency,
+         * reciprocal); without the memory for them, the scalar coder codes every symbol */
         if (with_ent) ent = (int32_t *)malloc((size_t)(n > 0 ? n : 1) * sizeof(int32_t));
         fc = (u64 *)malloc((size_t)(ntab * alpha > 0 ? ntab * alpha : 1) * sizeof(u64));
         if ((ent || !with_ent) && fc) lo = shortest;
