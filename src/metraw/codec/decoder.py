@@ -494,35 +494,32 @@ def _decode(mv: memoryview, shapes: list[tuple[int, int]], dithers: list[np.ndar
         h, w = shapes[k]
         p = buf[:buffer_rows(h) * (w + 4)].reshape(buffer_rows(h), w + 4)
         _init_front(p, np.int64(c0s[k]) << 16)
-        if dn is not None:
-            pl = dn[k]
-            if compiled:
-                r = min(h, nl)
-                ok = native.decode_plane_dn(p, group_u[:r * w].reshape(r, w), group_sym[:r * w].reshape(r, w), thr7,
-                                            coef13, g * nact * nph, pshift, lut, fcum, amax, words, xs, pos, pmin, esc,
-                                            epos, eend, pl.keys, pl.start, pl.row_step, pl.col_step, pl.inv, pl.out)
-            else:   # a shared model's few lanes: the numba loop, then the compiled inverse
-                sym = np.empty((h, w), np.int32)
-                ok = decode_plane(p, native.dither_fixed(*pl.keys, pl.start, h, w, pl.row_step, pl.col_step), sym, thr7,
-                                  context_table(thr), coef13, g * nact * nph, pshift, lut, fcum, amax, words, xs, pos,
-                                  pmin, esc, epos, eend)
-                if ok:
-                    native.inverse_dn(sym, pl.keys, pl.start, pl.row_step, pl.col_step, *pl.inv, pl.out)
-            if not ok:
-                raise ValueError("coded data ran out")
-            continue
-        u = dithers[k]
-        u16 = (np.ascontiguousarray(u) if u.dtype == np.int32
-               else fixed_dither(np.ascontiguousarray(u, np.float64)))
-        if compiled:
-            sym = outs[k] if outs[k].flags.c_contiguous and outs[k].dtype == np.int32 else np.empty(u.shape, np.int32)
-            ok = native.decode_plane(p, u16, sym, thr7, coef13, g * nact * nph, pshift, lut, fcum, amax, words, xs,
-                                     pos, pmin, esc, epos, eend)
-            if sym is not outs[k]:
-                outs[k][...] = sym
+        pl = dn[k] if dn is not None else None
+        if pl is not None and compiled:
+            r = min(h, nl)
+            ok = native.decode_plane_dn(p, group_u[:r * w].reshape(r, w), group_sym[:r * w].reshape(r, w), thr7,
+                                        coef13, g * nact * nph, pshift, lut, fcum, amax, words, xs, pos, pmin, esc,
+                                        epos, eend, pl.keys, pl.start, pl.row_step, pl.col_step, pl.inv, pl.out)
         else:
-            ok = decode_plane(p, u16, outs[k], thr7, context_table(thr), coef13, g * nact * nph, pshift, lut, fcum,
-                              amax, words, xs, pos, pmin, esc, epos, eend)
+            if pl is not None:   # a shared model's few lanes: the numba loop below, then the compiled inverse
+                u16 = native.dither_fixed(*pl.keys, pl.start, h, w, pl.row_step, pl.col_step)
+                out = np.empty((h, w), np.int32)
+            else:
+                u = dithers[k]
+                u16 = (np.ascontiguousarray(u) if u.dtype == np.int32
+                       else fixed_dither(np.ascontiguousarray(u, np.float64)))
+                out = outs[k]
+            if compiled:
+                sym = out if out.flags.c_contiguous and out.dtype == np.int32 else np.empty((h, w), np.int32)
+                ok = native.decode_plane(p, u16, sym, thr7, coef13, g * nact * nph, pshift, lut, fcum, amax, words,
+                                         xs, pos, pmin, esc, epos, eend)
+                if sym is not out:
+                    out[...] = sym
+            else:
+                ok = decode_plane(p, u16, out, thr7, context_table(thr), coef13, g * nact * nph, pshift, lut, fcum,
+                                  amax, words, xs, pos, pmin, esc, epos, eend)
+            if ok and pl is not None:
+                native.inverse_dn(out, pl.keys, pl.start, pl.row_step, pl.col_step, *pl.inv, pl.out)
         if not ok:
             raise ValueError("coded data ran out")
     if np.any(pos != pmin) or np.any(xs != RANS_L) or np.any(epos != eend):

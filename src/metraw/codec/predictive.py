@@ -549,8 +549,9 @@ def _encode_planes(buffers, shared: bool, nact: int, pshift: int, account: list 
     ntab = (1 if shared else npl) * nact * nph
     r_all = np.empty(total, np.int32)
     t_all = np.empty(total, np.int32)
-    c0s, group_heads = [], []
+    c0s, heads = [], []   # heads: each model group's (thr, coef, bias)
     rmax = 0
+
     def residual_pass(front, thr, coef, bias, tab0, off) -> int:
         if native.LIB is not None:
             return native.residuals(front, thr, predictor_table(coef, bias), tab0, pshift, r_all, t_all, off)
@@ -559,20 +560,19 @@ def _encode_planes(buffers, shared: bool, nact: int, pshift: int, account: list 
     offsets = [0, *np.cumsum(sizes[:-1]).tolist()]   # each plane's first residual
     if shared:  # one model for all planes: activities and normal equations pooled over the planes
         c0s, models = _shared_model(buffers, nact, {} if memo is None else memo)
+        heads.append(models[0][1:4])
         for off, (front, thr, coef, bias, tab0) in zip(offsets, models):
             rmax = max(rmax, residual_pass(front, thr, coef, bias, tab0, off))
     else:   # plane by plane: its buffer made, its model fitted and its residuals taken while the buffer is in cache
-        models = []
         for k, (b, n, off) in enumerate(zip(buffers, sizes, offsets)):
             front, c0 = _made(b, on_buffer)
             c0s.append(int(c0))
             thr, coef, bias = model.model_of_front(front, nact, model.ls_stride(n))
-            models.append((None, thr, coef, bias, k * nact * nph))   # the front is not kept (the next plane's turn)
+            heads.append((thr, coef, bias))
             rmax = max(rmax, residual_pass(front, thr, coef, bias, k * nact * nph, off))
-            del front
-    for _, thr, coef, bias, _ in models[:1] if shared else models:
-        group_heads.append((thr >> 8).astype("<u4").tobytes() + coef.astype("<i2").tobytes()
-                           + np.clip(bias, -2**31, 2**31 - 1).astype("<i4").tobytes())
+            del front   # not kept: the next plane's buffer is made without it
+    group_heads = [(thr >> 8).astype("<u4").tobytes() + coef.astype("<i2").tobytes()
+                   + np.clip(bias, -2**31, 2**31 - 1).astype("<i4").tobytes() for thr, coef, bias in heads]
     amax = int(min(MAX_RESID, max(1, rmax)))
     nl = 1 if shared else LANES
     (idx, freq, tab_bytes, tab_len, states, nws, out, starts, esc_vals,
