@@ -582,6 +582,8 @@ def test_a_library_of_another_interface_version_is_left_unused(monkeypatch):
         lib, paths = native._open()
     assert lib is None and paths == ()
     assert len(caught) == 1 and "pip install -e ." in str(caught[0].message)
+
+
 def test_a_library_lacking_a_function_is_left_unused(monkeypatch):
     """A library of the right interface number that lacks a function the code calls (a broken build) is not used: one
     warning, the numba loops, no failed import."""
