@@ -256,7 +256,9 @@ def _print_host() -> None:
     print(f"# CPU: {native.cpu()}; codec path at import: {native.PATH} (METRAW_NATIVE="
           f"{os.environ.get('METRAW_NATIVE', '')!r}), available: {', '.join(native.AVAILABLE) or 'none'}; numba's "
           f"code for {os.environ.get('NUMBA_CPU_NAME') or 'this CPU'}; numpy's AVX-512 kernels "
-          f"{'on' if _numpy_avx512() else 'off'}")
+          f"{'on' if _numpy_avx512() else 'off'}; 16-lane groups decoded "
+          f"{'as two vectors' if native.TWO_VECTORS else 'in 8-row halves'} (METRAW_TWO_VECTORS="
+          f"{os.environ.get('METRAW_TWO_VECTORS', '')!r})")
 
 
 def _numpy_avx512() -> bool:

@@ -484,6 +484,28 @@ def test_environment_chooses_the_path():
         assert got[0] == best and "not a path this build" in err
 
 
+def test_environment_chooses_the_16_lane_mode(monkeypatch):
+    """METRAW_TWO_VECTORS=1 / 0: the compiled decoder runs a 16-lane group as two vectors side by side / as two 8-row
+    groups (to time both on one host); unset or auto: the CPU's default (two vectors on AMD); anything else: one
+    warning and the default."""
+    import subprocess
+    import sys
+
+    def run(value):
+        env = dict(os.environ, METRAW_TWO_VECTORS=value)
+        out = subprocess.run([sys.executable, "-W", "always", "-c",
+                              "from metraw.codec import native; print(native.TWO_VECTORS)"],
+                             env=env, capture_output=True, text=True, check=True)
+        return out.stdout.strip(), out.stderr
+
+    monkeypatch.delenv("METRAW_TWO_VECTORS", raising=False)
+    default = str(native._two_vectors(native._LIB))
+    assert run("1")[0] == "True" and run("0")[0] == "False"
+    assert run("")[0] == default and run("auto")[0] == default
+    got, err = run("yes")
+    assert got == default and "METRAW_TWO_VECTORS=yes" in err
+
+
 def test_auto_selection_picks_only_paths_faster_than_numba():
     """Auto-selection runs the first of ``native.AUTO`` the host has, else numba: a compiled path that is slower than
     the numba loops on its CPU (the portable build anywhere) is never picked unless METRAW_NATIVE names it."""

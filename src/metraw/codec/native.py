@@ -167,6 +167,17 @@ def path_in_use(path: str):
         use(before)
 
 
+def _two_vectors(lib: ctypes.CDLL | None) -> bool:
+    """The compiled decoder's way with a 16-lane group: METRAW_TWO_VECTORS=1 or 0 forces one (to time both on a
+    host); unset or auto: the CPU's default (``metraw_two_vector_steady``: two vectors on AMD CPUs)."""
+    want = os.environ.get("METRAW_TWO_VECTORS", "").strip().lower()
+    if want in ("0", "1"):
+        return want == "1"
+    if want not in ("", "auto"):
+        warnings.warn(f"METRAW_TWO_VECTORS={want}: not 0, 1 or auto: the CPU's default", stacklevel=2)
+    return bool(lib.metraw_two_vector_steady()) if lib is not None else False
+
+
 _LIB, AVAILABLE = _open()
 #: The library while a compiled path runs, else None (the codec's modules test ``LIB is not None``).
 LIB: ctypes.CDLL | None = None
@@ -174,9 +185,10 @@ LIB: ctypes.CDLL | None = None
 PATH = "numba"
 _F: types.SimpleNamespace | None = None
 use(_requested(AVAILABLE))
+
 #: Whether the compiled decoder runs a 16-lane group's two vectors side by side (AMD CPUs: the overlap hides the
 #: gathers' latency) or as two groups of 8 rows one after the other (others); the same values either way.
-TWO_VECTORS = bool(_LIB.metraw_two_vector_steady()) if _LIB is not None else False
+TWO_VECTORS = _two_vectors(_LIB)
 
 
 def cpu() -> str:
