@@ -461,18 +461,24 @@ def test_compiled_loop_rejects_corrupt_streams_like_the_numba_loop(monkeypatch):
     assert errors >= 6   # most damage is caught
 
 
-def test_environment_chooses_the_path():
-    """METRAW_NATIVE=0: the codec runs its numba loops (for comparisons and for a suspected fault); a path's name: that
-    path; unset or auto: the best this host runs; a path the host lacks: a warning and the best."""
+def _native_in_child(variable: str, value: str, expression: str) -> tuple[str, str]:
+    """(stdout, stderr) of a fresh Python with ``variable=value`` that imports ``metraw.codec.native`` and prints
+    ``expression`` (warnings always shown)."""
     import subprocess
     import sys
 
+    code = f"from metraw.codec import native; print({expression})"
+    out = subprocess.run([sys.executable, "-W", "always", "-c", code], env=dict(os.environ, **{variable: value}),
+                         capture_output=True, text=True, check=True)
+    return out.stdout.strip(), out.stderr
+
+
+def test_environment_chooses_the_path():
+    """METRAW_NATIVE=0: the codec runs its numba loops (for comparisons and for a suspected fault); a path's name: that
+    path; unset or auto: the best this host runs; a path the host lacks: a warning and the best."""
     def run(value):
-        env = dict(os.environ, METRAW_NATIVE=value)
-        out = subprocess.run([sys.executable, "-W", "always", "-c",
-                              "from metraw.codec import native; print(native.PATH, native.LIB is None)"],
-                             env=env, capture_output=True, text=True, check=True)
-        return out.stdout.split(), out.stderr
+        out, err = _native_in_child("METRAW_NATIVE", value, "native.PATH, native.LIB is None")
+        return out.split(), err
 
     assert run("0")[0] == ["numba", "True"]
     best = native.auto_path(native.AVAILABLE)
@@ -488,15 +494,8 @@ def test_environment_chooses_the_16_lane_mode(monkeypatch):
     """METRAW_TWO_VECTORS=1 / 0: the compiled decoder runs a 16-lane group as two vectors side by side / as two 8-row
     groups (to time both on one host); unset or auto: the CPU's default (two vectors on AMD); anything else: one
     warning and the default."""
-    import subprocess
-    import sys
-
     def run(value):
-        env = dict(os.environ, METRAW_TWO_VECTORS=value)
-        out = subprocess.run([sys.executable, "-W", "always", "-c",
-                              "from metraw.codec import native; print(native.TWO_VECTORS)"],
-                             env=env, capture_output=True, text=True, check=True)
-        return out.stdout.strip(), out.stderr
+        return _native_in_child("METRAW_TWO_VECTORS", value, "native.TWO_VECTORS")
 
     monkeypatch.delenv("METRAW_TWO_VECTORS", raising=False)
     default = str(native._two_vectors(native._LIB))
