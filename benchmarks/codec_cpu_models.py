@@ -33,6 +33,7 @@ import hashlib
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -133,8 +134,8 @@ def run_model(model: str, names: list[str] | None, arm64_root: Path | None) -> d
     wall = time.perf_counter() - t
     if res.returncode != 0:
         err = [ln for ln in res.stderr.splitlines() if "TCG doesn't support" not in ln]
-        return {"error": f"exit {res.returncode}" + (" (SIGILL: an instruction this CPU lacks)" if res.returncode == -4
-                                                     else "") + ": " + " | ".join(err[-3:]), "wall_s": wall}
+        sigill = " (SIGILL: an instruction this CPU lacks)" if res.returncode == -signal.SIGILL else ""
+        return {"error": f"exit {res.returncode}{sigill}: " + " | ".join(err[-3:]), "wall_s": wall}
     return {**json.loads(res.stdout.splitlines()[-1]), "wall_s": wall}
 
 
