@@ -117,7 +117,7 @@ static int decode_group(steady_fn steady8, steady_fn steady16, i64 *pf, i64 y0, 
 /* metraw.codec.decoder.decode_plane: p the padded buffer's first rows (w + 4 values each: the two rows above the
  * plane and its first row's left pads as decoder._init_front sets them, then room for one row group: nl + 2 rows at
  * least), u the fixed-point dither (h x w), sym the symbols out (h x w); lut and words readable 4 bytes past their ends
- * (gathers read 32 bits); groups of 8 or 16 lanes run the path's steady part: 16 lanes as two vectors side by side
+ * (the AVX-512 gathers read 32 bits); groups of 8 or 16 lanes run the path's steady part: 16 lanes as two vectors side by side
  * where two_vectors is 1, else as two groups of 8 rows one after the other (lane j's rows in the same order, so the
  * same values). A group's rows are decoded into rows 2 .. of p (the kernels index it by plane row: a base pointer
  * y0 rows before p), its symbols taken out, its last two rows moved up to rows 0 and 1 as the next group's rows above:

@@ -1,12 +1,12 @@
 /* metraw.codec._simd, the kernels of _simd.c and _simd_prepare.c once more in GCC / Clang vector extensions: vectors
  * of one register (VL lanes of 64 bits: the decoder's lanes, the encoder's pixels; or of 32: the dither hash),
  * written once and compiled per target by the file that includes this one: _simd_avx2.c (AVX2, FMA, BMI2: VL = 4, a
- * 256-bit register, with AVX2 gathers and vpermd lookups) and _simd_portable.c (any CPU; VL = 2: SSE2 on x86-64, NEON
+ * 256-bit register, with vpermd lookups) and _simd_portable.c (any CPU; VL = 2: SSE2 on x86-64, NEON
  * on ARM, or scalar code). The includer defines VEC_PATH (the functions' suffix) and, for AVX2, VEC_AVX2. Same values
  * as the AVX-512 kernels and the numba loops, to the bit: integer arithmetic wraps (-fwrapv), float64 one IEEE
  * operation at a time (-ffp-contract=off: no fused multiply-add), and rounding to integers by adding 1.5 2^52 (round
- * to nearest even, exact for |z| < 2^51: symbols, DN and rANS quotients are far below it). Scatters, and the portable
- * build's gathers, are element loops. On AVX2, predictions whose coefficients are int32s and neighbours in [-2^30,
+ * to nearest even, exact for |z| < 2^51: symbols, DN and rANS quotients are far below it). Scatters and gathers are
+ * element loops. On AVX2, predictions whose coefficients are int32s and neighbours in [-2^30,
  * 2^30) (real frames: symbols below 2^14) take one signed 32 x 32 -> 64-bit multiply a tap (pmuldq) and 32-bit
  * absolute differences, the same values as the exact 64-bit arithmetic, which the others take. */
 #include "_simd.h"
@@ -101,20 +101,11 @@ INLINE vd vsqrt(vd x)
 #endif
 }
 
-/* gathers: base[idx[j]] of 32-bit (sign- or zero-extended), 16-bit and 8-bit elements (AVX2: 32-bit gathers, so the
- * 16- and 8-bit tables must be readable 2 and 3 bytes past their ends, as for the AVX-512 kernels) and 64-bit ones */
-#if defined(VEC_AVX2)
-#define G32(base, idx, scale) _mm256_i64gather_epi32((const int *)(const void *)(base), (__m256i)(idx), scale)
-INLINE vi gather_s32(const int32_t *b, vi idx) { return (vi)_mm256_cvtepi32_epi64(G32(b, idx, 4)); }
-INLINE vi gather_u32(const uint32_t *b, vi idx) { return (vi)_mm256_cvtepu32_epi64(G32(b, idx, 4)); }
-INLINE vi gather_u16(const uint16_t *b, vi idx)
-{ return (vi)_mm256_cvtepu16_epi64(_mm_shuffle_epi8(G32(b, idx, 2), _mm_setr_epi8(0, 1, 4, 5, 8, 9, 12, 13, -1, -1, -1, -1, -1, -1, -1, -1))); }
-INLINE vi gather_s16(const int16_t *b, vi idx)
-{ return (vi)_mm256_cvtepi16_epi64(_mm_shuffle_epi8(G32(b, idx, 2), _mm_setr_epi8(0, 1, 4, 5, 8, 9, 12, 13, -1, -1, -1, -1, -1, -1, -1, -1))); }
-INLINE vi gather_u8(const uint8_t *b, vi idx)
-{ return (vi)_mm256_cvtepu8_epi64(_mm_shuffle_epi8(G32(b, idx, 1), _mm_setr_epi8(0, 4, 8, 12, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1))); }
-INLINE vi gather_64(const u64 *b, vi idx) { return (vi)_mm256_i64gather_epi64((const long long *)b, (__m256i)idx, 8); }
-#else
+/* gathers: base[idx[j]] of 32-bit (sign- or zero-extended), 16-bit, 8-bit and 64-bit elements, by element loads on
+ * every path, AVX2 included: its gather instructions are microcoded on AMD Zen 2 to 4 (VPGATHERDD ymm 39 uops on Zen
+ * 3, per uops.info) and slowed by the GDS (Downfall) microcode mitigation on Intel Skylake to Tiger Lake, while the
+ * element loads decode as fast as they did on an Emerald Rapids Xeon (2026-11-29: 0.99-1.015x, canon_dng, micasense,
+ * spacenet_pan, both 16-lane modes) */
 #define GATHER_LOOP(T) { vi r; for (int j = 0; j < VL; j++) r[j] = (i64)(T)b[idx[j]]; return r; }
 INLINE vi gather_s32(const int32_t *b, vi idx) GATHER_LOOP(int32_t)
 INLINE vi gather_u32(const uint32_t *b, vi idx) GATHER_LOOP(uint32_t)
@@ -122,7 +113,6 @@ INLINE vi gather_u16(const uint16_t *b, vi idx) GATHER_LOOP(uint16_t)
 INLINE vi gather_s16(const int16_t *b, vi idx) GATHER_LOOP(int16_t)
 INLINE vi gather_u8(const uint8_t *b, vi idx) GATHER_LOOP(uint8_t)
 INLINE vi gather_64(const u64 *b, vi idx) GATHER_LOOP(u64)
-#endif
 
 /* n <= VL values from p (zeros past n) and to p (n = VL: one load or store, not a memcpy call) */
 #define LOADN(T, V, p, n) ({ V v_ = {0}; if ((n) == VL) { memcpy(&v_, (p), sizeof v_); } \

@@ -360,7 +360,7 @@ def _decoding_tables(freq, sym_type):
     """The decoder's lookup tables: symbol by slot (tables x 2^PROB_BITS, ``sym_type``) and
     freq << 16 | cumulative frequency (tables x alphabet)."""
     ntab, alpha = freq.shape
-    # one row more than the tables: the compiled decoder's 32-bit gathers may read a few bytes past the last entry
+    # one row more than the tables: the AVX-512 decoder's 32-bit gathers may read a few bytes past the last entry
     lut = np.zeros((ntab + 1, PROB_SCALE), sym_type)
     fcum = np.empty((ntab, alpha), np.uint32)  # f <= 2^12, cum < 2^12: 32 bits (half the cache of int64)
     for t in range(ntab):
@@ -462,7 +462,7 @@ def _decode(mv: memoryview, shapes: list[tuple[int, int]], dithers: list[np.ndar
     # checks a lane's limits once per group of rows and reads at most a row's width past them.
     pad = max([w for _, w in shapes] + [0]) + 16
     pmin = (np.cumsum(np.array(nwords, np.int64) + pad) - np.array(nwords, np.int64) - 1).astype(np.int64)
-    # + 2 words: the compiled decoder's 32-bit gathers read one word past the last
+    # + 2 words: the AVX-512 decoder's 32-bit gathers read one word past the last
     words = np.zeros(int(sum(nwords)) + nl * pad + 2, np.uint16)
     for j, n in enumerate(nwords):
         words[pmin[j] + 1:pmin[j] + 1 + n] = np.frombuffer(mv, "<u2", n, off)

@@ -8,8 +8,9 @@ One extension, ``metraw.codec._simd``, holds every path, chosen at import by wha
 as numpy and libjpeg-turbo do; ``PATHS`` best first):
 
 - ``avx512``: AVX-512 F and DQ intrinsics (``_simd.c``, ``_simd_prepare.c``);
-- ``avx2``: the kernels of ``_simd_vec.h`` (GCC / Clang vector extensions, 4 lanes of 64 bits a register, AVX2
-  gathers) compiled for AVX2 with FMA and BMI2 (``_simd_avx2.c``, a target pragma: no special build flags);
+- ``avx2``: the kernels of ``_simd_vec.h`` (GCC / Clang vector extensions, 4 lanes of 64 bits a register, table
+  lookups by element loads, not gather instructions) compiled for AVX2 with FMA and BMI2 (``_simd_avx2.c``, a target
+  pragma: no special build flags);
 - ``portable``: the same kernels compiled for the build's default target (``_simd_portable.c``: any CPU, ARM
   included);
 - ``numba``: no library (not built: no C compiler), the codec's numba loops (``decoder.decode_plane``,
@@ -41,7 +42,8 @@ import numpy as np
 
 #: Lane counts the compiled steady loop runs (8 lanes = one vector of 8 int64, 16 = two: ``TWO_VECTORS``).
 LANE_COUNTS = (8, 16)
-#: Bytes the compiled loop may read past the end of the symbol table and of the word array (32-bit gathers).
+#: Bytes the compiled loop may read past the end of the symbol table and of the word array (the AVX-512 path's 32-bit
+#: gathers).
 READ_PAST_END_BYTES = 4
 #: The library's interface version (``metraw_simd_abi`` in ``_simd_driver.c``): raised with any change of its
 #: functions.
@@ -52,8 +54,8 @@ PATHS = ("avx512", "avx2", "portable")
 #: encode and decode, ``benchmarks/codec.py --native``). avx2 since 2026-11-28 (forced on an AVX-512 Intel Xeon,
 #: Emerald Rapids, 2 cores, load ~4.6; medians of 11 alternating rounds, ms, encode / decode): canon_dng 45.6 / 40.8
 #: against numba's 52.8 / 54.1, micasense 22.3 / 26.7 against 30.9 / 34.7, spacenet_pan 8.1 / 7.2 against 9.0 / 9.2
-#: (JPEG-LS 68.2 / 61.9, 42.5 / 39.6, 12.2 / 11.2). Not measured on a CPU without AVX-512: where gathers are slow
-#: (AMD Zen 1-2; Intel Skylake-derived cores under the GDS / Downfall microcode) numba may stay ahead. The portable
+#: (JPEG-LS 68.2 / 61.9, 42.5 / 39.6, 12.2 / 11.2). Not measured on a CPU without AVX-512; its decoder uses no gather
+#: instruction (slow on AMD Zen 2-4 and on Intel cores under the GDS / Downfall microcode: ``_simd_vec.h``). The portable
 #: build (2 lanes of 64 bits, SSE2 there) is not picked: 2.0-2.3x numba's time on the same host (encode canon_dng
 #: 123 against 62 ms, decode 134 against 69).
 AUTO = ("avx512", "avx2")
