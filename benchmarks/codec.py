@@ -340,6 +340,7 @@ def speed_main() -> int:
     finally:
         codec.THREADS = threads
         native.use(before)
+    results = {}   # path -> {(frame, step): (bpp, wall2 e, wall2 d, cpu1 e, cpu1 d)}
     for path in paths:
         for (name, step, img, blob, jl), (walls, cpus2, cpus1) in zip(cases, samples[path]):
             te, td, te_j, td_j = (float(np.median(v)) for v in walls)
@@ -349,6 +350,8 @@ def speed_main() -> int:
             won_e = np.mean(np.array(walls[0]) < np.array(walls[2]))
             won_d = np.mean(np.array(walls[1]) < np.array(walls[3]))
             mp = img.data.size / 1e6
+            results.setdefault(path, {})[name, step] = (8 * len(blob) / img.data.size, te_j / te, td_j / td, ce / ce_j,
+                                                        cd / cd_j)
             print(f"{path:8s} {name:12s} {mp:4.1f} {step:4.1f} {8 * len(blob) / img.data.size:6.3f} {te * 1e3:7.1f} "
                   f"{td * 1e3:7.1f} {te_j * 1e3:6.1f} {td_j * 1e3:6.1f} {te_j / te:7.2f} {td_j / td:7.2f} | "
                   f"{ce * 1e3:9.1f} {cd * 1e3:9.1f} {ce_j * 1e3:6.1f} {cd_j * 1e3:6.1f} {ce / ce_j:6.2f} {cd / cd_j:6.2f} "
@@ -362,11 +365,46 @@ def speed_main() -> int:
     print(f"# host: two JPEG-LS calls at once on 2 threads ({cases[0][0]}, the same rounds) do x{cap[0]:.2f} / "
           f"x{cap[1]:.2f} (encode / decode) the work of one in one call's time; at that capacity wall2 >= 3 needs "
           f"cpu1 <= {cap[0] / 3:.2f} / {cap[1] / 3:.2f} (before metraw's own 2-thread overheads)")
+    for path in paths:
+        print(acceptance(path, results[path]))
     print(f"# load: {os.getloadavg()} at the end")
     if not ARGS.no_large:
         print(f"# the 20 MP frame on the path at import, {native.PATH}")
         speed_large()
     return 0
+
+
+#: Issue #52's speed targets: 1-thread CPU time at most JPEG-LS's (encode and decode, every frame, step 1); 2-thread
+#: wall at least 3x JPEG-LS's 1-thread wall (``WALL2_FRAMES``, encode and decode, steps 1 and 2); bpp at step 1 within
+#: ``BPP_TOLERANCE`` (relative) of ``BPP_STEP1``, the issue's.
+CPU1_MAX, WALL2_MIN, WALL2_FRAMES = 1.0, 3.0, ("canon_dng", "micasense")
+BPP_STEP1, BPP_TOLERANCE = {"canon_dng": 2.416, "micasense": 2.382, "spacenet_pan": 2.254}, 0.002
+
+
+def acceptance(path: str, rows: dict) -> str:
+    """One line: how a path's ``--speed`` results (``rows``: (frame, step) -> (bpp, wall2 e, wall2 d, cpu1 e, cpu1 d))
+    stand against issue #52's targets, each with its worst case ("short" where it misses, "no data" where its
+    frames were not run)."""
+    def worst(cases, pick, key):
+        vals = [(pick(rows[c])[k], c, k) for c in cases if c in rows for k in range(2)]
+        return key(vals) if vals else None
+
+    ed = ("encode", "decode")
+    cpu = worst([(f, 1.0) for f in REAL_NAMES], lambda r: r[3:5], max)
+    wall = worst([(f, q) for f in WALL2_FRAMES for q in (1.0, 2.0)], lambda r: r[1:3], min)
+    bpp = [(abs(rows[f, 1.0][0] / b - 1), f) for f, b in BPP_STEP1.items() if (f, 1.0) in rows]
+    parts = []
+    for label, w, ok in ((f"1-thread CPU <= {CPU1_MAX:g}x JPEG-LS's, step 1", cpu, lambda v: v <= CPU1_MAX),
+                         (f"2-thread wall >= {WALL2_MIN:g}x JPEG-LS on {' and '.join(WALL2_FRAMES)}, steps 1 and 2",
+                          wall, lambda v: v >= WALL2_MIN)):
+        parts.append(f"{label}: no data" if w is None else
+                     f"{label}: {'ok' if ok(w[0]) else 'short'} (worst {w[0]:.2f}, {w[1][0]} step {w[1][1]:g} "
+                     f"{ed[w[2]]})")
+    dev, f = max(bpp) if bpp else (None, None)
+    parts.append(f"bpp within {100 * BPP_TOLERANCE:g} % of the issue's: no data" if dev is None else
+                 f"bpp within {100 * BPP_TOLERANCE:g} % of the issue's: {'ok' if dev <= BPP_TOLERANCE else 'short'} "
+                 f"(worst {100 * dev:.2f} %, {f})")
+    return f"# issue #52's targets, path {path}: " + "; ".join(parts)
 
 
 #: Rounds of the 20 MP frame's timing (each call takes ~0.2-0.5 s: fewer rounds than the real frames).

@@ -515,19 +515,47 @@ def test_auto_selection_picks_only_paths_faster_than_numba():
     assert set(native.AUTO) <= set(native.PATHS)
 
 
+def _codec_benchmark():
+    """benchmarks/codec.py as a module."""
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location("metraw_codec_benchmark",
+                                                  Path(__file__).resolve().parents[1] / "benchmarks" / "codec.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    return bench
+
+
+def test_the_speed_benchmark_states_each_target_with_its_worst_case():
+    """``--speed``'s summary line against issue #52's targets: the largest 1-thread CPU ratio (step 1, any frame),
+    the smallest 2-thread wall ratio on canon_dng and micasense (steps 1 and 2; spacenet_pan's is not a target) and
+    the largest bpp departure, each named, "short" where it misses."""
+    bench = _codec_benchmark()
+    rows = {("canon_dng", 1.0): (2.416, 3.12, 3.04, 0.55, 0.50), ("canon_dng", 2.0): (1.543, 2.95, 3.15, 0.56, 1.2),
+            ("micasense", 1.0): (2.382, 3.62, 3.02, 0.45, 0.58), ("micasense", 2.0): (1.525, 3.90, 3.37, 0.40, 0.5),
+            ("spacenet_pan", 1.0): (2.253, 2.40, 2.60, 0.64, 0.61), ("spacenet_pan", 2.0): (1.48, 1.0, 1.0, 2.0, 2.0)}
+    line = bench.acceptance("avx2", rows)
+    assert line.startswith("# issue #52's targets, path avx2: ")
+    assert "step 1: ok (worst 0.64, spacenet_pan step 1 encode)" in line        # step 2's 1.2 and 2.0 not targets
+    assert "steps 1 and 2: short (worst 2.95, canon_dng step 2 encode)" in line   # spacenet_pan's 1.0 not a target
+    assert "issue's: ok (worst 0.04 %, spacenet_pan)" in line
+    rows["micasense", 1.0] = (2.382 * 1.003, 3.1, 3.1, 1.01, 0.5)
+    rows["canon_dng", 2.0] = (1.543, 3.0, 3.15, 0.56, 1.2)
+    line = bench.acceptance("avx2", rows)
+    assert "step 1: short (worst 1.01, micasense step 1 encode)" in line
+    assert "steps 1 and 2: ok (worst 3.00, canon_dng step 2 encode)" in line
+    assert "issue's: short (worst 0.30 %, micasense)" in line
+    assert bench.acceptance("numba", {}).count("no data") == 3
+
+
 def test_paths_give_the_same_bytes_and_values_on_the_benchmark_frames():
     """Every compiled path and numba: the same stream and decoded values on the benchmark's real frames (data/real,
     with the benchmark's fixed profiles, ``REAL_PROFILES`` of benchmarks/codec.py: every frame, whatever calibrate's
     fit does) at steps 1 and 2, and on a synthetic frame where those are absent."""
-    import importlib.util
-    from pathlib import Path
-
     from metraw.io import read_raw
 
-    root = Path(__file__).resolve().parents[1]
-    spec = importlib.util.spec_from_file_location("metraw_codec_benchmark", root / "benchmarks" / "codec.py")
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
+    bench = _codec_benchmark()
     images = []
     for rel, fit in bench.REAL_PROFILES.items():
         if (bench.REAL / rel).exists():
