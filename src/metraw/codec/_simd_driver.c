@@ -117,9 +117,9 @@ static int decode_group(steady_fn steady8, steady_fn steady16, i64 *pf, i64 y0, 
 /* metraw.codec.decoder.decode_plane: p the padded buffer's first rows (w + 4 values each: the two rows above the
  * plane and its first row's left pads as decoder._init_front sets them, then room for one row group: nl + 2 rows at
  * least), u the fixed-point dither (h x w), sym the symbols out (h x w); lut and words readable 4 bytes past their ends
- * (the AVX-512 gathers read 32 bits); groups of 8 or 16 lanes run the path's steady part: 16 lanes as two vectors side by side
- * where two_vectors is 1, else as two groups of 8 rows one after the other (lane j's rows in the same order, so the
- * same values). A group's rows are decoded into rows 2 .. of p (the kernels index it by plane row: a base pointer
+ * (the AVX-512 gathers read 32 bits); groups of 8 or 16 lanes run the path's steady part: 16 lanes as two vectors
+ * side by side where two_vectors is 1, else as two groups of 8 rows one after the other (lane j's rows in the same
+ * order, so the same values). A group's rows are decoded into rows 2 .. of p (the kernels index it by plane row: a base pointer
  * y0 rows before p), its symbols taken out, its last two rows moved up to rows 0 and 1 as the next group's rows above:
  * p stays in cache, not a buffer of the plane's size. With dn (u and sym then unused), each group's dither is made
  * into dn->u before it and its symbols into dn->sym, then their DN put out: no plane-size array at all. Returns 1, or
@@ -289,8 +289,9 @@ i64 metraw_escape_index(const uint16_t *d, i64 n, i64 white, i64 low, i64 offset
  * functions per path (metraw_<name>_<path>) and metraw_simd_paths; 5: decode_plane_dn, metraw_escape_index. */
 int metraw_simd_abi(void) { return 5; }
 
-/* 1 where the steady part of 16-lane groups should run its two vectors side by side (AMD: their overlap hides the
- * gathers' latency, 2026-11-28 on Zen 5: 15 % faster than 8 lanes), 0 where as two groups of 8 (Intel: measured
+/* 1 where the steady part of 16-lane groups should run its two vectors side by side (AMD: their overlap hid the
+ * AVX-512 gathers' latency, 2026-11-28 on Zen 5: 15 % faster than 8 lanes; the AVX2 path, without gathers since
+ * 2026-11-29, not yet timed on AMD), 0 where as two groups of 8 (Intel: measured
  * 2026-11-28 on Emerald Rapids with two vectors, 10-25 % slower than 8 lanes, a noisy host) */
 int metraw_two_vector_steady(void)
 {

@@ -54,10 +54,10 @@ PATHS = ("avx512", "avx2", "portable")
 #: encode and decode, ``benchmarks/codec.py --native``). avx2 since 2026-11-28 (forced on an AVX-512 Intel Xeon,
 #: Emerald Rapids, 2 cores, load ~4.6; medians of 11 alternating rounds, ms, encode / decode): canon_dng 45.6 / 40.8
 #: against numba's 52.8 / 54.1, micasense 22.3 / 26.7 against 30.9 / 34.7, spacenet_pan 8.1 / 7.2 against 9.0 / 9.2
-#: (JPEG-LS 68.2 / 61.9, 42.5 / 39.6, 12.2 / 11.2). Not measured on a CPU without AVX-512; its decoder uses no gather
-#: instruction (slow on AMD Zen 2-4 and on Intel cores under the GDS / Downfall microcode: ``_simd_vec.h``). The portable
-#: build (2 lanes of 64 bits, SSE2 there) is not picked: 2.0-2.3x numba's time on the same host (encode canon_dng
-#: 123 against 62 ms, decode 134 against 69).
+#: (JPEG-LS 68.2 / 61.9, 42.5 / 39.6, 12.2 / 11.2). Not measured on a CPU without AVX-512; its decoder uses no
+#: gather instruction (slow on AMD Zen 2-4 and on Intel cores under the GDS / Downfall microcode: ``_simd_vec.h``).
+#: The portable build (2 lanes of 64 bits, SSE2 there) is not picked: 2.0-2.3x numba's time on the same host (encode
+#: canon_dng 123 against 62 ms, decode 134 against 69).
 AUTO = ("avx512", "avx2")
 _PATH_BITS = {"portable": 1, "avx2": 2, "avx512": 4}
 #: The functions every path exports as ``metraw_<name>_<path>``.
@@ -188,8 +188,9 @@ PATH = "numba"
 _F: types.SimpleNamespace | None = None
 use(_requested(AVAILABLE))
 
-#: Whether the compiled decoder runs a 16-lane group's two vectors side by side (AMD CPUs: the overlap hides the
-#: gathers' latency) or as two groups of 8 rows one after the other (others); the same values either way.
+#: Whether the compiled decoder runs a 16-lane group's two vectors side by side (AMD CPUs: on a Zen 5 the overlap hid
+#: the AVX-512 gathers' latency; on AVX2 not yet timed on AMD) or as two groups of 8 rows one after the other
+#: (others); the same values either way.
 TWO_VECTORS = _two_vectors(_LIB)
 
 
