@@ -349,10 +349,9 @@ def speed_main() -> int:
             # share of rounds in which metraw (2 threads) beat JPEG-LS, encode and decode
             won_e = np.mean(np.array(walls[0]) < np.array(walls[2]))
             won_d = np.mean(np.array(walls[1]) < np.array(walls[3]))
-            mp = img.data.size / 1e6
-            results.setdefault(path, {})[name, step] = (8 * len(blob) / img.data.size, te_j / te, td_j / td, ce / ce_j,
-                                                        cd / cd_j)
-            print(f"{path:8s} {name:12s} {mp:4.1f} {step:4.1f} {8 * len(blob) / img.data.size:6.3f} {te * 1e3:7.1f} "
+            mp, bpp = img.data.size / 1e6, 8 * len(blob) / img.data.size
+            results.setdefault(path, {})[name, step] = (bpp, te_j / te, td_j / td, ce / ce_j, cd / cd_j)
+            print(f"{path:8s} {name:12s} {mp:4.1f} {step:4.1f} {bpp:6.3f} {te * 1e3:7.1f} "
                   f"{td * 1e3:7.1f} {te_j * 1e3:6.1f} {td_j * 1e3:6.1f} {te_j / te:7.2f} {td_j / td:7.2f} | "
                   f"{ce * 1e3:9.1f} {cd * 1e3:9.1f} {ce_j * 1e3:6.1f} {cd_j * 1e3:6.1f} {ce / ce_j:6.2f} {cd / cd_j:6.2f} "
                   f"{ce2 / te:5.2f} {cd2 / td:5.2f} {won_e:5.2f} {won_d:5.2f} | {mp / te:8.1f} {mp / td:8.1f} "

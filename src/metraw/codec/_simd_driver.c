@@ -119,8 +119,8 @@ static int decode_group(steady_fn steady8, steady_fn steady16, i64 *pf, i64 y0, 
  * least), u the fixed-point dither (h x w), sym the symbols out (h x w); lut and words readable 4 bytes past their ends
  * (the AVX-512 gathers read 32 bits); groups of 8 or 16 lanes run the path's steady part: 16 lanes as two vectors
  * side by side where two_vectors is 1, else as two groups of 8 rows one after the other (lane j's rows in the same
- * order, so the same values). A group's rows are decoded into rows 2 .. of p (the kernels index it by plane row: a base pointer
- * y0 rows before p), its symbols taken out, its last two rows moved up to rows 0 and 1 as the next group's rows above:
+ * order, so the same values). A group's rows are decoded into rows 2 .. of p (the kernels index it by plane row: a
+ * base pointer y0 rows before p), its symbols taken out, its last two rows moved up to rows 0 and 1 as the next group's rows above:
  * p stays in cache, not a buffer of the plane's size. With dn (u and sym then unused), each group's dither is made
  * into dn->u before it and its symbols into dn->sym, then their DN put out: no plane-size array at all. Returns 1, or
  * 0 when a lane ran past its words or escapes (corrupt stream). */
@@ -291,8 +291,8 @@ int metraw_simd_abi(void) { return 5; }
 
 /* 1 where the steady part of 16-lane groups should run its two vectors side by side (AMD: their overlap hid the
  * AVX-512 gathers' latency, 2026-11-28 on Zen 5: 15 % faster than 8 lanes; the AVX2 path, without gathers since
- * 2026-11-29, not yet timed on AMD), 0 where as two groups of 8 (Intel: measured
- * 2026-11-28 on Emerald Rapids with two vectors, 10-25 % slower than 8 lanes, a noisy host) */
+ * 2026-11-29, not yet timed on AMD), 0 where as two groups of 8 (Intel: measured 2026-11-28 on Emerald Rapids with
+ * two vectors, 10-25 % slower than 8 lanes, a noisy host) */
 int metraw_two_vector_steady(void)
 {
 #if METRAW_X86

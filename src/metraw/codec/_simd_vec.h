@@ -2,11 +2,11 @@
  * of one register (VL lanes of 64 bits: the decoder's lanes, the encoder's pixels; or of 32: the dither hash),
  * written once and compiled per target by the file that includes this one: _simd_avx2.c (AVX2, FMA, BMI2: VL = 4, a
  * 256-bit register, with vpermd lookups) and _simd_portable.c (any CPU; VL = 2: SSE2 on x86-64, NEON on ARM, or
- * scalar code). The includer defines VEC_PATH (the functions' suffix) and, for AVX2, VEC_AVX2. Same values
- * as the AVX-512 kernels and the numba loops, to the bit: integer arithmetic wraps (-fwrapv), float64 one IEEE
- * operation at a time (-ffp-contract=off: no fused multiply-add), and rounding to integers by adding 1.5 2^52 (round
- * to nearest even, exact for |z| < 2^51: symbols, DN and rANS quotients are far below it). Scatters and gathers are
- * element loops. On AVX2, predictions whose coefficients are int32s and neighbours in [-2^30, 2^30) (real frames:
+ * scalar code). The includer defines VEC_PATH (the functions' suffix) and, for AVX2, VEC_AVX2. Same values as the
+ * AVX-512 kernels and the numba loops, to the bit: integer arithmetic wraps (-fwrapv), float64 one IEEE operation at
+ * a time (-ffp-contract=off: no fused multiply-add), and rounding to integers by adding 1.5 2^52 (round to nearest
+ * even, exact for |z| < 2^51: symbols, DN and rANS quotients are far below it). Scatters and gathers are element
+ * loops. On AVX2, predictions whose coefficients are int32s and neighbours in [-2^30, 2^30) (real frames:
  * symbols below 2^14) take one signed 32 x 32 -> 64-bit multiply a tap (pmuldq) and 32-bit absolute differences, the
  * same values as the exact 64-bit arithmetic, which the others take. */
 #include "_simd.h"
