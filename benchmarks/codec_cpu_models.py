@@ -80,7 +80,11 @@ def hashes(names: list[str] | None) -> dict[str, list[str]]:
     from metraw import codec
     from metraw.codec import native
 
-    frames = [(n, img) for n, img in bench.frames() if names is None or n in names]
+    frames = bench.frames()
+    unknown = sorted(set(names or ()) - {n for n, _ in frames})
+    if unknown:
+        raise ValueError(f"no benchmark frame {', '.join(unknown)} (frames: {', '.join(n for n, _ in frames)})")
+    frames = [(n, img) for n, img in frames if names is None or n in names]
     out = {}
     for path in native.AVAILABLE + ("numba",):
         lines = []
@@ -94,7 +98,7 @@ def hashes(names: list[str] | None) -> dict[str, list[str]]:
                         lines.append(f"{name} step {step} threads {threads}: {_sha(blob)} {_sha(dec.tobytes())}")
             for name in sorted(fixtures.FIXTURES):
                 dec = codec.decode((fixtures.HERE / name).read_bytes()).data
-                pixels = hashlib.sha256(np.ascontiguousarray(dec, "<u2").tobytes()).hexdigest()
+                pixels = fixtures._sha(np.ascontiguousarray(dec, "<u2").tobytes())
                 lines.append(f"fixture {name}: {'recorded' if pixels == fixtures.FIXTURES[name][2] else pixels} pixels")
         out[path] = lines
     return out
@@ -166,10 +170,14 @@ def main(argv: list[str] | None = None) -> int:
     from metraw.codec import native
 
     warnings.simplefilter("ignore")
+    try:
+        ref = hashes(names)
+    except ValueError as exc:   # an unknown --frames name
+        print(f"codec_cpu_models: {exc}", file=sys.stderr)
+        return 2
     version = subprocess.run(["qemu-x86_64", "--version"], capture_output=True, text=True).stdout.splitlines()[0]
     host = cpu_report()
     print(f"# host: {native.cpu()}; LLVM: {host['llvm_cpu']}; paths {', '.join(host['available'])}; {version}")
-    ref = hashes(names)
     ref_lines = ref["numba"]
     agree = [p for p, lines in ref.items() if lines == ref_lines]
     print(f"# host paths with the same streams and values as numba: {', '.join(agree)} of {', '.join(ref)} "
