@@ -8,7 +8,10 @@ nice -n 5 python benchmarks/codec.py --speed   (all cases round-robin, medians o
 then the 20 MP frame: absolute times and Mpix/s)
 Compiled loops against numba (1-thread CPU, the real frames at step 1, same process, alternating rounds):
 nice -n 5 python benchmarks/codec.py --native
-Both time every codec path the host runs (native.AVAILABLE, then numba; --paths avx2,numba picks some; --reps N
+The compiled decoder's two ways with a 16-lane group (two vectors side by side, or two 8-row halves one after the
+other; the same values), against each other (1-thread decode CPU, real frames at step 1, same process, alternating;
+which one this CPU should take by default): nice -n 5 python benchmarks/codec.py --lane-modes
+All three time every codec path the host runs (native.AVAILABLE, then numba; --paths avx2,numba picks some; --reps N
 rounds for --speed, --no-large skips its 20 MP frame) and print the CPU's model and flags and the path at import.
 --as-avx2-host runs either as on a CPU without AVX-512 (``AVX2_HOST_ENV``: the codec's AVX2 loops, numba's code
 generated for an x86-64-v3 CPU, numpy's and OpenBLAS's AVX-512 kernels off), so that an AVX-512 host measures what
@@ -216,9 +219,13 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                       help="only the speed against JPEG-LS (real frames, steps 1 and 2; then the 20 MP frame)")
     mode.add_argument("--native", action="store_true",
                       help="the compiled loops against numba (1-thread CPU, real frames, step 1)")
+    mode.add_argument("--lane-modes", action="store_true",
+                      help="the compiled decoder's two 16-lane modes against each other (1-thread decode CPU, real "
+                           "frames, step 1): which one this CPU should take by default")
     ap.add_argument("--paths", help="codec paths to time, comma-separated (default: every compiled path this host "
                                     "runs, then numba; with --as-avx2-host: avx2,portable,numba)")
-    ap.add_argument("--reps", type=int, default=SPEED_REPS, help=f"rounds of --speed (default {SPEED_REPS})")
+    ap.add_argument("--reps", type=int, default=SPEED_REPS,
+                    help=f"rounds of --speed and --lane-modes (default {SPEED_REPS})")
     ap.add_argument("--no-large", action="store_true", help="--speed without the 20 MP frame")
     ap.add_argument("--as-avx2-host", action="store_true",
                     help="run as on a CPU without AVX-512 (AVX2_HOST_ENV, in a fresh process)")
@@ -501,6 +508,81 @@ def native_main(rounds: int = 11) -> int:
     return 0
 
 
+#: Two vectors / 8-row halves decode CPU within this of 1 (the median over the frames): the same speed, for
+#: ``--lane-modes`` (2-core VMs: medians of 21 alternating rounds move by ~1 % run to run).
+LANE_MODES_SAME = 0.02
+
+
+def lane_modes_main() -> int:
+    """``--lane-modes``: 1-thread decode CPU of each compiled path (``--paths``; default each one this host runs) with
+    16-lane groups as two vectors side by side and as two 8-row halves, same process, the two modes alternating (their
+    order swapped every round); medians of ``--reps`` rounds (a sample: 3 decodes), then a verdict per path
+    (``lane_modes_verdict``)."""
+    from metraw.codec import native
+
+    _print_host()
+    paths = [p for p in _paths() if p != "numba"]
+    if not paths:
+        print("# no compiled codec path here: the 16-lane modes are the compiled decoder's")
+        return 1
+    rounds = ARGS.reps
+    print(f"# load: {os.getloadavg()} at the start; 1-thread decode CPU ms, medians of {rounds} rounds (a sample: 3 "
+          f"decodes), step 1; this CPU's default: {'two vectors' if native.CPU_TWO_VECTORS else '8-row halves'}")
+    before_path, before_two, threads = native.PATH, native.TWO_VECTORS, codec.THREADS
+    codec.THREADS = 1
+    ratios: dict[str, dict[str, float]] = {p: {} for p in paths}
+    wins = {p: [0, 0] for p in paths}   # paired samples (a round, a frame) in which two vectors took less CPU; all
+    try:
+        for name, img in frames():
+            if name not in REAL_NAMES:
+                continue
+            blob = codec.encode(img, 1.0, 0, check_profile=False)
+            ms: dict[tuple[str, bool], list[float]] = {}
+            for r in range(rounds):
+                for path in paths:
+                    native.use(path)
+                    for two in ((True, False) if r % 2 == 0 else (False, True)):
+                        native.TWO_VECTORS = two
+                        t = time.process_time()
+                        for _ in range(3):
+                            codec.decode(blob)
+                        ms.setdefault((path, two), []).append((time.process_time() - t) / 3 * 1e3)
+            for path in paths:
+                two, halves = float(np.median(ms[path, True])), float(np.median(ms[path, False]))
+                ratios[path][name] = two / halves
+                wins[path][0] += sum(a < b for a, b in zip(ms[path, True], ms[path, False]))
+                wins[path][1] += rounds
+                print(f"{path:8s} {name:13s} two vectors {two:6.1f} ms   8-row halves {halves:6.1f} ms   "
+                      f"two / halves {two / halves:.3f}")
+    finally:
+        native.use(before_path)
+        native.TWO_VECTORS = before_two
+        codec.THREADS = threads
+    for path in paths:
+        print(lane_modes_verdict(path, ratios[path], tuple(wins[path]), native.CPU_TWO_VECTORS))
+    return 0
+
+
+def lane_modes_verdict(path: str, ratios: dict[str, float], wins: tuple[int, int], cpu_two_vectors: bool) -> str:
+    """One line: the frames' two vectors / 8-row halves decode CPU ratios, their median, in how many of the paired
+    samples (a round's two modes on one frame) two vectors took less CPU, which mode is faster (the same within
+    ``LANE_MODES_SAME``), and whether that is this CPU's default (``metraw_two_vector_steady``)."""
+    if not ratios:
+        return f"# 16-lane modes, path {path}: no data"
+    med = float(np.median(list(ratios.values())))
+    cells = (", ".join(f"{name} {r:.3f}" for name, r in ratios.items())
+             + f" (median {med:.3f}; two vectors took less CPU in {wins[0]} of {wins[1]} paired samples)")
+    default = "two vectors" if cpu_two_vectors else "8-row halves"
+    if abs(med - 1) <= LANE_MODES_SAME:
+        say = f"the same within {LANE_MODES_SAME:.0%}: the default ({default}) stands"
+    else:
+        faster = "two vectors" if med < 1 else "8-row halves"
+        say = (f"{faster} faster by {abs(1 - med):.1%}: " + ("the default already" if faster == default else
+               f"not the default ({default}): METRAW_TWO_VECTORS={int(faster == 'two vectors')} on this CPU, "
+               "and metraw_two_vector_steady to change"))
+    return f"# 16-lane modes, path {path}, decode CPU two vectors / 8-row halves: {cells}: {say}"
+
+
 def main() -> int:
     global ARGS
     ARGS = parse_args()
@@ -510,6 +592,8 @@ def main() -> int:
         return speed_main()
     if ARGS.native:
         return native_main()
+    if ARGS.lane_modes:
+        return lane_modes_main()
     print(f"# load: {os.getloadavg()} at the start (2 cores)")
     rows = []
     rd = {}

@@ -493,16 +493,39 @@ def test_environment_chooses_the_path():
 def test_environment_chooses_the_16_lane_mode(monkeypatch):
     """METRAW_TWO_VECTORS=1 / 0: the compiled decoder runs a 16-lane group as two vectors side by side / as two 8-row
     groups (to time both on one host); unset or auto: the CPU's default (two vectors on AMD); anything else: one
-    warning and the default."""
+    warning and the default. ``native.CPU_TWO_VECTORS``, the CPU's default, stays what it is whatever the variable
+    says."""
     def run(value):
-        return _native_in_child("METRAW_TWO_VECTORS", value, "native.TWO_VECTORS")
+        out, err = _native_in_child("METRAW_TWO_VECTORS", value, "native.TWO_VECTORS, native.CPU_TWO_VECTORS")
+        return out.split(), err
 
     monkeypatch.delenv("METRAW_TWO_VECTORS", raising=False)
-    default = str(native._two_vectors(native._LIB))
-    assert run("1")[0] == "True" and run("0")[0] == "False"
-    assert run("")[0] == default and run("auto")[0] == default
+    default = str(native.CPU_TWO_VECTORS)
+    assert default == str(native._two_vectors(native._LIB))
+    assert run("1")[0] == ["True", default] and run("0")[0] == ["False", default]
+    assert run("")[0] == [default, default] and run("auto")[0] == [default, default]
     got, err = run("yes")
-    assert got == default and "METRAW_TWO_VECTORS=yes" in err
+    assert got == [default, default] and "METRAW_TWO_VECTORS=yes" in err
+
+
+def test_the_lane_modes_benchmark_names_the_faster_mode_against_the_cpus_default():
+    """``--lane-modes``'s verdict: the median over the frames of two vectors / 8-row halves decode CPU; within 2 % of 1
+    the same speed (the default stands), else the faster mode, and whether the CPU's default already is it."""
+    bench = _codec_benchmark()
+    same = bench.lane_modes_verdict("avx2", {"canon_dng": 0.99, "micasense": 1.01, "spacenet_pan": 0.97}, (30, 63),
+                                    False)
+    assert same.startswith("# 16-lane modes, path avx2, decode CPU two vectors / 8-row halves: canon_dng 0.990, ")
+    assert "(median 0.990; two vectors took less CPU in 30 of 63 paired samples)" in same
+    assert same.endswith("the same within 2%: the default (8-row halves) stands")
+    two = bench.lane_modes_verdict("avx2", {"canon_dng": 0.90, "micasense": 0.95, "spacenet_pan": 1.0}, (50, 63), False)
+    assert two.endswith("two vectors faster by 5.0%: not the default (8-row halves): METRAW_TWO_VECTORS=1 on this "
+                        "CPU, and metraw_two_vector_steady to change")
+    assert bench.lane_modes_verdict("avx2", {"canon_dng": 0.9}, (21, 21), True).endswith(
+        "two vectors faster by 10.0%: the default already")
+    halves = bench.lane_modes_verdict("avx512", {"canon_dng": 1.05, "micasense": 1.10}, (3, 42), True)
+    assert "(median 1.075;" in halves
+    assert "8-row halves faster by 7.5%: not the default (two vectors): METRAW_TWO_VECTORS=0" in halves
+    assert bench.lane_modes_verdict("avx2", {}, (0, 0), False) == "# 16-lane modes, path avx2: no data"
 
 
 def test_auto_selection_picks_only_paths_faster_than_numba():

@@ -177,6 +177,11 @@ def _two_vectors(lib: ctypes.CDLL | None) -> bool:
         return want == "1"
     if want not in ("", "auto"):
         warnings.warn(f"METRAW_TWO_VECTORS={want}: not 0, 1 or auto: the CPU's default", stacklevel=2)
+    return _cpu_two_vectors(lib)
+
+
+def _cpu_two_vectors(lib: ctypes.CDLL | None) -> bool:
+    """The CPU's default 16-lane mode (``metraw_two_vector_steady``), whatever METRAW_TWO_VECTORS says."""
     return bool(lib.metraw_two_vector_steady()) if lib is not None else False
 
 
@@ -190,8 +195,10 @@ use(_requested(AVAILABLE))
 
 #: Whether the compiled decoder runs a 16-lane group's two vectors side by side (AMD CPUs: on a Zen 5 the overlap hid
 #: the AVX-512 gathers' latency; on AVX2 not yet timed on AMD) or as two groups of 8 rows one after the other
-#: (others); the same values either way.
+#: (others); the same values either way. ``benchmarks/codec.py --lane-modes`` times the two against each other.
 TWO_VECTORS = _two_vectors(_LIB)
+#: The CPU's own choice of ``TWO_VECTORS`` (what it is without METRAW_TWO_VECTORS).
+CPU_TWO_VECTORS = _cpu_two_vectors(_LIB)
 
 
 def cpu() -> str:
