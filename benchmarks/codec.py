@@ -60,7 +60,8 @@ REAL_PROFILES = {
 }
 
 
-def frames():
+def real_frames() -> list[tuple[str, RawImage]]:
+    """The real frames of data/real present here (``REAL_NAMES``), each with its fixed profile (``REAL_PROFILES``)."""
     out = []
     for rel, fit in REAL_PROFILES.items():
         path = REAL / rel
@@ -68,6 +69,12 @@ def frames():
             continue
         img = read_raw(path)
         out.append((rel.split("/")[0], RawImage(img.data, img.profile.replace(**fit))))
+    return out
+
+
+def frames():
+    """``real_frames`` and synthetic ones: a 1.5 MP mono frame and three faint RGGB target-sized ones."""
+    out = real_frames()
     prof = CalibrationProfile(gain_dn_per_e=0.5, black_level_dn=100, read_noise_e=3, white_level_dn=16000, adc_bits=14)
     yy, xx = np.mgrid[0:1024, 0:1536]
     mean = 50 + 20000 * (0.5 + 0.5 * np.sin(xx / 150.0) * np.cos(yy / 97.0))
@@ -306,9 +313,7 @@ def speed_main() -> int:
           f"{'jls d':>6s} {'cpu1 e':>6s} {'cpu1 d':>6s} {'par e':>5s} {'par d':>5s} {'won e':>5s} {'won d':>5s} | "
           f"{'Mpx/s e2':>8s} {'Mpx/s d2':>8s} {'Mpx/s e1':>8s} {'Mpx/s d1':>8s}")
     cases = []
-    for name, img in frames():
-        if name not in REAL_NAMES:
-            continue
+    for name, img in real_frames():
         jl = imagecodecs.jpegls_encode(img.data)
         for step in (1.0, 2.0):
             with warnings.catch_warnings():
@@ -468,6 +473,14 @@ def speed_large() -> None:
     print("# x jls = JPEG-LS wall / metraw wall (metraw on 2 threads); cpu1 = metraw CPU on 1 thread / JPEG-LS CPU")
 
 
+def _cpu_ms(fn, calls: int = 3) -> float:
+    """CPU time [ms] of one call of ``fn``: the mean of ``calls`` consecutive calls (``--native``, ``--lane-modes``)."""
+    t = time.process_time()
+    for _ in range(calls):
+        fn()
+    return (time.process_time() - t) / calls * 1e3
+
+
 def native_main(rounds: int = 11) -> int:
     """1-thread CPU of encode and decode on each codec path (``--paths``; default: each compiled path this host runs,
     and numba's loops), same process, alternating; medians of ``rounds`` (a sample: 3 calls; encode without the
@@ -479,9 +492,7 @@ def native_main(rounds: int = 11) -> int:
     print(f"# load: {os.getloadavg()} at the start; two_vectors={native.TWO_VECTORS}; 1-thread CPU ms (x JPEG-LS)")
     codec.THREADS = 1
     try:
-        for name, img in frames():
-            if name not in REAL_NAMES:
-                continue
+        for name, img in real_frames():
             blob = codec.encode(img, 1.0, 0, check_profile=False)
             jl = imagecodecs.jpegls_encode(img.data)
             d = img.data
@@ -494,10 +505,7 @@ def native_main(rounds: int = 11) -> int:
                         (lambda: codec.encode(img, 1.0, 0, check_profile=False))
                     dec = (lambda: imagecodecs.jpegls_decode(jl)) if key == "JPEG-LS" else (lambda: codec.decode(blob))
                     for what, fn in (("enc", enc), ("dec", dec)):
-                        t = time.process_time()
-                        for _ in range(3):
-                            fn()
-                        ms.setdefault((what, key), []).append((time.process_time() - t) / 3 * 1e3)
+                        ms.setdefault((what, key), []).append(_cpu_ms(fn))
             m = {k: float(np.median(v)) for k, v in ms.items()}
             cells = "   ".join(f"{p} {m['enc', p]:6.1f} ({m['enc', p] / m['enc', 'JPEG-LS']:.2f}) / "
                                f"{m['dec', p]:6.1f} ({m['dec', p] / m['dec', 'JPEG-LS']:.2f})" for p in paths)
@@ -533,9 +541,7 @@ def lane_modes_main() -> int:
     ratios: dict[str, dict[str, float]] = {p: {} for p in paths}
     wins = {p: [0, 0] for p in paths}   # paired samples (a round, a frame) in which two vectors took less CPU; all
     try:
-        for name, img in frames():
-            if name not in REAL_NAMES:
-                continue
+        for name, img in real_frames():
             blob = codec.encode(img, 1.0, 0, check_profile=False)
             ms: dict[tuple[str, bool], list[float]] = {}
             for r in range(rounds):
@@ -543,10 +549,7 @@ def lane_modes_main() -> int:
                     native.use(path)
                     for two in ((True, False) if r % 2 == 0 else (False, True)):
                         native.TWO_VECTORS = two
-                        t = time.process_time()
-                        for _ in range(3):
-                            codec.decode(blob)
-                        ms.setdefault((path, two), []).append((time.process_time() - t) / 3 * 1e3)
+                        ms.setdefault((path, two), []).append(_cpu_ms(lambda: codec.decode(blob)))
             for path in paths:
                 two, halves = float(np.median(ms[path, True])), float(np.median(ms[path, False]))
                 ratios[path][name] = two / halves

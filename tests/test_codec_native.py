@@ -501,7 +501,7 @@ def test_environment_chooses_the_16_lane_mode(monkeypatch):
 
     monkeypatch.delenv("METRAW_TWO_VECTORS", raising=False)
     default = str(native.CPU_TWO_VECTORS)
-    assert default == str(native._two_vectors(native._LIB))
+    assert default == str(native._two_vectors(native.CPU_TWO_VECTORS)) == str(native._cpu_two_vectors(native._LIB))
     assert run("1")[0] == ["True", default] and run("0")[0] == ["False", default]
     assert run("")[0] == [default, default] and run("auto")[0] == [default, default]
     got, err = run("yes")

@@ -120,8 +120,8 @@ static int decode_group(steady_fn steady8, steady_fn steady16, i64 *pf, i64 y0, 
  * (the AVX-512 gathers read 32 bits); groups of 8 or 16 lanes run the path's steady part: 16 lanes as two vectors
  * side by side where two_vectors is 1, else as two groups of 8 rows one after the other (lane j's rows in the same
  * order, so the same values). A group's rows are decoded into rows 2 .. of p (the kernels index it by plane row: a
- * base pointer y0 rows before p), its symbols taken out, its last two rows moved up to rows 0 and 1 as the next group's rows above:
- * p stays in cache, not a buffer of the plane's size. With dn (u and sym then unused), each group's dither is made
+ * base pointer y0 rows before p), its symbols taken out, its last two rows moved up to rows 0 and 1 as the next
+ * group's rows above: p stays in cache, not a buffer of the plane's size. With dn (u and sym then unused), each group's dither is made
  * into dn->u before it and its symbols into dn->sym, then their DN put out: no plane-size array at all. Returns 1, or
  * 0 when a lane ran past its words or escapes (corrupt stream). */
 int decode_plane_with(steady_fn steady8, steady_fn steady16, i64 *p, i64 h, i64 w, const int32_t *u, int32_t *sym,

@@ -169,19 +169,20 @@ def path_in_use(path: str):
         use(before)
 
 
-def _two_vectors(lib: ctypes.CDLL | None) -> bool:
+def _two_vectors(cpu_default: bool) -> bool:
     """The compiled decoder's way with a 16-lane group: METRAW_TWO_VECTORS=1 or 0 forces one (to time both on a
-    host); unset or auto: the CPU's default (``metraw_two_vector_steady``: two vectors on AMD CPUs)."""
+    host); unset or auto: ``cpu_default``, the CPU's (``_cpu_two_vectors``)."""
     want = os.environ.get("METRAW_TWO_VECTORS", "").strip().lower()
     if want in ("0", "1"):
         return want == "1"
     if want not in ("", "auto"):
         warnings.warn(f"METRAW_TWO_VECTORS={want}: not 0, 1 or auto: the CPU's default", stacklevel=2)
-    return _cpu_two_vectors(lib)
+    return cpu_default
 
 
 def _cpu_two_vectors(lib: ctypes.CDLL | None) -> bool:
-    """The CPU's default 16-lane mode (``metraw_two_vector_steady``), whatever METRAW_TWO_VECTORS says."""
+    """The CPU's default 16-lane mode (``metraw_two_vector_steady``: two vectors on AMD CPUs), whatever
+    METRAW_TWO_VECTORS says."""
     return bool(lib.metraw_two_vector_steady()) if lib is not None else False
 
 
@@ -193,12 +194,12 @@ PATH = "numba"
 _F: types.SimpleNamespace | None = None
 use(_requested(AVAILABLE))
 
+#: The CPU's own choice of ``TWO_VECTORS`` (what it is without METRAW_TWO_VECTORS).
+CPU_TWO_VECTORS = _cpu_two_vectors(_LIB)
 #: Whether the compiled decoder runs a 16-lane group's two vectors side by side (AMD CPUs: on a Zen 5 the overlap hid
 #: the AVX-512 gathers' latency; on AVX2 not yet timed on AMD) or as two groups of 8 rows one after the other
 #: (others); the same values either way. ``benchmarks/codec.py --lane-modes`` times the two against each other.
-TWO_VECTORS = _two_vectors(_LIB)
-#: The CPU's own choice of ``TWO_VECTORS`` (what it is without METRAW_TWO_VECTORS).
-CPU_TWO_VECTORS = _cpu_two_vectors(_LIB)
+TWO_VECTORS = _two_vectors(CPU_TWO_VECTORS)
 
 
 def cpu() -> str:
