@@ -216,20 +216,20 @@ def aggregate(options: AggregateOptions) -> int:
     """The aggregate with BLAS on one thread: the GP fits' linear algebra sums in another order on more threads, and
     the spec's last digits then depended on the shell's thread settings (the workflow's job ran on 1; by hand on 2
     cores one bound differed in its 16th digit; pinned, the default run's spec.yaml and aggregate.json came out byte
-    for byte the workflow's). Same inputs, same bytes, wherever it runs; the GPs are small."""
+    for byte the workflow's). Same inputs, same bytes, wherever it runs; the GPs are small. The params and the points'
+    results are read and checked first: a bad input is refused before the GP's libraries load (~1 s)."""
+    params, required, rows = _inputs(options)
     import scipy.linalg  # noqa: F401  the libraries whose thread pools to limit: loaded first, since
     import sklearn.gaussian_process  # noqa: F401  threadpoolctl limits only the ones loaded when it starts
     from threadpoolctl import threadpool_limits
 
     with threadpool_limits(limits=1):
-        return _aggregate(options)
+        return _aggregate(options, params, required, rows)
 
 
-def _aggregate(options) -> int:
-    from metraw.spec import figures
-    from metraw.spec.builder import build_spec
-    from metraw.spec.tolerance import BAND_SIGMA, ResponseGP, categorical_choice, joint_region, tolerance_interval
-    from metraw.study.points import CATEGORICAL, NOMINAL, load_params, swept_parameters, target_params
+def _inputs(options: AggregateOptions) -> tuple[dict, float, list[dict]]:
+    """The checked params, their required IoU and the points' result rows (MetrawError on a bad one)."""
+    from metraw.study.points import load_params
 
     params = load_params(options.params)
     required = float(params.get("spec", {}).get("required_iou", math.nan))
@@ -237,6 +237,15 @@ def _aggregate(options) -> int:
         raise MetrawError(f"{options.params}: spec.required_iou must lie in (0, 1), got {required}")
     rows = load_point_results(params, options.results, options.metrics_pattern, options.compression_pattern,
                               options.real_metrics_pattern, options.gap_tolerance)
+    return params, required, rows
+
+
+def _aggregate(options: AggregateOptions, params: dict, required: float, rows: list[dict]) -> int:
+    from metraw.spec import figures
+    from metraw.spec.builder import build_spec
+    from metraw.spec.tolerance import BAND_SIGMA, ResponseGP, categorical_choice, joint_region, tolerance_interval
+    from metraw.study.points import CATEGORICAL, NOMINAL, swept_parameters, target_params
+
     real = _sim_to_real(options, rows)
     all_names = swept_parameters(params)
     names = [n for n in all_names if n not in CATEGORICAL]  # the GP's axes
