@@ -215,7 +215,8 @@ def main(argv=None) -> int:
                     base.epochs)
     if "box" in sections:
         from metraw.raw.cfa import cfa_family
-        from metraw.segment.pretrain import box_fields, payload_keys, pretrain_settings, sample_box
+        from metraw.segment.pretrain import box_fields, payload_keys, sample_box
+        from metraw.study.pretraining import pretrain_settings
         from metraw.study.points import target_at
 
         settings = pretrain_settings(params)

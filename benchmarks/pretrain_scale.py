@@ -113,7 +113,8 @@ def main() -> None:
     variants = parse_variants(args.variants)
 
     from metraw.emulate.target import TargetSystem
-    from metraw.segment.pretrain import fit_box, prepare_box, pretrain_settings
+    from metraw.segment.pretrain import fit_box, prepare_box
+    from metraw.study.pretraining import pretrain_settings
     from metraw.segment.train import load_config, save_replicates
     from metraw.study.points import load_params, target_at
 

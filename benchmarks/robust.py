@@ -42,7 +42,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     from metraw.segment.evaluate import evaluate_store
-    from metraw.segment.pretrain import fine_tuned_points, point_patterns
+    from metraw.study.pretraining import fine_tuned_points, point_patterns
     from metraw.study.points import load_params
 
     results = Path(args.results)

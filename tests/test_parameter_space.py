@@ -40,7 +40,7 @@ def base_params() -> dict:
 def test_every_workflow_configfile_merged_over_params_is_valid(configfile):
     from snakemake.utils import update_config
 
-    from metraw.segment.pretrain import pretrain_settings
+    from metraw.study.pretraining import pretrain_settings
     from metraw.study.points import validate_params
 
     params = yaml.safe_load((REPO / "params.yaml").read_text())
@@ -147,7 +147,7 @@ def test_dvc_yaml_has_categorical_foreach_and_explicit_grid_stages():
         stage = stages[f"pretrain_{pattern}"]
         assert "target.sweeps" not in str(stage["params"]) and stage["outs"] == [model]
         assert stage["cmd"].endswith(f"--allowed-rules pretrain decode_store -- {model}")
-    from metraw.segment.pretrain import draws_extra_scenes, fine_tuned_points, pretrained_patterns
+    from metraw.study.pretraining import draws_extra_scenes, fine_tuned_points, pretrained_patterns
 
     assert set(fine_tuned_points(params)) == set(parameter_points(params))
     assert pretrained_patterns(params) == ["RGGB", "mono"]

@@ -8,8 +8,8 @@ from snakemake.exceptions import WorkflowError
 from metraw.study.points import parameter_points, target_params
 from metraw.provenance import code_digest
 from metraw.study.sources import calibration_method
-from metraw.segment.pretrain import (draws_extra_scenes, fine_tuned_points, point_patterns, pretrain_settings,
-                                     pretrained_patterns)
+from metraw.study.pretraining import (draws_extra_scenes, fine_tuned_points, point_patterns, pretrain_settings,
+                                      pretrained_patterns)
 
 POINTS = list(parameter_points(config))
 SOURCE_CAMERA = "results/source/camera.json"  # the raws source's calibrated camera (rule source_camera)

@@ -52,8 +52,8 @@ from typing import Any
 import yaml
 
 from metraw.errors import MetrawError
-from metraw.segment.pretrain import (draws_extra_scenes, fine_tuned_points, point_patterns, pretrain_settings,
-                                     pretrained_patterns)
+from metraw.study.pretraining import (draws_extra_scenes, fine_tuned_points, point_patterns, pretrain_settings,
+                                      pretrained_patterns)
 from metraw.study.points import CATEGORICAL, NOMINAL, load_params, parameter_points, point_name, same_value
 
 HEADER = """\

@@ -50,7 +50,8 @@ def run(args) -> int:
     from metraw.emulate.target import TargetSystem
     from metraw.errors import MetrawError
     from metraw.raw.cfa import validate_pattern
-    from metraw.segment.pretrain import pretrain_settings, pretrain_stores
+    from metraw.segment.pretrain import pretrain_stores
+    from metraw.study.pretraining import pretrain_settings
     from metraw.segment.train import load_config
     from metraw.study.points import load_params, target_at
 
