@@ -294,6 +294,36 @@ def test_aggregate_writes_categorical_grid_and_per_channel_results(tmp_path, cap
     assert float(by_point["nominal"]["ratio_G"]) == pytest.approx(nominal["ratio_G"]) and by_point["nominal"]["ratio_L"] == ""
 
 
+def test_aggregate_writes_the_same_bytes_in_any_process(tmp_path):
+    """Two `metraw aggregate` processes over the same points' results, with other string hash seeds (set orders) and
+    2 BLAS threads allowed, write byte-identical outputs: table, spec, figures, plots (the workflow's killed-run test
+    compares the chain's outputs, not the aggregate's)."""
+    import subprocess
+    import sys
+
+    from workflow_workspace import file_digests
+
+    params = base_params()
+    params["target"]["sweeps"] = {"focal_length_m": [1.2], "diameter_m": [0.35], "exposure_s": [300.0e-6],
+                                  "cfa_pattern": ["mono"]}
+    params["target"].pop("grids")
+    (tmp_path / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    for i, point in enumerate(parameter_points(params)):
+        _metrics(tmp_path / "results" / point / "metrics.json", 0.2 + 0.05 * i, seed=i)
+        _compression(tmp_path / "results" / point / "compression.json", 4.0 + 0.1 * i,
+                     ("L",) if point == "cfa_pattern-mono" else ("R", "G", "B"))
+    outs = []
+    for hash_seed in ("1", "2"):
+        out = tmp_path / f"out{hash_seed}"
+        env = {**os.environ, "PYTHONHASHSEED": hash_seed, "OPENBLAS_NUM_THREADS": "2", "OMP_NUM_THREADS": "2"}
+        subprocess.run([sys.executable, "-m", "metraw", "aggregate", "--params", str(tmp_path / "params.yaml"),
+                        "--results", str(tmp_path / "results"), "--out", str(out)], env=env, check=True,
+                       capture_output=True)
+        outs.append(file_digests(out))
+    assert {"aggregate.json", "spec.yaml"} <= set(outs[0]) and any(name.endswith(".png") for name in outs[0])
+    assert outs[0] == outs[1], sorted(k for k in outs[0].keys() | outs[1].keys() if outs[0].get(k) != outs[1].get(k))
+
+
 # --------------------------------------------------------------------------- check / normalise
 def _spec(allowed=("RGGB",), haze=(20.0, 10.0, 30.0)) -> Specification:
     props = {"haze_e": Limit(*haze, "e-", {"better": "lower"})}
