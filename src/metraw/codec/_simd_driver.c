@@ -121,9 +121,9 @@ static int decode_group(steady_fn steady8, steady_fn steady16, i64 *pf, i64 y0, 
  * side by side where two_vectors is 1, else as two groups of 8 rows one after the other (lane j's rows in the same
  * order, so the same values). A group's rows are decoded into rows 2 .. of p (the kernels index it by plane row: a
  * base pointer y0 rows before p), its symbols taken out, its last two rows moved up to rows 0 and 1 as the next
- * group's rows above: p stays in cache, not a buffer of the plane's size. With dn (u and sym then unused), each group's dither is made
- * into dn->u before it and its symbols into dn->sym, then their DN put out: no plane-size array at all. Returns 1, or
- * 0 when a lane ran past its words or escapes (corrupt stream). */
+ * group's rows above: p stays in cache, not a buffer of the plane's size. With dn (u and sym then unused), each
+ * group's dither is made into dn->u before it and its symbols into dn->sym, then their DN put out: no plane-size
+ * array at all. Returns 1, or 0 when a lane ran past its words or escapes (corrupt stream). */
 int decode_plane_with(steady_fn steady8, steady_fn steady16, i64 *p, i64 h, i64 w, const int32_t *u, int32_t *sym,
                       const i64 *thr7, const i64 *coef8x13, i64 tab0, i64 pshift, const void *lut, int lut16,
                       const uint32_t *fcum, i64 alpha, i64 amax, const uint16_t *words, u64 *xs, i64 *pos,
