@@ -216,8 +216,8 @@ def main(argv=None) -> int:
     if "box" in sections:
         from metraw.raw.cfa import cfa_family
         from metraw.segment.pretrain import box_fields, payload_keys, sample_box
-        from metraw.study.pretraining import pretrain_settings
         from metraw.study.points import target_at
+        from metraw.study.pretraining import pretrain_settings
 
         settings = pretrain_settings(params)
         finetune_epochs = args.finetune_epochs or settings["finetune_epochs"]

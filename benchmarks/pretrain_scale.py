@@ -114,9 +114,9 @@ def main() -> None:
 
     from metraw.emulate.target import TargetSystem
     from metraw.segment.pretrain import fit_box, prepare_box
-    from metraw.study.pretraining import pretrain_settings
     from metraw.segment.train import load_config, save_replicates
     from metraw.study.points import load_params, target_at
+    from metraw.study.pretraining import pretrain_settings
 
     params = load_params(args.params)
     settings = pretrain_settings(params)

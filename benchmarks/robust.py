@@ -42,8 +42,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     from metraw.segment.evaluate import evaluate_store
-    from metraw.study.pretraining import fine_tuned_points, point_patterns
     from metraw.study.points import load_params
+    from metraw.study.pretraining import fine_tuned_points, point_patterns
 
     results = Path(args.results)
     params = load_params(args.params)

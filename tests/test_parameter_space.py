@@ -40,8 +40,8 @@ def base_params() -> dict:
 def test_every_workflow_configfile_merged_over_params_is_valid(configfile):
     from snakemake.utils import update_config
 
-    from metraw.study.pretraining import pretrain_settings
     from metraw.study.points import validate_params
+    from metraw.study.pretraining import pretrain_settings
 
     params = yaml.safe_load((REPO / "params.yaml").read_text())
     update_config(params, yaml.safe_load(configfile.read_text()))  # what --configfile does to the config

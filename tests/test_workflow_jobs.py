@@ -350,8 +350,7 @@ def test_changing_one_sweep_value_reruns_only_that_point(tmp_path):
 
     # 7. a categorical sweep (cfa_pattern: mono): its point's jobs, its own pretraining (its network takes 1
     #    full-resolution plane; the Bayer pretraining stays) and the aggregate, under both tools
-    params["target"]["sweeps"]["cfa_pattern"] = ["mono"]
-    (root / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    set_sweep(root, "cfa_pattern", ["mono"])
     assert snakemake_dry(root, *targets) == {**point_jobs("cfa_pattern-mono"), "pretrain": 1, "aggregate": 1}
     _run(["python", str(SCRIPT)], root)
     changed = point_stages("cfa_pattern", "mono") | {"pretrain_mono", "aggregate"}

@@ -18,7 +18,7 @@ import pytest
 import yaml
 
 from raw_folder import TRUE_GAIN_DN_PER_E, TRUE_READ_NOISE_E, make_raw_folder
-from workflow_workspace import make_workspace, needs_tools, tiny_params
+from workflow_workspace import chain_targets, make_workspace, needs_tools, tiny_params
 from workflow_workspace import run as _run
 
 #: |fit - truth| / stated uncertainty above which the calibration contradicts the known camera (3 sigma: a
@@ -26,7 +26,7 @@ from workflow_workspace import run as _run
 Z_MAX = 3.0
 #: Two points' results: every rule of the chain from the raws, without the aggregate and the other points
 POINTS = ("nominal", "focal_length_m-1.2")
-TARGETS = tuple(f"results/points/{point}/{name}" for point in POINTS for name in ("metrics.json", "compression.json"))
+TARGETS = chain_targets(POINTS)
 
 
 def raws_params(calibration: dict | None = None) -> dict:

@@ -40,6 +40,12 @@ def tiny_params() -> dict:
     return params
 
 
+def chain_targets(points: tuple[str, ...]) -> tuple[str, ...]:
+    """The ends of ``points``' chains (each point's metrics and compression results): every rule but the aggregate,
+    for the tests that build a few points and no spec."""
+    return tuple(f"results/points/{point}/{name}" for point in points for name in ("metrics.json", "compression.json"))
+
+
 def sim_to_real_params(params: dict, path: str, enabled: bool | str = True) -> dict:
     """``params`` with the sim-to-real benchmark on ``path`` (relative to the workspace), as params.yaml has it."""
     return {**params, "sim_to_real": {"enabled": enabled, "path": path, "gsd_m": 0.135, "white_fraction": 1.0,
