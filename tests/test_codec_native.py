@@ -368,6 +368,14 @@ def test_compiled_alphabet_indices_and_counts_are_numbas():
         ref_idx, ref_counts = predictive._index(r, t, amax, ntab)
         np.testing.assert_array_equal(idx, ref_idx)
         np.testing.assert_array_equal(counts, ref_counts)
+        out = np.full(n, -12345, np.int32)   # into a given array, whatever it held
+        idx_out, counts_out = native.index(r, t, amax, ntab, out)
+        assert idx_out is out
+        np.testing.assert_array_equal(out, ref_idx)
+        np.testing.assert_array_equal(counts_out, ref_counts)
+    for bad in (np.empty(n, np.int64), np.empty(n + 1, np.int32), np.empty(2 * n, np.int32)[::2]):
+        with pytest.raises(ValueError, match="out must be"):
+            native.index(r, t, amax, ntab, bad)
 
 
 @needs_native

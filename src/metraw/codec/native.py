@@ -408,12 +408,19 @@ def escape_index(data: np.ndarray, white: int, low: int, offset: int) -> np.ndar
     return out[:n]
 
 
-def index(r: np.ndarray, t: np.ndarray, amax: int, ntab: int) -> tuple[np.ndarray, np.ndarray]:
+def index(r: np.ndarray, t: np.ndarray, amax: int, ntab: int,
+          out: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``predictive._index`` (the same alphabet indices, int32, and per-table counts, int64 ntab x (2 amax + 2)) of
-    residuals ``r`` and table indices ``t`` (int32, C-contiguous, every t < ntab)."""
+    residuals ``r`` and table indices ``t`` (int32, C-contiguous, every t < ntab); the indices into ``out`` (int32,
+    contiguous, r.size) where given."""
     if r.shape != t.shape or not 1 <= amax <= 2**30:
         raise ValueError("native index: residuals and table indices of one shape, 1 <= amax, are needed")
-    idx = np.empty(r.size, np.int32)
+    if out is None:
+        idx = np.empty(r.size, np.int32)
+    elif out.dtype != np.int32 or out.size != r.size or not out.flags.c_contiguous:
+        raise ValueError("native index: out must be a contiguous int32 array of the residuals' size")
+    else:
+        idx = out
     counts = np.zeros((ntab, 2 * amax + 2), np.int64)
     _F.index(_addr(r, np.int32), _addr(t, np.int32), r.size, int(amax), int(ntab), idx.ctypes.data,
                      counts.ctypes.data)

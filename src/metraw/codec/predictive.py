@@ -42,7 +42,8 @@ registers; both evaluate sum_i k_i (n_i - W) as sum_i k_i n_i - W sum_i k_i (exa
 same value).
 The encoder's work is a few compiled calls per section (``model.model_of_front``, the residual pass,
 ``_code_section``), each releasing the GIL, so that row tiles in parallel threads rarely wait on
-each other for the interpreter. The decoder is ``metraw.codec.decoder``
+each other for the interpreter; a tile's per-pixel arrays (residuals, table and alphabet indices,
+rANS words) are the thread's ``scratch`` arrays, reused from call to call (no fresh pages to fault in). The decoder is ``metraw.codec.decoder``
 (unsigned indices into flat views, context by table lookup, lane limits checked once per group
 of rows); its set-up (tables, buffers) is compiled too. Planes arrive contiguous (``metraw.codec``
 makes each CFA plane's dither and symbols as its own array): the vectorised passes need that.
@@ -56,7 +57,7 @@ from typing import Callable, NamedTuple
 import numba as nb
 import numpy as np
 
-from metraw.codec import model, native
+from metraw.codec import model, native, scratch
 from metraw.codec.container import put_varint
 from metraw.codec.decoder import (  # noqa: F401  (the format's constants; decode_planes re-exported)
     _HEAD, COEF_BITS, FRAC, MAX_NACT, MAX_RESID, NPH, NTAP, PROB_BITS, PROB_SCALE, RANS_L, _normalise, decode_planes,
@@ -398,13 +399,15 @@ def _code_section(r, t, amax, ntab, shared, hs, ws, nl):
     (frequencies / 16, ``_normalise``d again; both sides use the same integers).
 
     Returns (idx, coding freq, table bytes, bytes per table, lane states, lane word counts, words,
-    word starts per lane, escape values, escapes per lane)."""
+    word starts per lane, escape values, escapes per lane); idx and words (where compiled) are the thread's
+    ``scratch`` arrays, valid until its next section."""
     if native.LIB is not None:
-        idx, counts = native.index(r, t, amax, ntab)
+        idx, counts = native.index(r, t, amax, ntab, scratch.empty("idx", r.size, np.int32))
     else:
         idx, counts = _index(r, t, amax, ntab)
     freq, stored, cum, rcp, rs, rl, lr, starts = _section_tables(counts, shared, hs, ws, nl)
-    out = np.empty(r.size + 1, np.uint16)   # one word per symbol, and one the compiled pass may write past the last
+    # one word per symbol, and one the compiled pass may write past the last
+    out = scratch.empty("words", r.size + 1, np.uint16)
     if native.LIB is not None and nl % 8 == 0:
         states, nws = native.rans_encode(idx, t, freq, cum, rcp, rs, rl, lr, starts, out)
     else:
@@ -547,8 +550,8 @@ def _encode_planes(buffers, shared: bool, nact: int, pshift: int, account: list 
     total = sum(sizes)
     nph = NPH >> pshift
     ntab = (1 if shared else npl) * nact * nph
-    r_all = np.empty(total, np.int32)
-    t_all = np.empty(total, np.int32)
+    r_all = scratch.empty("residuals", total, np.int32)
+    t_all = scratch.empty("tables", total, np.int32)
     c0s, heads = [], []   # heads: each model group's (thr, coef, bias)
     rmax = 0
 
