@@ -64,7 +64,8 @@ def test_encoder_reads_nothing_left_in_its_scratch_arrays(monkeypatch):
 
 
 _FAULTS = """
-import resource, sys, numpy as np
+import ctypes, resource, sys, numpy as np
+ctypes.CDLL(None, use_errno=True).prctl(41, 1, 0, 0, 0)   # PR_SET_THP_DISABLE: 4 KiB pages, whatever the host's THP
 from metraw import codec
 from metraw.codec import scratch
 sys.path.insert(0, {tests!r})
@@ -84,7 +85,7 @@ print(faults("fresh"), faults("reuse"))
 
 
 @pytest.mark.skipif(sys.platform != "linux" or platform.libc_ver()[0] != "glibc", reason="glibc on Linux")
-def test_scratch_arrays_spare_the_encoder_a_fresh_page_a_pixel_word():
+def test_scratch_arrays_spare_the_encoder_fresh_pages():
     """With every block over 128 KiB a fresh mapping (glibc's MALLOC_MMAP_THRESHOLD_ fixed there: what a trimmed heap
     does), a 1-thread encode of a 0.5 MP frame faults its per-pixel arrays in page by page, once per call, unless they
     are reused: the residuals and table indices (4 + 4 bytes a pixel, all written) and, compiled, the alphabet
