@@ -27,6 +27,7 @@ import argparse
 import io
 import math
 import os
+import resource
 import sys
 import threading
 import time
@@ -211,6 +212,29 @@ SPEED_REPS = 21
 SPEED_BATCH = 5
 
 
+class FaultCount:
+    """Minor page faults and system time [s] of the calls ``wrap``ped, all threads of the process (``getrusage``): a
+    codec whose arrays come fresh from the kernel pays both on each call (docs/codec-speed.md, 2026-11-29)."""
+
+    def __init__(self):
+        self.faults, self.system_s, self.calls = 0, 0.0, 0
+
+    def wrap(self, fn):
+        def run():
+            before = resource.getrusage(resource.RUSAGE_SELF)
+            fn()
+            after = resource.getrusage(resource.RUSAGE_SELF)
+            self.faults += after.ru_minflt - before.ru_minflt
+            self.system_s += after.ru_stime - before.ru_stime
+            self.calls += 1
+        return run
+
+    def line(self, path: str) -> str:
+        n = max(self.calls, 1)
+        return (f"# page faults, path {path}: {self.faults / n:.0f} a metraw call, {self.system_s / n * 1e3:.2f} ms of "
+                f"system time a call (mean of {self.calls} calls, encode and decode, 1 and 2 threads)")
+
+
 #: What ``--as-avx2-host`` sets before the benchmark starts again in a fresh process: the codec's AVX2 loops, numba's
 #: code for a generic AVX2 + FMA + BMI2 CPU (its cache is kept per CPU name), numpy's dispatch and OpenBLAS's kernels
 #: without AVX-512.
@@ -322,6 +346,7 @@ def speed_main() -> int:
             cases.append((name, step, img, blob, jl))
     # per path and case: [2-thread walls, 2-thread cpus, 1-thread cpus], each 4 lists (enc, dec, jls enc, jls dec)
     samples = {p: [[[[] for _ in range(4)] for _ in range(3)] for _ in cases] for p in paths}
+    faults = {p: FaultCount() for p in paths}
     capacity = [([], []) for _ in range(2)]   # JPEG-LS encode, decode: (one call's walls, two at once)
     threads, before = codec.THREADS, native.PATH
     try:
@@ -332,7 +357,8 @@ def speed_main() -> int:
                     native.use(path)
                     for (name, step, img, blob, jl), smp in zip(cases, samples[path]):
                         d = img.data
-                        fns = [lambda: codec.encode(img, step, 0), lambda: codec.decode(blob, profile=img.profile),
+                        fns = [faults[path].wrap(lambda: codec.encode(img, step, 0)),
+                               faults[path].wrap(lambda: codec.decode(blob, profile=img.profile)),
                                lambda: imagecodecs.jpegls_encode(d), lambda: imagecodecs.jpegls_decode(jl)]
                         for nthreads, walls, cpus in ((threads, smp[0], smp[1]), (1, None, smp[2])):
                             codec.THREADS = nthreads
@@ -376,6 +402,8 @@ def speed_main() -> int:
     print(f"# host: two JPEG-LS calls at once on 2 threads ({cases[0][0]}, the same rounds) do x{cap[0]:.2f} / "
           f"x{cap[1]:.2f} (encode / decode) the work of one in one call's time; at that capacity wall2 >= 3 needs "
           f"cpu1 <= {cap[0] / 3:.2f} / {cap[1] / 3:.2f} (before metraw's own 2-thread overheads)")
+    for path in paths:
+        print(faults[path].line(path))
     for path in paths:
         print(acceptance(path, results[path]))
     print(f"# load: {os.getloadavg()} at the end")

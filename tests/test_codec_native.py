@@ -10,6 +10,7 @@ the extension is not built.
 from __future__ import annotations
 
 import os
+import sys
 
 import numpy as np
 import pytest
@@ -578,6 +579,28 @@ def test_the_speed_benchmark_states_each_target_with_its_worst_case():
     assert "steps 1 and 2: ok (worst 3.00, canon_dng step 2 encode)" in line
     assert "issue's: short (worst 0.30 %, micasense)" in line
     assert bench.acceptance("numba", {}).count("no data") == 3
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="getrusage's page-fault count, Linux")
+def test_the_speed_benchmark_counts_the_page_faults_of_the_calls_it_wraps():
+    """``--speed``'s page-fault line: the minor faults of the wrapped calls only (64 fresh 4 KiB pages written: 64
+    faults, and no more than a few besides), a mean per call."""
+    import mmap
+
+    bench = _codec_benchmark()
+    count = bench.FaultCount()
+
+    def touch_64_pages():
+        m = mmap.mmap(-1, 64 * mmap.PAGESIZE)   # fresh anonymous pages, under a huge page's 2 MiB
+        for k in range(64):
+            m[k * mmap.PAGESIZE] = 1
+        m.close()
+
+    count.wrap(touch_64_pages)()
+    np.zeros(1 << 20).sum()   # not wrapped: not counted
+    count.wrap(lambda: None)()
+    assert count.calls == 2 and 64 <= count.faults <= 80, count.faults
+    assert count.line("avx2").startswith(f"# page faults, path avx2: {count.faults / 2:.0f} a metraw call, ")
 
 
 def test_paths_give_the_same_bytes_and_values_on_the_benchmark_frames():
