@@ -43,10 +43,11 @@ same value).
 The encoder's work is a few compiled calls per section (``model.model_of_front``, the residual pass,
 ``_code_section``), each releasing the GIL, so that row tiles in parallel threads rarely wait on
 each other for the interpreter; a tile's per-pixel arrays (residuals, table and alphabet indices,
-rANS words) are the thread's ``scratch`` arrays, reused from call to call (no fresh pages to fault in). The decoder is ``metraw.codec.decoder``
-(unsigned indices into flat views, context by table lookup, lane limits checked once per group
-of rows); its set-up (tables, buffers) is compiled too. Planes arrive contiguous (``metraw.codec``
-makes each CFA plane's dither and symbols as its own array): the vectorised passes need that.
+rANS words) are the thread's ``scratch`` arrays, reused from call to call (no fresh pages to fault
+in). The decoder is ``metraw.codec.decoder`` (unsigned indices into flat views, context by table
+lookup, lane limits checked once per group of rows); its set-up (tables, buffers) is compiled too.
+Planes arrive contiguous (``metraw.codec`` makes each CFA plane's dither and symbols as its own
+array): the vectorised passes need that.
 """
 
 from __future__ import annotations
@@ -399,7 +400,7 @@ def _code_section(r, t, amax, ntab, shared, hs, ws, nl):
     (frequencies / 16, ``_normalise``d again; both sides use the same integers).
 
     Returns (idx, coding freq, table bytes, bytes per table, lane states, lane word counts, words,
-    word starts per lane, escape values, escapes per lane); idx and words (where compiled) are the thread's
+    word starts per lane, escape values, escapes per lane); idx (where compiled) and words are the thread's
     ``scratch`` arrays, valid until its next section."""
     if native.LIB is not None:
         idx, counts = native.index(r, t, amax, ntab, scratch.empty("idx", r.size, np.int32))
