@@ -34,6 +34,7 @@ from metraw.raw.sensor import rng_from_seed
 from metraw.segment.train import TrainConfig
 from metraw.study.pretraining import BATCHES
 
+
 def sample_box(box: dict[str, Sequence[float]], n_scenes: int, points_per_scene: int,
                seed: int) -> list[list[dict[str, float]]]:
     """Per scene ``points_per_scene`` overrides of the nominal payload, each one parameter of ``box``
