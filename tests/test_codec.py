@@ -392,6 +392,36 @@ def test_context_table_matches_threshold_compares(monkeypatch):
     assert np.array_equal(predictive.decode_planes(blob, [u])[0], s)
 
 
+@pytest.mark.parametrize("sym_type", [np.uint8, np.int16])
+def test_decoding_tables_map_every_slot_to_its_symbol(sym_type):
+    """The decoder's tables (``decoder._decoding_tables``): slot k of table t holds the symbol j whose cumulative
+    frequency range [cum_j, cum_j + f_j) holds k (a search of the cumulative sums), fcum = f << 16 | cum; slots past a
+    table whose frequencies fall short of the scale hold 0; one zero row past the last table."""
+    import ctypes
+
+    from metraw.codec import decoder
+
+    rng = np.random.default_rng(4)
+    alpha = 80 if sym_type == np.uint8 else 600
+    counts = rng.integers(0, 50, (6, alpha)) * (rng.random((6, alpha)) < 0.3)
+    counts[2] = 0   # an unused table: the escape takes the whole scale, as _parse_tables makes it
+    freq = decoder._normalise(counts)
+    freq[2, alpha - 1] = decoder.PROB_SCALE
+    freq[5] = 0
+    freq[5, [0, 3]] = 100, 7   # short of the scale
+    lut, fcum = decoder._decoding_tables(freq, sym_type)
+    assert lut.shape == (6, decoder.PROB_SCALE) and lut.dtype == sym_type and lut.flags.c_contiguous
+    row = lut.nbytes // lut.shape[0]
+    past = (ctypes.c_uint8 * row).from_address(lut.ctypes.data + lut.nbytes)   # the row past the tables
+    assert not any(bytes(past))
+    cum = np.cumsum(freq, axis=1) - freq
+    assert np.array_equal(fcum, ((freq << 16) | cum).astype(np.uint32))
+    slots = np.arange(decoder.PROB_SCALE)
+    for t in range(5):
+        assert np.array_equal(lut[t], np.searchsorted(np.cumsum(freq[t]), slots, side="right"))
+    assert np.array_equal(lut[5], np.where(slots < 100, 0, np.where(slots < 107, 3, 0)))
+
+
 def test_activity_thresholds_are_the_sorted_samples_at_their_ranks():
     """The encoder's thresholds come from order statistics of activity >> 8 by a histogram, with the ranks among the
     largest values (past the histogram) selected exactly: equal to a full sort's, for values in and past the
