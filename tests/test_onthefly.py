@@ -453,7 +453,7 @@ def test_cli_pretrain_over_the_params_box_then_fine_tune(stores, tmp_path, capsy
     import yaml
 
     from metraw.cli import main
-    from metraw.segment.train import load_config
+    from metraw.segment.config import load_config
 
     src, tgt, _ = stores
     out = tmp_path / "pre"

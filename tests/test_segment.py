@@ -113,7 +113,7 @@ def test_area_iou_against_fractional_targets():
                                           ("training: {profile: x}\n", "has no training.profiles section")])
 def test_load_config_refuses_a_file_without_training_profiles(tmp_path, text, match):
     """One line naming the file, whatever is wrong with it (a YAML parser's error spans several lines)."""
-    from metraw.segment.train import load_config
+    from metraw.segment.config import load_config
 
     (tmp_path / "p.yaml").write_text(text)
     with pytest.raises(MetrawError) as err:

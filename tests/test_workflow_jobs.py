@@ -79,6 +79,18 @@ def snakemake_dry(root: Path, *targets: str, cache: dict[str, str] | None = None
     return _jobs(proc.stdout)
 
 
+@needs_tools
+def test_dag_build_imports_neither_torch_nor_numba(tmp_path):
+    """Snakemake's DAG build (a dry run of the whole study) reads the study's parameters, points and training profiles
+    through light modules (``metraw.study``, ``metraw.segment.config``): neither torch nor numba is imported, ~0.5 s of
+    every Snakemake start (a SLURM job starts one of its own)."""
+    root = make_workspace(tmp_path / "ws", tiny_params())
+    proc = _run(["python", "-X", "importtime", "-m", "snakemake", "--cores", "2", "--dry-run"], root)
+    imported = {line.rsplit("|", 1)[-1].strip() for line in proc.stderr.splitlines() if line.startswith("import time:")}
+    assert {"metraw.study.points", "metraw.segment.config"} <= imported   # the DAG build read the study and a profile
+    assert not {"torch", "numba", "metraw.segment.train", "metraw.segment.data"} & imported
+
+
 def _outputs(text: str) -> dict[str, list[str]]:
     """Each job's outputs, keyed as in _jobs."""
     outs = {}

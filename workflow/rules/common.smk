@@ -103,7 +103,7 @@ def finetune_args(wildcards, input):
 def profile_threads(name):
     """Torch threads of training profile ``name`` (its `threads`, else TrainConfig's default), at most the cores:
     what its training uses, and its evaluation (`metraw evaluate` runs the model's recorded threads)."""
-    from metraw.segment.train import TrainConfig
+    from metraw.segment.config import TrainConfig
 
     return min(workflow.cores, int(config["training"]["profiles"][name].get("threads", TrainConfig.threads)))
 

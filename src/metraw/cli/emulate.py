@@ -111,7 +111,7 @@ def _source_images(n_source: int, images: str, params_path) -> list[int]:
     if images == "all":
         return list(range(n_source))
     from metraw.segment.data import split_indices
-    from metraw.segment.train import TrainConfig, load_config
+    from metraw.segment.config import TrainConfig, load_config
 
     try:
         config = load_config(params_path)

@@ -51,7 +51,7 @@ def run(args) -> int:
     from metraw.errors import MetrawError
     from metraw.raw.cfa import validate_pattern
     from metraw.segment.pretrain import pretrain_stores
-    from metraw.segment.train import load_config
+    from metraw.segment.config import load_config
     from metraw.study.points import load_params, target_at
     from metraw.study.pretraining import pretrain_settings
 

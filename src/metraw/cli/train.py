@@ -48,7 +48,8 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     from metraw.errors import MetrawError
-    from metraw.segment.train import load_config, train_store
+    from metraw.segment.config import load_config
+    from metraw.segment.train import train_store
     from metraw.study.points import load_params
 
     load_params(args.params, complete=False)  # schema: one line naming a bad or unknown key

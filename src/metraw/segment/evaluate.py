@@ -312,7 +312,8 @@ def open_for_inference(model_dir, device: str | None, transforms: int | None):
     """A trained model ready to score or predict: (model, checkpoint, record, its TrainConfig, the dihedral
     transforms to average (``transforms``, default the model's ``predict_transforms``), device), torch seeded and
     threaded as the model's config says."""
-    from metraw.segment.train import TrainConfig, default_device, set_determinism
+    from metraw.segment.config import TrainConfig
+    from metraw.segment.train import default_device, set_determinism
 
     device = device or default_device()
     model, ckpt, record = open_model(model_dir, device)
@@ -394,7 +395,8 @@ def evaluate_store(store_path, model_dir, device: str | None = None, progress: b
     from metraw.io.store import RawStore
     from metraw.progress import progress_bar
     from metraw.segment.data import prepare
-    from metraw.segment.train import TrainConfig, flush_denormals, replicate_dirs
+    from metraw.segment.config import TrainConfig
+    from metraw.segment.train import flush_denormals, replicate_dirs
 
     model, ckpt, record, config, transforms, device = open_for_inference(model_dir, device, transforms)
     store = RawStore.open(store_path)

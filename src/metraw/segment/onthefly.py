@@ -27,8 +27,9 @@ from metraw.errors import MetrawError
 from metraw.parallel import fork_pool, ordered_ahead
 from metraw.raw.cfa import PACKED_CELL_PX, cfa_family
 from metraw.raw.sensor import rng_from_seed
+from metraw.segment.config import TrainConfig
 from metraw.segment.data import batch_crops, prepare
-from metraw.segment.train import TrainConfig, default_device, new_network, train_loop, training_packed_gsd_m
+from metraw.segment.train import default_device, new_network, train_loop, training_packed_gsd_m
 
 
 def build_fields(store, indices: Sequence[int], target, oversample: int = DEFAULT_OVERSAMPLE,

@@ -31,7 +31,7 @@ from metraw.emulate.target import TargetSystem
 from metraw.errors import MetrawError
 from metraw.raw.cfa import cfa_family
 from metraw.raw.sensor import rng_from_seed
-from metraw.segment.train import TrainConfig
+from metraw.segment.config import TrainConfig
 from metraw.study.pretraining import BATCHES
 
 
