@@ -67,6 +67,25 @@ def test_short_work_writes_nothing(clock):
     assert out.getvalue() == ""
 
 
+def test_a_quick_command_after_a_long_silent_one_stays_one_line(tmp_path, capsys, monkeypatch):
+    """A loop of an earlier command in the same process (a test worker, a notebook) started long ago: a quick command
+    run after it through ``metraw.cli.main`` counts its silence from its own start, so its error is its only line."""
+    import imagecodecs
+    import numpy as np
+
+    from metraw.cli import main
+
+    monkeypatch.setattr(progress, "_LAST_LINE_S", [None])
+    LogProgress(10, "an earlier command", interval_s=20.0, stream=io.StringIO())
+    progress._LAST_LINE_S[0] -= 1000.0   # ... 1000 s ago, and silent since
+    for i in range(3):
+        (tmp_path / f"ok{i}.png").write_bytes(imagecodecs.png_encode(np.full((8, 8, 3), 40 * i, np.uint8)))
+    (tmp_path / "z_bad.png").write_bytes(b"\x89PNG\r\n\x1a\n" + b"\x00" * 30)
+    rc = main(["ingest", *sorted(map(str, tmp_path.glob("*.png"))), "--out", str(tmp_path / "out.zarr")])
+    lines = capsys.readouterr().err.splitlines()
+    assert rc == 2 and len(lines) == 1 and lines[0].startswith("metraw ingest: error: ") and "z_bad.png" in lines[0]
+
+
 def test_progress_bar_off_a_terminal_logs_lines(clock, capsys, monkeypatch):
     monkeypatch.setenv("METRAW_LOG_INTERVAL_S", "3")
 

@@ -6,7 +6,8 @@ nothing reaches ``tail -f`` until it ends. Off a terminal, long work therefore w
 left. Work shorter than the interval writes nothing, so quick commands and their errors stay one line. The interval
 counts from the process's last progress line, whichever loop wrote it (or from its first loop's start): a command
 made of several loops each shorter than the interval (a fine-tuning's fields, then three replicates' trainings) still
-writes a line every interval instead of staying silent to its end.
+writes a line every interval instead of staying silent to its end; each command counts from its own start
+(`start_command`).
 """
 
 from __future__ import annotations
@@ -26,6 +27,12 @@ T = TypeVar("T")
 LOG_INTERVAL_S = 20.0
 #: ``time.monotonic()`` of this process's last progress line, or of its first `LogProgress`'s start (None before it)
 _LAST_LINE_S: list[float | None] = [None]
+
+
+def start_command() -> None:
+    """A command starts (``metraw.cli.main``): the silence counts from its own first loop again, not from a loop of an
+    earlier command in the same process (tests, a notebook): a quick command and its error stay one line there too."""
+    _LAST_LINE_S[0] = None
 
 
 def log_interval_s() -> float:

@@ -49,6 +49,7 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    progress.start_command()
     try:
         rc = int(args.func(args) or 0)
         if rc == 0 and progress.usage_wanted():
