@@ -160,6 +160,8 @@ def test_check_cli_on_real_frames(tmp_path):
     d = json.loads((tmp_path / "d.json").read_text())
     # a handheld camera frame has no altitude: its ground properties cannot be established
     assert d["verdict"] == "REJECT" and d["reasons"]
+    # the verdict is a result (status 0), or with --exit-code a status a script can gate on
+    assert main(["check", str(dng), "--spec", str(tmp_path / "spec.yaml"), "--no-noise", "--exit-code"]) == 1
 
 
 def test_check_flags_a_deliberately_wrong_profile_on_a_real_frame(tmp_path):
@@ -289,9 +291,9 @@ def test_check_and_normalise_cli_on_a_store_image(tmp_path, capsys):
     fine = RawImage(fine.data, fine.profile, mask, None, [], {"long": "x" * 500})
     store = _store_with(tmp_path, [make_image(size=64), fine])
     sp = str(tmp_path / "spec.yaml")
-    assert main(["check", f"{store}#1", "--spec", sp, "--no-noise"]) == 0
+    assert main(["check", f"{store}#1", "--spec", sp, "--no-noise", "--exit-code"]) == 0
     assert capsys.readouterr().out.startswith("NORMALISE")
-    assert main(["check", str(store), "--index", "0", "--spec", sp, "--no-noise"]) == 0
+    assert main(["check", str(store), "--index", "0", "--spec", sp, "--no-noise", "--exit-code"]) == 0
     assert capsys.readouterr().out.startswith("PASS")
     out = tmp_path / "n.tif"
     assert main(["normalise", f"{store}#1", str(out), "--spec", sp, "--no-noise", "--seed", "2"]) == 0

@@ -5,7 +5,9 @@ Reads the image (a raw file via `metraw.io.read_raw`, or one image of a metraw s
 compares its profile geometry (GSD, diffraction and smear on the ground) and the signal level
 measured from its pixels with the spec, checks the profile's noise model against the pixels
 (single-frame fit), and prints the verdict with its reasons and, for NORMALISE, the chain of raw
-functions that brings the image to spec (see `metraw.spec`).
+functions that brings the image to spec (see `metraw.spec`). The verdict is a result, not an error:
+the exit status is 0 whatever it is, or with ``--exit-code`` 1 for REJECT (for scripts that gate on it, as
+``git diff --exit-code``); 2 stays an error of the input.
 """
 
 from __future__ import annotations
@@ -77,6 +79,8 @@ def register(sub) -> None:
     add_input_arguments(p)
     p.add_argument("--json", default=None, help="also write the full decision as JSON here")
     p.add_argument("--no-noise", action="store_true", help="skip the single-frame noise check")
+    p.add_argument("--exit-code", action="store_true",
+                   help="exit with status 1 when the verdict is REJECT (0: PASS or NORMALISE; 2: an input error)")
     p.set_defaults(func=run)
 
 
@@ -117,4 +121,4 @@ def run(args) -> int:
         with atomic_path(args.json, overwrite=True) as tmp:
             tmp.write_text(json.dumps({"image": str(args.image), "index": args.index, **decision.to_dict()},
                                       indent=1, default=float) + "\n")
-    return 0
+    return 1 if args.exit_code and decision.verdict == "REJECT" else 0
