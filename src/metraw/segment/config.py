@@ -14,7 +14,8 @@ from metraw.errors import MetrawError, read_yaml
 
 #: ``TrainConfig.precision`` values ("auto": ``metraw.segment.train.resolve_precision``).
 PRECISIONS = ("float32", "bfloat16", "auto")
-#: Training losses (``metraw.segment.train.segmentation_loss``): binary cross-entropy plus soft Dice, plus soft IoU (Jaccard), or alone.
+#: Training losses (``metraw.segment.train.segmentation_loss``): binary cross-entropy plus soft Dice, plus soft IoU
+#: (Jaccard), or alone.
 LOSSES = ("bce+dice", "bce+iou", "bce")
 #: ``crops_per_image`` value: enough crops to cover each image's working-grid area once per epoch.
 COVER = "cover"
@@ -44,14 +45,16 @@ class TrainConfig:
     (``metraw.segment.onthefly``; ignored when training on a store's fixed images).
     ``threads``: torch CPU threads, fixed here and not taken from the machine or the workflow's
     ``--cores``: the thread count changes the kernels' summation order, hence the weights' bytes. The batches
-    are made in a background thread beside them (``PREFETCH_BATCHES``): on small satellite crops 1 torch thread
-    and the draws' thread fill 2 cores best (the ``default`` profile), on drone crops 2 torch threads.
+    are made in a background thread beside them (``metraw.segment.train.PREFETCH_BATCHES``): on small satellite
+    crops 1 torch thread and the draws' thread fill 2 cores best (the ``default`` profile), on drone crops 2 torch
+    threads.
     ``precision``: arithmetic of the training passes: "float32", "bfloat16" (autocast: convolutions in
     bfloat16 with float32 weights, optimiser and loss; faster where the hardware computes bfloat16, slower
     where it emulates it: see docs/training.md), or "auto": bfloat16 where the device computes it natively, else
-    float32 (``resolve_precision``; every training record and saved config holds the resolved value).
-    Evaluation and prediction always run in float32.
-    ``loss``: one of ``LOSSES`` (``segmentation_loss``); "bce+dice", the default, is what the measured profiles use.
+    float32 (``metraw.segment.train.resolve_precision``; every training record and saved config holds the resolved
+    value). Evaluation and prediction always run in float32.
+    ``loss``: one of ``LOSSES`` (``metraw.segment.train.segmentation_loss``); "bce+dice", the default, is what the
+    measured profiles use.
     ``predict_transforms``: dihedral transforms of the mosaic (turns, flips; 1, 2, 4 or 8) whose predictions
     ``metraw evaluate`` / ``predict`` average (``metraw.segment.evaluate.averaged_probability``); 1 (default) = a
     single pass. A prediction setting: training does not use it.
