@@ -371,7 +371,7 @@ def _decoding_tables(freq, sym_type):
             f = freq[t, j]
             fcum[t, j] = np.uint32((f << 16) | c)
             end = min(c + f, PROB_SCALE)
-            if end > c:
+            if end > c:   # not a slice per unused symbol (most of an alphabet): 0.074 against 0.12 ms, 128 tables
                 lut[t, c:end] = j
             c += f
         if c < PROB_SCALE:   # frequencies short of the scale (not from _parse_tables, which checks the sum)
