@@ -23,6 +23,7 @@ from metraw.errors import MetrawError
 from metraw.study.points import validate_params, write_effective_params
 from metraw.study.sim_to_real import resolve_enabled
 from metraw.study.sources import source_files
+from metraw.segment.networks import factory_files
 
 try:
     validate_params(config, "params.yaml (with --config overrides)")
@@ -31,6 +32,8 @@ try:
     # Sim-to-real benchmark (workflow/rules/sim_to_real.smk): on when params.yaml sim_to_real.enabled is true
     # (its real image folder then required) or auto and the folder exists; off when false or absent.
     SIM_TO_REAL = resolve_enabled(config, "params.yaml (with --config overrides)")
+    # A python factory's file (training.model; metraw.segment.networks): every training rule takes it as input
+    MODEL_FILES = factory_files(config.get("training"), "params.yaml (with --config overrides)")
     if DVC_CHECK.get("dvc_real") and not SIM_TO_REAL:
         missing = (config.get("sim_to_real") or {}).get("path")
         raise MetrawError(

@@ -367,4 +367,25 @@ def test_changing_one_sweep_value_reruns_only_that_point(tmp_path):
     _run(["python", str(SCRIPT)], root)
     changed = point_stages("cfa_pattern", "mono") | {"pretrain_mono", "aggregate"}
     assert set(dvc_changed(root, "aggregate", "--with-deps")) == changed
+
+    # 8. another network (training.model: a python factory in the workflow folder), the mono sweep gone again: the
+    #    pretraining, every point's training and evaluation and the aggregate, not the scenes, emulations or
+    #    compression, under both tools (the factory file is an input of every training)
+    params = yaml.safe_load((root / "params.yaml").read_text())
+    del params["target"]["sweeps"]["cfa_pattern"]
+    (root / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    _run(["python", str(SCRIPT)], root)
+    assert snakemake_dry(root, *targets) == {}
+    (root / "tiny_net.py").write_text("from torch import nn\n\n\ndef build(in_channels, out_channels):\n"
+                                      "    return nn.Conv2d(in_channels, out_channels, 3, padding=1)\n")
+    params["training"]["model"] = {"kind": "python", "factory": "tiny_net.py:build"}
+    (root / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    points = [*points, grid_point]
+    retrained = {f"{rule}[{point}]": 1 for point in points for rule in ("train", "evaluate")}
+    assert snakemake_dry(root, *targets) == {"pretrain": 1, **retrained, "aggregate": 1}
+    _run(["python", str(SCRIPT)], root)
+    changed = dvc_changed(root, "aggregate", "--with-deps")
+    assert {"pretrain_RGGB", "aggregate", "train_nominal", "evaluate_nominal", "train_grid_0"} <= set(changed)
+    assert len(changed) == 2 + 2 * len(points), changed  # one train_ and one evaluate_ stage a point
+    assert all(s.startswith(("train_", "evaluate_", "pretrain_RGGB", "aggregate")) for s in changed), changed
     print(json.dumps({k: round(v, 1) for k, v in timings.items()}))

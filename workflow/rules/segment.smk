@@ -46,6 +46,7 @@ if PRETRAIN["enabled"]:
             source=SOURCE_STORE,
             decoded=ancient(SOURCE_DECODED),  # what the command reads (common.smk)
             extra=PRETRAIN_EXTRA,
+            model_files=MODEL_FILES,  # a python factory's file (training.model): editing it retrains
             params_file=ancient(PARAMS_FILE),  # the effective params (Snakefile); params: track its values
         output:
             directory(PRETRAINED_MODEL),
@@ -75,6 +76,7 @@ if PRETRAIN["enabled"]:
 rule train:
     input:
         unpack(train_inputs),
+        model_files=MODEL_FILES,  # a python factory's file (training.model): editing it retrains
         params_file=ancient(PARAMS_FILE),  # the effective params (Snakefile); params: track its values
     output:
         directory("results/points/{point}/model"),
@@ -117,6 +119,7 @@ rule train_source:
     input:
         source=SOURCE_STORE,
         decoded=ancient(SOURCE_DECODED),  # what the command reads (common.smk)
+        model_files=MODEL_FILES,  # a python factory's file (training.model): editing it retrains
         params_file=ancient(PARAMS_FILE),  # the effective params (Snakefile); params: track its values
     output:
         directory("results/source/model"),

@@ -52,6 +52,7 @@ from typing import Any
 import yaml
 
 from metraw.errors import MetrawError
+from metraw.segment.networks import factory_files
 from metraw.study.points import CATEGORICAL, NOMINAL, load_params, parameter_points, point_name, same_value
 from metraw.study.pretraining import (draws_extra_scenes, fine_tuned_points, point_patterns, pretrain_settings,
                                       pretrained_patterns)
@@ -142,7 +143,8 @@ def _point_stage(rule: str, point: str, params: dict[str, Any], pretrained: str 
     if keys:
         stage["params"] = keys
     ins = [name if "/" in name else f"{folder}/{name}" for name in spec["in"]]
-    stage["deps"] = ins + ([pretrained] if pretrained and rule == "train" else []) + [spec["rules"]]
+    models = factory_files(params.get("training")) if rule == "train" else []
+    stage["deps"] = ins + ([pretrained] if pretrained and rule == "train" else []) + models + [spec["rules"]]
     stage["outs"] = [out]
     return stage
 
@@ -171,7 +173,8 @@ def build(params: dict[str, Any]) -> dict[str, Any]:
                              "deps": [SOURCE_STORE, "workflow/scripts/calibrate_store.py"],
                              "outs": ["results/source/calibration.json"]},
         "train_source": {"cmd": _cmd("train_source", ["results/source/model"]), "params": ["training"],
-                         "deps": [SOURCE_STORE, "workflow/rules/segment.smk"], "outs": ["results/source/model"]},
+                         "deps": [SOURCE_STORE, *factory_files(params.get("training")), "workflow/rules/segment.smk"],
+                         "outs": ["results/source/model"]},
         "evaluate_source": {"cmd": _cmd("evaluate_source", ["results/source/metrics.json"]),
                             "deps": [SOURCE_STORE, "results/source/model", "workflow/rules/segment.smk"],
                             "outs": ["results/source/metrics.json"]},
@@ -186,14 +189,19 @@ def build(params: dict[str, Any]) -> dict[str, Any]:
     if pretrain_settings(params)["enabled"]:
         rules = "workflow/rules/segment.smk"
         extra = [PRETRAIN_SCENES] if draws_extra_scenes(params) else []
+        pretrain = params["training"].get("pretrain")
+        scenes_key = ("training.pretrain.extra_scenes" if "extra_scenes" in (pretrain or {})
+                      else "training.pretrain" if pretrain is not None else "training")  # DVC refuses absent keys
         if extra:
-            stages["pretrain_scenes"] = {"cmd": _cmd("pretrain_scenes", extra), "params": ["source", "codec", "training"],
+            # the scenes read only the count of training.pretrain (not the network or its training: training.model)
+            stages["pretrain_scenes"] = {"cmd": _cmd("pretrain_scenes", extra), "params": ["source", "codec", scenes_key],
                                          "deps": [rules], "outs": extra}
         pre_params = ["target.nominal"] + (["target.pixel_scaling"] if "pixel_scaling" in params["target"] else [])
         for pattern in pretrained_patterns(params):
             model = PRETRAINED_MODEL.format(cfa_pattern=pattern)
             stages[f"pretrain_{pattern}"] = {"cmd": _cmd("pretrain", [model]), "params": pre_params + ["training", "codec"],
-                                             "deps": [SOURCE_STORE, *extra, rules], "outs": [model]}
+                                             "deps": [SOURCE_STORE, *extra, *factory_files(params.get("training")),
+                                                      rules], "outs": [model]}
     real = sim_to_real_stages(params)
     if real:
         rules = "workflow/rules/sim_to_real.smk"

@@ -60,6 +60,9 @@ class TrainConfig:
     single pass. A prediction setting: training does not use it.
     ``condition``: condition the network on each image's payload (``metraw.segment.condition``: packed GSD, diffraction
     blur, light collected, smear, from the image's profile; FiLM in every block). False (default): a plain network.
+    Only metraw's U-Net takes it: with another ``model`` the training runs unconditioned and records false.
+    ``model``: the network, params.yaml ``training.model`` (``metraw.segment.networks.ModelSpec``: metraw's U-Net,
+    sized by ``base_channels`` and ``depth``, an smp model or a python factory); None: metraw's U-Net.
     """
 
     epochs: int = 8
@@ -82,6 +85,7 @@ class TrainConfig:
     loss: str = "bce+dice"
     predict_transforms: int = 1
     condition: bool = False
+    model: dict[str, Any] | None = None
     split_seed: int = 0
     test_fraction: float = 0.2
 
@@ -104,6 +108,10 @@ class TrainConfig:
             raise MetrawError(f"training condition must be true or false, got {d['condition']!r}")
         if d.get("loss", "bce+dice") not in LOSSES:
             raise MetrawError(f"training loss must be one of {', '.join(LOSSES)}, got {d['loss']!r}")
+        if d.get("model") is not None:
+            from metraw.segment.networks import ModelSpec
+
+            ModelSpec.from_dict(d["model"])  # one line naming what is wrong
         return cls(**d)
 
 
@@ -117,7 +125,7 @@ def load_config(params_path: str | os.PathLike, profile: str | None = None) -> T
     if name not in tr["profiles"]:
         raise MetrawError(f"training profile {name!r} not in {params_path} (have {', '.join(tr['profiles'])})")
     d = dict(tr["profiles"][name])
-    for key in ("split_seed", "test_fraction"):
+    for key in ("split_seed", "test_fraction", "model"):  # the study's, for every profile (a profile may set its own)
         if key in tr:
             d.setdefault(key, tr[key])
     return TrainConfig.from_dict(d)

@@ -430,7 +430,8 @@ def evaluate_store(store_path, model_dir, device: str | None = None, progress: b
     out.update({"split": split_name, "training_store": is_training, "training_store_by": identified_by,
                 "labels": pooled_label_kind([r["labels"] for r in records]), "train_packed_gsd_m": train_gsd,
                 "gsd_matched": not notes, "gsd_note": "; ".join(notes) or None,
-                "store": store.origin, "model": str(model_dir), "epochs": record.get("epochs"),
+                "store": store.origin, "model": str(model_dir), "network": ckpt.get("network"),
+                "epochs": record.get("epochs"),
                 "upsample": ckpt["upsample"], "pool": ckpt.get("pool", 1), "device": device, "config": ckpt["config"],
                 "packed_shape": packed_shape, "threshold": THRESHOLD, "min_object_area_m2": MIN_OBJECT_AREA_M2,
                 "transforms": transforms})

@@ -4,7 +4,8 @@ Input: (B, S, h, w) packed CFA planes in VST units (unit noise variance, see
 ``metraw.segment.data``), S = 4 for Bayer (canonical R, G, G, B site order), 1 for mono.
 Output: (B, S, h, w) logits of "car", one per CFA site, i.e. a prediction for every mosaic pixel.
 
-``Segmenter`` resamples the input to the network's working grid and the logits back, so the loss
+``Segmenter`` (and ``ForeignSegmenter``, the same around a network of another kind: ``metraw.segment.networks``)
+resamples the input to the network's working grid and the logits back, so the loss
 and the IoU always live on the image's own mosaic grid:
 - ``upsample`` > 1: bilinear upsampling of the input, logits average-pooled back (coarse
   satellite images get the same receptive field in pixels as a larger image);
@@ -107,26 +108,37 @@ def _pad_to(x: torch.Tensor, multiple: int) -> torch.Tensor:
     return F.pad(x, (0, pw, 0, ph), mode=mode)
 
 
-class Segmenter(nn.Module):
-    """U-Net wrapped with resampling to its working grid and padding to a valid size.
+class _GridWrapper(nn.Module):
+    """Resampling to a network's working grid and padding to its input multiple, around ``core``.
 
     ``forward(x, condition)`` accepts any (B, S, h, w) and returns logits (B, S, h, w) on the input grid;
     ``condition`` (B, n_condition) only for a conditioned network.
     """
 
-    def __init__(self, in_channels: int, base_channels: int = 16, depth: int = 3, upsample: int = 1,
-                 pool: int = 1, n_condition: int = 0):
+    def __init__(self, upsample: int = 1, pool: int = 1):
         super().__init__()
         if upsample < 1 or pool < 1 or (upsample > 1 and pool > 1):
             raise ValueError("upsample and pool must be integers >= 1, at most one of them > 1")
         self.upsample = int(upsample)
         self.pool = int(pool)
-        self.unet = UNet(in_channels, base_channels, depth, out_channels=in_channels, n_condition=n_condition)
+
+    @property
+    def core(self) -> nn.Module:
+        """The network on the working grid."""
+        raise NotImplementedError
+
+    @property
+    def multiple(self) -> int:
+        """The network's input sides must be multiples of this (the wrapper pads)."""
+        raise NotImplementedError
 
     @property
     def n_condition(self) -> int:
         """Length of the conditioning vector the network takes (0: none)."""
-        return self.unet.n_condition
+        return 0
+
+    def run_core(self, x: torch.Tensor, condition: torch.Tensor | None) -> torch.Tensor:
+        return self.core(x)
 
     def forward(self, x: torch.Tensor, condition: torch.Tensor | None = None) -> torch.Tensor:
         h, w = x.shape[-2:]
@@ -136,9 +148,54 @@ class Segmenter(nn.Module):
         if p > 1:
             x = F.avg_pool2d(_pad_to(x, p), p)
         hn, wn = x.shape[-2:]
-        y = self.unet(_pad_to(x, self.unet.multiple), condition)[..., :hn, :wn]
+        y = self.run_core(_pad_to(x, self.multiple), condition)[..., :hn, :wn]
         if f > 1:
             y = F.avg_pool2d(y, f)
         if p > 1:
             y = F.interpolate(y, scale_factor=p, mode="bilinear", align_corners=False)[..., :h, :w]
         return y
+
+
+class Segmenter(_GridWrapper):
+    """metraw's U-Net wrapped with resampling to its working grid and padding to a valid size
+    (``_GridWrapper``); ``n_condition`` > 0: FiLM-conditioned on the payload."""
+
+    def __init__(self, in_channels: int, base_channels: int = 16, depth: int = 3, upsample: int = 1,
+                 pool: int = 1, n_condition: int = 0):
+        super().__init__(upsample, pool)
+        self.unet = UNet(in_channels, base_channels, depth, out_channels=in_channels, n_condition=n_condition)
+
+    @property
+    def core(self) -> nn.Module:
+        return self.unet
+
+    @property
+    def multiple(self) -> int:
+        return self.unet.multiple
+
+    @property
+    def n_condition(self) -> int:
+        return self.unet.n_condition
+
+    def run_core(self, x: torch.Tensor, condition: torch.Tensor | None) -> torch.Tensor:
+        return self.unet(x, condition)
+
+
+class ForeignSegmenter(_GridWrapper):
+    """Any network that keeps the contract of ``metraw.segment.networks`` (logits of the input's shape; input sides
+    multiples of ``multiple``), wrapped like ``Segmenter``; it takes no conditioning."""
+
+    def __init__(self, network: nn.Module, multiple: int, upsample: int = 1, pool: int = 1):
+        super().__init__(upsample, pool)
+        if int(multiple) < 1:
+            raise ValueError(f"multiple must be >= 1, got {multiple}")
+        self.net = network
+        self._multiple = int(multiple)
+
+    @property
+    def core(self) -> nn.Module:
+        return self.net
+
+    @property
+    def multiple(self) -> int:
+        return self._multiple

@@ -273,8 +273,9 @@ def train_store_on_the_fly(store_path, source_path, out_dir, config: TrainConfig
     during the training (``fit_draws``)."""
     from metraw.io.store import RawStore
     from metraw.segment.data import source_indices, split_indices, split_positions
-    from metraw.segment.train import fit_replicates, pretrained_states, save_replicates, store_digest
+    from metraw.segment.train import check_network, fit_replicates, pretrained_states, save_replicates, store_digest
 
+    check_network(config)
     store = RawStore.open(store_path)
     source = RawStore.open(source_path)
     _, n_source = source_indices(store)
@@ -284,8 +285,8 @@ def train_store_on_the_fly(store_path, source_path, out_dir, config: TrainConfig
     target = store_target(store)
     train_idx, test_idx = split_indices(n_source, config.test_fraction, config.split_seed)
     split_positions(store, config.test_fraction, config.split_seed)  # the store holds the test split
-    inits = (pretrained_states(init_dir, max(1, config.replicates), cfa_family(target.cfa_pattern))
-             if init_dir is not None else None)
+    inits = (pretrained_states(init_dir, max(1, config.replicates), cfa_family(target.cfa_pattern),
+                               config.model) if init_dir is not None else None)
     t0 = time.perf_counter()
     fields = build_fields(source, train_idx, target, progress=progress, workers=workers)
     fields_s = time.perf_counter() - t0

@@ -149,8 +149,9 @@ def pretrain_stores(source_path, make_target: Callable[[dict[str, float]], Targe
     ``train.train_store`` (model directory with replicate sub-directories). Returns the first replicate's record.
     ``workers``: processes building the box's expected fields (``box_fields``); ``draw_workers``: processes drawing
     from them during the training (``onthefly.fit_draws``). ``batches``: one of ``BATCHES``."""
-    from metraw.segment.train import save_replicates
+    from metraw.segment.train import check_network, save_replicates
 
+    check_network(config)
     draws = prepare_box(source_path, make_target, box, config, points_per_scene, extra_paths, progress, workers, batches)
     runs = fit_box(draws, config, device, progress, codec_step, draw_workers)
     save_replicates(out_dir, runs, draws.test_indices, overwrite)

@@ -254,12 +254,39 @@ def condition_tensor(model, condition, device: str, where: str = "training batch
     return torch.as_tensor(require_condition(condition, where)).to(device)
 
 
-def build_model(in_channels: int, config: TrainConfig, upsample: int, pool: int = 1):
+def build_model(in_channels: int, config: TrainConfig, upsample: int, pool: int = 1, spec=None):
+    """The network of ``spec`` (default ``config.model``: ``metraw.segment.networks``) around its working grid,
+    freshly initialised from torch's global generator. metraw's U-Net is sized by ``config`` (``base_channels``,
+    ``depth``, ``condition``); another kind takes no conditioning."""
     from metraw.segment.condition import CONDITION_FEATURES
-    from metraw.segment.model import Segmenter
+    from metraw.segment.model import ForeignSegmenter, Segmenter
+    from metraw.segment.networks import ModelSpec, build_core
 
-    return Segmenter(in_channels, config.base_channels, config.depth, upsample, pool,
-                     n_condition=len(CONDITION_FEATURES) if config.condition else 0)
+    spec = ModelSpec.from_dict(config.model) if spec is None else spec
+    if spec.kind == "metraw":
+        return Segmenter(in_channels, config.base_channels, config.depth, upsample, pool,
+                         n_condition=len(CONDITION_FEATURES) if config.condition else 0)
+    network, multiple = build_core(spec, in_channels, in_channels)
+    return ForeignSegmenter(network, multiple, upsample, pool)
+
+
+def resolved_config(config: TrainConfig, device: str) -> TrainConfig:
+    """``config`` as a training runs it: its precision resolved for ``device`` (``resolve_precision``), and
+    ``condition`` false for a network that takes no conditioning (any but metraw's U-Net)."""
+    from dataclasses import replace
+
+    from metraw.segment.networks import ModelSpec
+
+    return replace(config, precision=resolve_precision(config.precision, device),
+                   condition=config.condition and ModelSpec.from_dict(config.model).kind == "metraw")
+
+
+def check_network(config: TrainConfig, in_channels: int = PACKED_CELL_PX ** 2) -> None:
+    """Build ``config``'s network on the CPU and check its contract on one dummy batch
+    (``networks.check_contract``): one line naming the model and what is wrong, before any data is prepared."""
+    from metraw.segment.networks import ModelSpec, check_contract
+
+    check_contract(build_model(in_channels, config, 1, 1), ModelSpec.from_dict(config.model), in_channels)
 
 
 def grid_factors(images: list[PreparedImage], config: TrainConfig, upsample: int | None = None) -> tuple[int, int]:
@@ -272,12 +299,16 @@ def grid_factors(images: list[PreparedImage], config: TrainConfig, upsample: int
 def new_network(images: list[PreparedImage], config: TrainConfig, device: str, upsample: int | None = None):
     """Seed torch (``set_determinism``) and build a fresh network sized for ``images``:
     (model on ``device``, upsampling factor, pooling factor, input channels)."""
+    from metraw.segment.networks import ModelSpec, check_contract
+
     set_determinism(config.seed, config.threads, device)
     f, pool = grid_factors(images, config, upsample)
     in_ch = PACKED_CELL_PX ** 2
     if len({cfa_family(img.pattern) for img in images}) > 1:
         raise MetrawError("cannot train on a mix of mono and CFA images")
-    return build_model(in_ch, config, f, pool).to(device), f, pool, in_ch
+    model = build_model(in_ch, config, f, pool).to(device)
+    check_contract(model, ModelSpec.from_dict(config.model), in_ch)  # eval mode, no gradient: changes no state
+    return model, f, pool, in_ch
 
 
 def fit(images: list[PreparedImage], config: TrainConfig, device: str | None = None,
@@ -324,6 +355,7 @@ def train_store(store_path: str | os.PathLike, out_dir: str | os.PathLike, confi
     """Train on the training split of a store; write ``model.pt`` and ``train.json`` into ``out_dir``."""
     from metraw.io.store import RawStore
 
+    check_network(config)
     store = RawStore.open(store_path)
     _, n_source = source_indices(store)
     if n_source != len(store):
@@ -344,16 +376,20 @@ def train_store(store_path: str | os.PathLike, out_dir: str | os.PathLike, confi
 
 def fit_replicates(config: TrainConfig, fit_one, common: dict[str, Any], device: str | None = None) -> list:
     """``fit_one(cfg)`` -> (model, record) for seeds ``seed`` .. ``seed + replicates - 1`` (at least one); every
-    record gets ``common`` and its own config, whose precision is resolved for ``device`` (default:
-    ``default_device()``). Returns [(model, config, record), ...] for ``save_replicates``."""
+    record gets ``common``, its own config as the training ran it (``resolved_config`` for ``device``, default
+    ``default_device()``) and its network's record (``networks.network_record``). Returns
+    [(model, config, record), ...] for ``save_replicates``."""
     from dataclasses import replace
 
-    precision = resolve_precision(config.precision, device or default_device())
+    from metraw.segment.networks import ModelSpec, network_record
+
+    resolved = resolved_config(config, device or default_device())
+    spec = ModelSpec.from_dict(config.model)
     runs = []
     for r in range(max(1, config.replicates)):
-        cfg = replace(config, seed=config.seed + r, precision=precision)
+        cfg = replace(resolved, seed=config.seed + r)
         model, record = fit_one(cfg)
-        record.update({**common, "config": asdict(cfg)})
+        record.update({**common, "config": asdict(cfg), "network": network_record(model, spec)})
         runs.append((model, cfg, record))
     return runs
 
@@ -397,7 +433,7 @@ def _write_model(folder: Path, model, config: TrainConfig, record: dict[str, Any
                 "config": asdict(config), "upsample": record["upsample"], "pool": record.get("pool", 1),
                 "in_channels": record["in_channels"], "sensor": record.get("sensor", "bayer"),
                 "test_indices": [int(i) for i in test_indices],
-                "train_packed_gsd_m": record.get("train_packed_gsd_m")},
+                "train_packed_gsd_m": record.get("train_packed_gsd_m"), "network": record.get("network")},
                folder / CHECKPOINT)
     (folder / TRAIN_METRICS).write_text(json.dumps({k: v for k, v in record.items() if k not in TIMINGS}, indent=2))
 
@@ -410,10 +446,22 @@ def load_model(model_dir: str | os.PathLike, device: str | None = None):
     ckpt_path = model_dir / CHECKPOINT
     if not ckpt_path.is_file():
         raise MetrawError(f"{model_dir} holds no {CHECKPOINT} (train a model with `metraw train` first)")
+    from metraw.segment.networks import check_rebuilt, spec_from_record
+
     ckpt = torch.load(ckpt_path, map_location="cpu", weights_only=True)
     config = TrainConfig.from_dict(ckpt["config"])
-    model = build_model(ckpt["in_channels"], config, ckpt["upsample"], ckpt.get("pool", 1))
-    model.load_state_dict(ckpt["state_dict"])
+    where = f"the model in {model_dir}"
+    try:  # the network the checkpoint records (its factory file where it was), else metraw's U-Net (older ones)
+        spec = spec_from_record(ckpt.get("network"))
+        model = build_model(ckpt["in_channels"], config, ckpt["upsample"], ckpt.get("pool", 1), spec=spec)
+        check_rebuilt(ckpt.get("network") or {}, spec, model)
+    except MetrawError as exc:
+        raise MetrawError(f"{where} cannot be rebuilt: {exc}") from None
+    try:
+        model.load_state_dict(ckpt["state_dict"])
+    except RuntimeError as exc:
+        raise MetrawError(f"{where} cannot be rebuilt: its weights do not fit the network "
+                          f"{spec.describe()} builds now ({' '.join(str(exc).split())[:160]})") from None
     model.to(device or default_device())
     record_path = model_dir / TRAIN_METRICS
     record = json.loads(record_path.read_text()) if record_path.is_file() else {}
@@ -426,10 +474,12 @@ def checkpoint_sensor(ckpt: dict[str, Any]) -> str:
     return ckpt.get("sensor", "bayer" if ckpt.get("in_channels") == 4 else "mono")
 
 
-def pretrained_states(model_dir: str | os.PathLike, n: int, sensor: str | None = None) -> list[dict[str, Any]]:
+def pretrained_states(model_dir: str | os.PathLike, n: int, sensor: str | None = None,
+                      model: dict[str, Any] | None = None) -> list[dict[str, Any]]:
     """The weights of the first ``n`` replicates of a model directory (``metraw pretrain``'s), in replicate
     order: replicate r of a point fine-tunes from the r-th. ``sensor`` ("mono" or "bayer"): the images the
-    fine-tuning sees; a network pretrained on the other kind is a one-line error (both take four planes)."""
+    fine-tuning sees; a network pretrained on the other kind is a one-line error (both take four planes).
+    ``model``: the fine-tuning's ``training.model``; a pretraining of another network is a one-line error."""
     import torch
 
     dirs = [Path(model_dir)] + replicate_dirs(model_dir)
@@ -439,6 +489,15 @@ def pretrained_states(model_dir: str | os.PathLike, n: int, sensor: str | None =
         raise MetrawError(f"{model_dir} holds {len(dirs)} pretrained replicate(s); {n} are asked for (one per replicate)")
     ckpts = [torch.load(d / CHECKPOINT, map_location="cpu", weights_only=True) for d in dirs[:n]]
     have = checkpoint_sensor(ckpts[0])
+    if model is not None:
+        from metraw.segment.networks import ModelSpec, spec_from_record
+
+        pretrained, wanted = spec_from_record(ckpts[0].get("network")), ModelSpec.from_dict(model)
+        if (pretrained.describe(), pretrained.kwargs) != (wanted.describe(), wanted.kwargs) \
+                and not (pretrained.kind == wanted.kind == "python"
+                         and pretrained.factory_file() == wanted.factory_file()):
+            raise MetrawError(f"{model_dir} holds a pretraining of {pretrained.describe()}; this training uses "
+                              f"{wanted.describe()}: pretrain with the same training.model")
     if sensor is not None and have != sensor:
         raise MetrawError(f"{model_dir} was pretrained on {have} images; this training sees {sensor} images: "
                           "pretrain with its sensor's pattern (metraw pretrain --cfa-pattern)")

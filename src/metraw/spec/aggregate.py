@@ -152,7 +152,8 @@ def load_point_results(params: dict[str, Any], results: str, metrics_pattern: st
                "n_test_images": metrics.get("n_images"), "epochs": metrics.get("epochs"),
                "n_replicates": metrics.get("n_replicates", 1), "iou_replicate_sd": metrics.get("iou_replicate_sd"),
                "object_f1": metrics.get("object_f1"),
-               "replicate_ious": [q["iou"] for q in metrics.get("replicates", []) if q.get("iou") is not None]}
+               "replicate_ious": [q["iou"] for q in metrics.get("replicates", []) if q.get("iou") is not None],
+               "_network": metrics.get("network")}
         if cpath is not None:
             comp = _read_json(cpath, "compression file")
             row.update({"ratio": float(comp["overall"]["ratio"]),
@@ -170,6 +171,28 @@ def load_point_results(params: dict[str, Any], results: str, metrics_pattern: st
     if missing:
         raise MetrawError(f"{len(missing)} per-point result file(s) missing, e.g. {missing[0]}")
     return rows
+
+
+#: What the aggregate and the spec say of the network the points were trained with (its checkpoint's record,
+#: ``metraw.segment.networks.network_record``): a specification belongs to its model.
+NETWORK_KEYS = ("name", "kind", "arch", "encoder", "encoder_weights", "factory", "factory_sha256", "kwargs",
+                "parameters", "conditioned")
+
+
+def study_network(rows: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """The network every point's model is (``NETWORK_KEYS`` of the records their metrics carry), None when their
+    metrics predate the record; one line when the points were trained with different networks."""
+    found = {}
+    for r in rows:
+        rec = r.get("_network")
+        if rec:
+            found.setdefault(json.dumps({k: rec.get(k) for k in NETWORK_KEYS if k != "parameters"}, sort_keys=True),
+                             (r["point"], {k: rec[k] for k in NETWORK_KEYS if rec.get(k) is not None}))
+    if len(found) > 1:
+        (p1, a), (p2, b) = list(found.values())[:2]
+        raise MetrawError(f"the points were trained with different networks: {p1} with {a.get('name')}, "
+                          f"{p2} with {b.get('name')} (rerun the trainings with one training.model)")
+    return next(iter(found.values()))[1] if found else None
 
 
 def _sd_of_mean(values: list[float]) -> float:
@@ -272,8 +295,10 @@ def _aggregate(options: AggregateOptions, params: dict, required: float, rows: l
              for grid in params["target"].get("grids") or []]
     nominal_row = next(r for r in rows if r["point"] == NOMINAL)
     prop_model = _property_model(options, rows) if options.stores_pattern else None
+    model = study_network(rows)
     spec = build_spec(tols, nominal, required, nominal_row.get("_signal"), choices=choices,
-                      context={"params_file": str(options.params), "loo_share_inside_2sigma": iou_loo["share_inside"]},
+                      context={"params_file": str(options.params), "loo_share_inside_2sigma": iou_loo["share_inside"],
+                               **({"model": model} if model else {})},
                       property_model=prop_model, model_at=nominal_row.get("properties"))
 
     for r, rec in zip(gp_rows, iou_loo["points"]):
@@ -296,7 +321,8 @@ def _aggregate(options: AggregateOptions, params: dict, required: float, rows: l
     out = Path(options.out)
     figdir, plotdir = out / "figures", out / "plots"
     summary = {
-        "required_iou": required, "band_sigma": BAND_SIGMA, "parameters": all_names, "gp_parameters": names,
+        "required_iou": required, "band_sigma": BAND_SIGMA, "model": model, "parameters": all_names,
+        "gp_parameters": names,
         "nominal": {**at, **{c: nominal[c] for c in categorical}},
         "points": [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows],
         "iou_gp": {"kernel": iou_gp.kernel_description(), "white_sd": math.sqrt(iou_gp.white_variance),
