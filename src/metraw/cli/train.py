@@ -13,7 +13,8 @@ DRAW_WORKERS_HELP = ("processes making the on-the-fly draws during the training 
 
 def register(subparsers) -> None:
     p = subparsers.add_parser("train", help="train the car segmenter on a store's training split",
-                              description="Train the compact U-Net on packed, variance-stabilised raw planes "
+                              description="Train the car segmenter (params training.model: metraw's compact U-Net by "
+                              "default, an smp model or a python factory) on packed, variance-stabilised raw planes "
                               "of STORE's training split (fixed split seed); writes DIR/model.pt and DIR/train.json "
                               "(the same bytes for the same store, params and machine; the time goes to stderr).")
     p.add_argument("store", help="input RawStore (.zarr) with car masks")
