@@ -31,6 +31,10 @@ SMOOTH_QUANTILE = 0.25
 TILES = 4
 #: Largest relative standard uncertainty of K that from_image still reports as a fit.
 MAX_RELATIVE_GAIN_UNCERTAINTY = 0.5
+#: What a refused single-frame fit leaves a user: the two other calibrations (README "Your own data").
+WAYS_OUT = ("; calibrate from flats and darks instead (metraw calibrate --flats F.. --darks D..; params.yaml "
+            "source.raws.calibration.flats, darks) or give a camera profile (--profile camera.json; "
+            "calibration.profile; docs/noise-model.md)")
 
 
 # ------------------------------------------------------------------------------ single frame
@@ -230,7 +234,7 @@ def _fit_channel(mu: np.ndarray, v: np.ndarray, s: np.ndarray, black: float, n_p
     x, y, sy = np.array(xs), np.array(ys), np.array(sys_)
     if x.size < 4:
         raise MetrawError(f"channel {channel}: smooth blocks cover too few signal levels for a single-frame fit "
-                          f"(mean {mu.min():.1f}..{mu.max():.1f} DN); the frame is too flat, small or textured")
+                          f"(mean {mu.min():.1f}..{mu.max():.1f} DN); the frame is too flat, small or textured" + WAYS_OUT)
     # Outlier bins (texture-dominated): iterative rejection on robustly scaled residuals.
     keep = np.ones(x.size, bool)
     for _ in range(5):
@@ -255,7 +259,7 @@ def _fit_channel(mu: np.ndarray, v: np.ndarray, s: np.ndarray, black: float, n_p
         x, y, sy = x[cut], y[cut], sy[cut]
         counts = [k for k, ok in zip(counts, cut) if ok]
     if x.size < 4:
-        raise MetrawError(f"channel {channel}: too few signal levels for a single-frame fit")
+        raise MetrawError(f"channel {channel}: too few signal levels for a single-frame fit" + WAYS_OUT)
     beta, cov, chi2 = _fit_ptc(x, y, sy, quadratic=True)
     a, b, c = (float(t) for t in beta)
     ua = math.sqrt(cov[0, 0]) if np.isfinite(cov[0, 0]) else float("inf")
