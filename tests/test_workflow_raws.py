@@ -85,7 +85,10 @@ def test_workflow_runs_from_dng_raws_and_recovers_the_camera(tmp_path):
 def test_dvc_yaml_of_a_raws_source_calibrates_first(tmp_path):
     root = make_workspace(tmp_path / "ws", raws_params())
     stages = yaml.safe_load((root / "dvc.yaml").read_text())["stages"]
-    assert stages["source_camera"]["deps"][:3] == ["raws", "raws/flats", "raws/darks"]
+    assert stages["source_check"]["deps"][0] == "raws" and stages["source_check"]["outs"] == [
+        "results/source/folder_check.json"]
+    assert stages["source_camera"]["deps"][:4] == ["results/source/folder_check.json", "raws", "raws/flats",
+                                                   "raws/darks"]
     assert stages["source_camera"]["outs"] == ["results/source/camera.json",
                                                "results/source/camera_calibration.json"]
     assert stages["source_store"]["deps"][:2] == ["results/source/camera.json", "raws"]
@@ -102,6 +105,8 @@ def test_the_other_calibration_methods_are_one_command_each(tmp_path, calibratio
     (root / "camera.json").write_text("{}")
     dry = _run(["snakemake", "--cores", "2", "--dry-run", "--printshellcmds"], root).stdout
     assert expect in dry, dry[-2000:]
+    # the folder is checked first, with the training's split: the calibration waits for it
+    assert "metraw check-folder raws --kind raws --labels mask --test-fraction 0.2 --split-seed 0" in dry
 
 
 @needs_tools
