@@ -234,7 +234,7 @@ def _fit_channel(mu: np.ndarray, v: np.ndarray, s: np.ndarray, black: float, n_p
     x, y, sy = np.array(xs), np.array(ys), np.array(sys_)
     if x.size < 4:
         raise MetrawError(f"channel {channel}: smooth blocks cover too few signal levels for a single-frame fit "
-                          f"(mean {mu.min():.1f}..{mu.max():.1f} DN); the frame is too flat, small or textured" + WAYS_OUT)
+                          f"(mean {mu.min():.1f}..{mu.max():.1f} DN); the frame is too flat, small or textured")
     # Outlier bins (texture-dominated): iterative rejection on robustly scaled residuals.
     keep = np.ones(x.size, bool)
     for _ in range(5):
@@ -259,7 +259,7 @@ def _fit_channel(mu: np.ndarray, v: np.ndarray, s: np.ndarray, black: float, n_p
         x, y, sy = x[cut], y[cut], sy[cut]
         counts = [k for k, ok in zip(counts, cut) if ok]
     if x.size < 4:
-        raise MetrawError(f"channel {channel}: too few signal levels for a single-frame fit" + WAYS_OUT)
+        raise MetrawError(f"channel {channel}: too few signal levels for a single-frame fit")
     beta, cov, chi2 = _fit_ptc(x, y, sy, quadratic=True)
     a, b, c = (float(t) for t in beta)
     ua = math.sqrt(cov[0, 0]) if np.isfinite(cov[0, 0]) else float("inf")
@@ -282,7 +282,7 @@ def _fit_channel(mu: np.ndarray, v: np.ndarray, s: np.ndarray, black: float, n_p
     if not (a > 0 and ua < MAX_RELATIVE_GAIN_UNCERTAINTY * a):
         raise MetrawError(f"channel {channel}: the frame does not constrain the gain (K = {a:.3g} +- {ua:.2g} DN/e-, "
                           f"signal range {span[0]:.1f}..{span[1]:.1f} DN above black): too flat or too textured; it "
-                          f"needs smooth regions over a wide range of brightness, or use a flat/dark series")
+                          f"needs smooth regions over a wide range of brightness")
     if b - 1.0 / 12.0 <= 0:
         notes.append(f"channel {channel}: read noise not resolved above quantisation")
     prnu = math.sqrt(c) if c > 0 else 0.0
@@ -396,7 +396,7 @@ def from_image(image: RawImage | np.ndarray, *, black_level_dn: float | None = N
             refused[colour] = str(exc)
             channels[colour] = _refused_channel(colour, rad.black_dn, black_u)
     if len(refused) == len(channels):
-        raise MetrawError("; ".join(refused.values()))
+        raise MetrawError("; ".join(refused.values()) + WAYS_OUT)  # the frame refused: the two other calibrations
     notes += [f"channel {c} not fitted: {why}" for c, why in refused.items()]
     prof = _build_profile(base, rad, channels, None)
     return CalibrationResult(prof, "single_frame_poisson_gaussian", channels, rad.shift, notes)
