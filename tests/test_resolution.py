@@ -23,7 +23,9 @@ def _point(rng, n_images: int, iou: float) -> dict:
 
 def _row(metrics: dict, name: str) -> dict:
     iou, var = iou_measurement(metrics, name)
-    return {"point": name, "iou": iou, "iou_sd": var ** 0.5, "n_test_images": metrics["n_images"], "n_replicates": 1}
+    tp, fn = (sum(r[k] for r in metrics["per_image"]) for k in ("tp", "fn"))
+    return {"point": name, "iou": iou, "iou_sd": var ** 0.5, "n_test_images": metrics["n_images"], "n_replicates": 1,
+            "recall": tp / (tp + fn) if tp + fn > 0 else None}
 
 
 def test_two_equal_points_differ_by_more_than_the_resolvable_difference_five_percent_of_the_time(tmp_path):
@@ -63,3 +65,15 @@ def test_a_one_image_test_split_resolves_nothing_and_warns(tmp_path):
     info, warning = log_lines(res)
     assert "test split: 1 images, 3 cars" in info
     assert "warning" in warning and "cannot tell its points apart" in warning
+
+
+def test_a_test_split_without_car_area_at_every_point_is_refused(tmp_path):
+    from metraw.errors import MetrawError
+
+    rng = np.random.default_rng(2)
+    rows = [_row(_point(rng, 3, 0.5), f"p{i}") | {"recall": None} for i in range(3)]
+    (tmp_path / "m.json").write_text(json.dumps(_point(rng, 3, 0.5)))
+    with pytest.raises(MetrawError, match="no labelled car in the test split at any of the 3 points"):
+        resolution(rows, tmp_path / "m.json")
+    rows[1]["recall"] = 0.4  # one point's test images hold cars: measured
+    assert resolution(rows, tmp_path / "m.json")["test_images"] == 3

@@ -11,7 +11,8 @@ smallest IoU difference the run resolves is
 A test split of one image has no per-image spread to measure: there sigma's per-image term is its bound, 0.5
 (Popoviciu: a quantity in [0, 1] has a standard deviation of at most 0.5), so delta >= 1.41 and the run resolves
 nothing. The aggregate warns when delta exceeds the spread of the points' IoUs (max - min): the study cannot tell
-its points apart, and its tolerances rest on noise.
+its points apart, and its tolerances rest on noise. A run whose test split holds no car area at any point (recall
+undefined everywhere: the emulation can lose a source's sliver of a car at the image's edge) is refused.
 """
 
 from __future__ import annotations
@@ -22,6 +23,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from metraw.errors import MetrawError
 
 #: delta = RESOLUTION_FACTOR x sigma: two standard deviations of the difference of two points' IoUs.
 RESOLUTION_FACTOR = 2.0 * math.sqrt(2.0)
@@ -50,6 +53,10 @@ def resolution(rows: list[dict[str, Any]], nominal_metrics: str | Path) -> dict[
     """The test split's size (at the nominal point), the typical IoU error, the smallest resolvable IoU difference
     and whether it is below the IoU spread over the measured points (rows with a finite IoU)."""
     measured = [r for r in rows if r.get("iou") is not None and math.isfinite(float(r["iou"]))]
+    if measured and all(r.get("recall") is None for r in measured):
+        raise MetrawError(f"no labelled car in the test split at any of the {len(measured)} points (no car area in "
+                          f"its {measured[0].get('n_test_images')} test images; recall undefined): the IoU measures "
+                          "false alarms only; give a source whose test images hold cars")
     sds = [point_sd(r) for r in measured]
     ious = [float(r["iou"]) for r in measured]
     sigma = float(np.median(sds)) if sds else math.inf
