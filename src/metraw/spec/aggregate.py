@@ -249,6 +249,7 @@ def _aggregate(options: AggregateOptions, params: dict, required: float, rows: l
     from metraw.study.points import CATEGORICAL, NOMINAL, swept_parameters, target_params
 
     real = _sim_to_real(options, rows)
+    res = resolution.resolution(rows, options.metrics_pattern.format(results=options.results, point=NOMINAL))
     all_names = swept_parameters(params)
     names = [n for n in all_names if n not in CATEGORICAL]  # the GP's axes
     categorical = [n for n in all_names if n in CATEGORICAL]
@@ -273,7 +274,6 @@ def _aggregate(options: AggregateOptions, params: dict, required: float, rows: l
     grids = [_grid_summary(params, grid, rows, nominal, all_names, required, options.seed)
              for grid in params["target"].get("grids") or []]
     nominal_row = next(r for r in rows if r["point"] == NOMINAL)
-    res = resolution.resolution(rows, options.metrics_pattern.format(results=options.results, point=NOMINAL))
     prop_model = _property_model(options, rows) if options.stores_pattern else None
     spec = build_spec(tols, nominal, required, nominal_row.get("_signal"), choices=choices,
                       context={"params_file": str(options.params), "loo_share_inside_2sigma": iou_loo["share_inside"],
