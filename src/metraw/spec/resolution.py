@@ -11,8 +11,9 @@ smallest IoU difference the run resolves is
 A test split of one image has no per-image spread to measure: there sigma's per-image term is its bound, 0.5
 (Popoviciu: a quantity in [0, 1] has a standard deviation of at most 0.5), so delta >= 1.41 and the run resolves
 nothing. The aggregate warns when delta exceeds the spread of the points' IoUs (max - min): the study cannot tell
-its points apart, and its tolerances rest on noise. A run whose test split holds no car area at any point (recall
-undefined everywhere: the emulation can lose a source's sliver of a car at the image's edge) is refused.
+its points apart, and its tolerances rest on noise; it warns too when the test split holds no car area at any point
+(recall undefined everywhere: the emulation can lose a source's sliver of a car at the image's edge; a user's folder
+whose test split holds no car is refused before anything runs, ``metraw check-folder``).
 """
 
 from __future__ import annotations
@@ -23,8 +24,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-from metraw.errors import MetrawError
 
 #: delta = RESOLUTION_FACTOR x sigma: two standard deviations of the difference of two points' IoUs.
 RESOLUTION_FACTOR = 2.0 * math.sqrt(2.0)
@@ -53,10 +52,6 @@ def resolution(rows: list[dict[str, Any]], nominal_metrics: str | Path) -> dict[
     """The test split's size (at the nominal point), the typical IoU error, the smallest resolvable IoU difference
     and whether it is below the IoU spread over the measured points (rows with a finite IoU)."""
     measured = [r for r in rows if r.get("iou") is not None and math.isfinite(float(r["iou"]))]
-    if measured and all(r.get("recall") is None for r in measured):
-        raise MetrawError(f"no labelled car in the test split at any of the {len(measured)} points (no car area in "
-                          f"its {measured[0].get('n_test_images')} test images; recall undefined): the IoU measures "
-                          "false alarms only; give a source whose test images hold cars")
     sds = [point_sd(r) for r in measured]
     ious = [float(r["iou"]) for r in measured]
     sigma = float(np.median(sds)) if sds else math.inf
@@ -64,6 +59,7 @@ def resolution(rows: list[dict[str, Any]], nominal_metrics: str | Path) -> dict[
     spread = max(ious) - min(ious) if ious else 0.0
     split = test_split(nominal_metrics)
     return {"test_images": split["images"], "test_cars": split["cars"], "iou_sd_median": sigma,
+            "test_split_has_cars": any(r.get("recall") is not None for r in measured),
             "resolvable_iou_difference": delta, "iou_spread": spread, "resolves_points": bool(delta < spread),
             "per_image_error": "measured" if split["images"] >= 2 else
             f"bounded ({ONE_IMAGE_SD}: one test image has no per-image spread)",
@@ -84,6 +80,9 @@ def log_lines(res: dict[str, Any]) -> list[str]:
     lines = [f"  test split: {res['test_images']} images, {cars}; resolvable IoU difference "
              f"{res['resolvable_iou_difference']:.3f} (2 sqrt(2) x median IoU sd {res['iou_sd_median']:.3f}; "
              f"per-image error {res['per_image_error']})"]
+    if not res["test_split_has_cars"]:
+        lines.append("metraw aggregate: warning: no car area in the test split at any point (recall undefined "
+                     "everywhere): the IoU measures false alarms only")
     if not res["resolves_points"]:
         lines.append(f"metraw aggregate: warning: the resolvable IoU difference {res['resolvable_iou_difference']:.3f}"
                      f" exceeds the IoU spread over the points ({res['iou_spread']:.3f}): this run cannot tell its "
