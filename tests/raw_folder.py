@@ -60,7 +60,8 @@ def true_camera():
 
 
 def make_raw_folder(folder: Path, n_images: int = 4, size_px: int = 160, flat_px: int = 96, seed: int = 0) -> Path:
-    """``folder`` with ``n_images`` synthetic drone scenes as DNG + ``STEM_mask.png`` (car area fraction x 255),
+    """``folder`` with ``n_images`` synthetic drone scenes as DNG + ``STEM_mask.png`` (car area fraction x 255; the
+    generator's scenes in order, those with cars on less than 1 % of their area skipped),
     ``flats/`` (``FLAT_LEVELS_E`` x 2 frames) and ``darks/`` (2 frames), all of ``true_camera()``."""
     from PIL import Image
 
@@ -69,11 +70,16 @@ def make_raw_folder(folder: Path, n_images: int = 4, size_px: int = 160, flat_px
 
     camera = true_camera()
     folder.mkdir(parents=True, exist_ok=True)
-    for i in range(n_images):
-        scene = generate_one(i, seed, size_px, camera=camera)
-        write_dng(folder / f"IMG_{i:04d}.dng", scene.data, camera.cfa_pattern)
+    i, scene_index = 0, 0
+    while i < n_images:
+        scene = generate_one(scene_index, seed, size_px, camera=camera)
+        scene_index += 1
         mask8 = np.round(np.clip(scene.mask, 0, 1) * 255).astype(np.uint8)
+        if mask8.mean() < 0.01 * 255:
+            continue  # a small scene without a car (or a sliver of one at its edge, which the emulation may lose)
+        write_dng(folder / f"IMG_{i:04d}.dng", scene.data, camera.cfa_pattern)
         Image.fromarray(mask8).save(folder / f"IMG_{i:04d}_mask.png")
+        i += 1
     rng = rng_from_seed(seed + 1000)
     for sub, levels in (("flats", [e for e in FLAT_LEVELS_E for _ in range(2)]), ("darks", [0.0, 0.0])):
         (folder / sub).mkdir(exist_ok=True)

@@ -44,7 +44,7 @@ def test_profile_rejects_invalid_values(bad, message):
 
 
 def test_profile_json_errors_are_clear():
-    with pytest.raises(MetrawError, match="no schema_version"):
+    with pytest.raises(MetrawError, match="lacks required field"):  # no schema_version: the current one
         CalibrationProfile.from_dict({"gain_dn_per_e": 1})
     with pytest.raises(MetrawError, match="schema_version 99"):
         CalibrationProfile.from_dict({"schema_version": 99})

@@ -85,7 +85,10 @@ def test_workflow_runs_from_dng_raws_and_recovers_the_camera(tmp_path):
 def test_dvc_yaml_of_a_raws_source_calibrates_first(tmp_path):
     root = make_workspace(tmp_path / "ws", raws_params())
     stages = yaml.safe_load((root / "dvc.yaml").read_text())["stages"]
-    assert stages["source_camera"]["deps"][:3] == ["raws", "raws/flats", "raws/darks"]
+    assert stages["source_check"]["deps"][0] == "raws" and stages["source_check"]["outs"] == [
+        "results/source/folder_check.json"]
+    assert stages["source_camera"]["deps"][:4] == ["results/source/folder_check.json", "raws", "raws/flats",
+                                                   "raws/darks"]
     assert stages["source_camera"]["outs"] == ["results/source/camera.json",
                                                "results/source/camera_calibration.json"]
     assert stages["source_store"]["deps"][:2] == ["results/source/camera.json", "raws"]
@@ -102,6 +105,8 @@ def test_the_other_calibration_methods_are_one_command_each(tmp_path, calibratio
     (root / "camera.json").write_text("{}")
     dry = _run(["snakemake", "--cores", "2", "--dry-run", "--printshellcmds"], root).stdout
     assert expect in dry, dry[-2000:]
+    # the folder is checked first, with the training's split: the calibration waits for it
+    assert "metraw check-folder raws --kind raws --labels mask --test-fraction 0.2 --split-seed 0" in dry
 
 
 @needs_tools
@@ -123,3 +128,21 @@ def test_a_bad_raws_source_is_one_line_before_anything_runs(tmp_path, breakage, 
     lines = [ln for ln in proc.stderr.splitlines() if ln.startswith("metraw workflow: error:")]
     assert len(lines) == 1 and message in lines[0], proc.stderr[-2000:]
     assert not (root / "results").exists() and not (root / "data").exists()
+
+
+@needs_tools
+def test_a_photos_source_is_checked_before_its_ingest(tmp_path):
+    from workflow_workspace import fake_real_folder
+
+    params = tiny_params()
+    params["source"]["dataset"] = "photos"
+    params["source"]["photos"] = {"path": "photos", "gsd_m": 0.135, "labels": "yolo", "labels_class": ["car"],
+                                  "white_fraction": 1.0, "seed": 0}
+    root = make_workspace(tmp_path / "ws", params)
+    fake_real_folder(root / "photos", n=5)
+    stages = yaml.safe_load((root / "dvc.yaml").read_text())["stages"]
+    assert list(stages)[0] == "source_check" and stages["source_store"]["deps"][0] == "results/source/folder_check.json"
+    dry = _run(["snakemake", "--cores", "2", "--dry-run", "--printshellcmds", "--", "data/source.zarr"], root).stdout
+    assert ("metraw check-folder photos --kind photos --labels yolo --car-class car --test-fraction 0.2 "
+            "--split-seed 0 --out results/source/folder_check.json") in dry
+    assert "metraw ingest photos --labels yolo --car-class car --camera" in dry

@@ -28,7 +28,31 @@ if config["source"]["dataset"] == "synthetic":
             " --size {params.synthetic[size_px]} --camera {input.params_file} --out {output} --workers {threads}"
             " --codec-step {params.codec[step]} --codec-seed {params.codec[seed]} 2> {log}"
 
-elif config["source"]["dataset"] == "raws":
+else:
+
+    rule source_check:
+        """One pass over the raws or photos folder before anything runs (metraw check-folder, metraw.study.folder):
+        every image has its labels, of its size and a valid range, one sensor, cars in the test split; every problem
+        one line, the calibration and the ingest wait for it (results/source/folder_check.json: the summary)."""
+        input:
+            images=SOURCE_FILES["images"],
+            params_file=ancient(PARAMS_FILE),  # the effective params (Snakefile); params: track its values
+        output:
+            SOURCE_CHECK,
+        params:
+            args=check_folder_arguments(config),
+        priority: 1000  # every job waits for it
+        resources:
+            mem_mb=1000,
+            runtime=10,  # minutes
+        log:
+            "logs/source_check.log",
+        shell:
+            # the problems on the terminal too (tee): they are what the user must fix before anything runs
+            "metraw check-folder {params.args} --out {output} 2>&1 | tee {log}"
+
+
+if config["source"]["dataset"] == "raws":
     # A team's own camera raws (metraw.study.sources): the camera calibrated first (photon transfer from flats and
     # darks, a given profile, or the single-frame fit of the raws), then the raws ingested with that camera's
     # noise model and geometry and their car masks.
@@ -40,6 +64,7 @@ elif config["source"]["dataset"] == "raws":
         """The source camera's calibrated profile (results/source/camera.json: params' camera with the measured
         gain, read noise and black level and their uncertainties) and the whole fit (camera_calibration.json)."""
         input:
+            check=SOURCE_CHECK,  # the folder checked first
             images=SOURCE_FILES["images"],
             flats=SOURCE_FILES.get("flats", []),
             darks=SOURCE_FILES.get("darks", []),
@@ -64,6 +89,7 @@ elif config["source"]["dataset"] == "raws":
 
     rule source_store:
         input:
+            check=SOURCE_CHECK,
             images=SOURCE_FILES["images"],
             camera=SOURCE_CAMERA,
         output:
@@ -71,6 +97,7 @@ elif config["source"]["dataset"] == "raws":
         params:
             path=RAWS["path"],
             labels=RAWS.get("labels", "mask"),
+            classes=car_class_arguments(RAWS),
             codec=config["codec"],
         priority: 1000  # every job waits for it
         resources:
@@ -79,20 +106,22 @@ elif config["source"]["dataset"] == "raws":
         log:
             "logs/source_store.log",
         shell:
-            "metraw ingest {params.path} --labels {params.labels} --camera {input.camera} --out {output}"
+            "metraw ingest {params.path} --labels {params.labels}{params.classes} --camera {input.camera} --out {output}"
             " --codec-step {params.codec[step]} --codec-seed {params.codec[seed]} 2> {log}"
 
-else:
+elif config["source"]["dataset"] == "photos":
 
     rule source_store:
         input:
             SOURCE_FILES["images"],
+            check=SOURCE_CHECK,
             params_file=ancient(PARAMS_FILE),  # the effective params (Snakefile); params: track its values
         output:
             directory(SOURCE_STORE),
         params:
             photos=config["source"]["photos"],
             labels=config["source"]["photos"].get("labels", "yolo"),
+            classes=car_class_arguments(config["source"]["photos"]),
             camera=config["source"]["camera"],
             codec=config["codec"],
         priority: 1000  # every job waits for it: before the sim-to-real emulations (priority <= ~600), as pretrain_scenes
@@ -102,7 +131,7 @@ else:
         log:
             "logs/source_store.log",
         shell:
-            "metraw ingest {params.photos[path]} --labels {params.labels} --camera {input.params_file}"
+            "metraw ingest {params.photos[path]} --labels {params.labels}{params.classes} --camera {input.params_file}"
             " --gsd-m {params.photos[gsd_m]} --white-fraction {params.photos[white_fraction]}"
             " --seed {params.photos[seed]} --out {output}"
             " --codec-step {params.codec[step]} --codec-seed {params.codec[seed]} 2> {log}"

@@ -74,6 +74,7 @@ READS_DECODED = {"emulate", "emulate_real", "train", "train_source", "evaluate_s
 POINT_DIR = "results/points/{point}"
 SOURCE_STORE = "data/source.zarr"
 SOURCE_CAMERA = "results/source/camera.json"
+SOURCE_CHECK = "results/source/folder_check.json"
 REAL_STORE = "data/real.zarr"
 PRETRAINED_MODEL = "results/pretrained/{cfa_pattern}/model"
 PRETRAIN_SCENES = "data/pretrain_scenes.zarr"
@@ -183,8 +184,17 @@ def build(params: dict[str, Any]) -> dict[str, Any]:
         folders = _source_folders(params)
         stages["source_store"]["deps"].insert(0, SOURCE_CAMERA)
         stages = {"source_camera": {"cmd": _cmd("source_camera", [SOURCE_CAMERA]), "params": ["source", "codec"],
-                                    "deps": [*folders, "workflow/rules/source.smk"],
+                                    "deps": [SOURCE_CHECK, *folders, "workflow/rules/source.smk"],
                                     "outs": [SOURCE_CAMERA, "results/source/camera_calibration.json"]},
+                  **stages}
+    elif params["source"]["dataset"] == "photos":
+        stages["source_store"]["deps"].insert(0, SOURCE_CHECK)
+    if params["source"]["dataset"] != "synthetic":
+        # the folder checked first (metraw check-folder): every problem before the calibration or the ingest
+        stages = {"source_check": {"cmd": _cmd("source_check", [SOURCE_CHECK]),
+                                   "params": ["source", "training.split_seed", "training.test_fraction"],
+                                   "deps": [*_source_folders(params)[:1], "workflow/rules/source.smk"],
+                                   "outs": [SOURCE_CHECK]},
                   **stages}
     if pretrain_settings(params)["enabled"]:
         rules = "workflow/rules/segment.smk"

@@ -31,6 +31,10 @@ SMOOTH_QUANTILE = 0.25
 TILES = 4
 #: Largest relative standard uncertainty of K that from_image still reports as a fit.
 MAX_RELATIVE_GAIN_UNCERTAINTY = 0.5
+#: What a refused single-frame fit leaves a user: the two other calibrations (README "Your own data").
+WAYS_OUT = ("; calibrate from flats and darks instead (metraw calibrate --flats F.. --darks D..; params.yaml "
+            "source.raws.calibration.flats, darks) or give a camera profile (--profile camera.json; "
+            "calibration.profile; docs/noise-model.md)")
 
 
 # ------------------------------------------------------------------------------ single frame
@@ -278,7 +282,7 @@ def _fit_channel(mu: np.ndarray, v: np.ndarray, s: np.ndarray, black: float, n_p
     if not (a > 0 and ua < MAX_RELATIVE_GAIN_UNCERTAINTY * a):
         raise MetrawError(f"channel {channel}: the frame does not constrain the gain (K = {a:.3g} +- {ua:.2g} DN/e-, "
                           f"signal range {span[0]:.1f}..{span[1]:.1f} DN above black): too flat or too textured; it "
-                          f"needs smooth regions over a wide range of brightness, or use a flat/dark series")
+                          f"needs smooth regions over a wide range of brightness")
     if b - 1.0 / 12.0 <= 0:
         notes.append(f"channel {channel}: read noise not resolved above quantisation")
     prnu = math.sqrt(c) if c > 0 else 0.0
@@ -392,7 +396,7 @@ def from_image(image: RawImage | np.ndarray, *, black_level_dn: float | None = N
             refused[colour] = str(exc)
             channels[colour] = _refused_channel(colour, rad.black_dn, black_u)
     if len(refused) == len(channels):
-        raise MetrawError("; ".join(refused.values()))
+        raise MetrawError("; ".join(refused.values()) + WAYS_OUT)  # the frame refused: the two other calibrations
     notes += [f"channel {c} not fitted: {why}" for c, why in refused.items()]
     prof = _build_profile(base, rad, channels, None)
     return CalibrationResult(prof, "single_frame_poisson_gaussian", channels, rad.shift, notes)

@@ -2,8 +2,8 @@
 
 Each subcommand lives in its own module ``metraw.cli.<name>`` exposing
 ``register(subparsers)``, which adds its parser and sets ``func(args) -> int``.
-Errors caused by the input (``MetrawError``, unreadable files) print one line on stderr
-and exit with status 2; nothing half-written is left (outputs are written atomically). With
+Errors caused by the input (``MetrawError``, unreadable files) print one line on stderr (``metraw
+check-folder``: one line per problem it found) and exit with status 2; nothing half-written is left (outputs are written atomically). With
 ``METRAW_USAGE_LOG`` set (the workflow sets it), a command that succeeds ends with one line of the
 CPU, wall time and peak memory it used (``metraw.progress.usage_line``).
 """
@@ -19,7 +19,7 @@ from metraw import __version__, allocator, progress
 from metraw.errors import MetrawError
 
 #: Subcommand modules in the order shown by ``metraw --help``.
-COMMANDS = ("info", "ingest", "calibrate", "scenes", "encode", "decode", "verify", "emulate",
+COMMANDS = ("info", "check-folder", "ingest", "calibrate", "scenes", "encode", "decode", "verify", "emulate",
             "pretrain", "train", "evaluate", "predict", "compress", "aggregate", "check", "normalise")
 
 
@@ -29,7 +29,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"metraw {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMANDS:
-        module_name = f"metraw.cli.{name}"
+        module_name = f"metraw.cli.{name.replace('-', '_')}"
         if importlib.util.find_spec(module_name) is None:
             continue
         importlib.import_module(module_name).register(sub)
@@ -57,6 +57,8 @@ def main(argv: list[str] | None = None) -> int:
         return rc
     except MetrawError as exc:
         print(f"metraw {args.command}: error: {one_line(str(exc))}", file=sys.stderr)
+        for line in getattr(exc, "details", ()):  # a check that lists every problem it found, one a line
+            print(f"  {one_line(line)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"metraw {args.command}: interrupted", file=sys.stderr)

@@ -18,6 +18,9 @@ def register(subparsers) -> None:
                                     "source.camera of ./params.yaml")
     p.add_argument("--labels", choices=("auto", "yolo", "mask", "none"), default="auto",
                    help="labels of processed images: YOLO .txt next to each image, or STEM_mask.png (default: auto)")
+    p.add_argument("--car-class", action="append", default=[], metavar="NAME",
+                   help="YOLO class counted as car, as the class-name file names it (repeatable; default: the "
+                        "classes named car, truck, bus, minibus, van, pickup or vehicle)")
     p.add_argument("--gsd-m", type=float, default=None, help="ground sample distance of processed photos [m]")
     p.add_argument("--white-fraction", type=float, default=1.0,
                    help="fraction of the camera's saturation that sRGB white maps to (processed photos)")
@@ -78,15 +81,16 @@ def run(args) -> int:
         for f in progress_bar(files, total=len(files), desc="ingest"):
             kwargs = dict(meta) if f.suffix.lower() in (".raw", ".bin") else {}
             image = read_raw(f, camera=camera, labels=args.labels, seed=args.seed, gsd_m=args.gsd_m,
-                             white_fraction=args.white_fraction, **kwargs)
+                             white_fraction=args.white_fraction, car_classes=args.car_class or None, **kwargs)
             first = first or (f, image.profile.cfa_pattern, image.profile.adc_bits)
             check_same_sensor(f, image.profile, first)
             store.append(codec.mark(image))
             shapes.add(image.shape)
             approx += image.profile.approximate
             car_boxes += int(image.meta.get("car_boxes", 0))
+        classes = {"car_classes": args.car_class} if args.car_class else {}
         store.set_attrs(ingest={"inputs": [str(i) for i in args.inputs], "files": [f.name for f in files],
-                                "labels": args.labels, "seed": args.seed, "gsd_m": args.gsd_m,
+                                "labels": args.labels, **classes, "seed": args.seed, "gsd_m": args.gsd_m,
                                 "camera": camera.camera if camera else "default (params.yaml source.camera)"},
                         **({"camera_profile": camera.to_dict()} if camera is not None else {}),
                         **codec.attrs())

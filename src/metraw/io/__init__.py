@@ -41,7 +41,8 @@ _FILLABLE = ("gain_dn_per_e", "read_noise_e", "dark_current_e_per_s", "full_well
 
 
 def read_raw(path: str | os.PathLike, *, camera: CalibrationProfile | None = None, labels: str = "auto",
-             seed: int = 0, white_fraction: float = 1.0, gsd_m: float | None = None, **metadata: Any) -> RawImage:
+             seed: int = 0, white_fraction: float = 1.0, gsd_m: float | None = None,
+             car_classes: list[str] | tuple[str, ...] | None = None, **metadata: Any) -> RawImage:
     """Read one image file as a ``RawImage`` (see the module docstring for formats).
 
     ``camera``: for processed images, the camera whose photoelectrons and sensor model the
@@ -50,6 +51,7 @@ def read_raw(path: str | os.PathLike, *, camera: CalibrationProfile | None = Non
     then comes from the camera profile). ``labels``: "auto", "yolo", "mask" or "none": the car mask from
     ``STEM_mask.png`` (exact) or YOLO boxes in ``STEM.txt`` (box-approximate), for any format. ``seed``: makes
     the approximate raw's noise reproducible. ``gsd_m``: ground sample distance of a processed photo [m].
+    ``car_classes``: the YOLO classes counted as cars (default ``metraw.io.labels.CAR_CLASS_NAMES``).
     ``metadata``: headerless raw fields (width, height, ...).
     """
     path = Path(path)
@@ -59,7 +61,7 @@ def read_raw(path: str | os.PathLike, *, camera: CalibrationProfile | None = Non
         raise MetrawError(f"{path}: is a directory, not an image file")
     suffix = path.suffix.lower()
     if suffix in HEADERLESS_SUFFIXES:
-        return _labelled(_with_camera(read_headerless(path, **metadata), camera), path, labels)
+        return _labelled(_with_camera(read_headerless(path, **metadata), camera), path, labels, car_classes)
     if metadata:
         raise MetrawError(f"{path}: metadata {sorted(metadata)} is only used for headerless .raw files")
     if path.stat().st_size == 0:
@@ -67,29 +69,30 @@ def read_raw(path: str | os.PathLike, *, camera: CalibrationProfile | None = Non
     with open(path, "rb") as fh:
         head = fh.read(16)
     if head[:4] == b"MRAW":
-        return _labelled(_with_camera(read_mraw(path), camera), path, labels)
+        return _labelled(_with_camera(read_mraw(path), camera), path, labels, car_classes)
     if is_tiff(head):
         kind = "cfa" if suffix in RAW_SUFFIXES else tiff_kind(path)
         if kind == "cfa":
-            return _labelled(_with_camera(read_camera_raw(path), camera), path, labels)
+            return _labelled(_with_camera(read_camera_raw(path), camera), path, labels, car_classes)
         if kind != "rgb8":
-            return _labelled(_with_camera(read_tiff(path), camera), path, labels)
+            return _labelled(_with_camera(read_tiff(path), camera), path, labels, car_classes)
     elif not (head[:8] == b"\x89PNG\r\n\x1a\n" or head[:3] == b"\xff\xd8\xff"):
         if suffix in PROCESSED_SUFFIXES | {".tif", ".tiff"}:
             raise MetrawError(f"{path}: corrupt file (content does not match its {suffix} suffix)")
-        return _labelled(_with_camera(read_camera_raw(path), camera), path, labels)  # LibRaw sniffs the format
+        # LibRaw sniffs the format
+        return _labelled(_with_camera(read_camera_raw(path), camera), path, labels, car_classes)
     return read_processed(path, camera if camera is not None else default_camera(), labels=labels, seed=seed,
-                          white_fraction=white_fraction, gsd_m=gsd_m)
+                          white_fraction=white_fraction, gsd_m=gsd_m, car_classes=car_classes)
 
 
-def _labelled(image: RawImage, path: Path, labels: str) -> RawImage:
+def _labelled(image: RawImage, path: Path, labels: str, car_classes=None) -> RawImage:
     """A raw image with the car mask of its label file (``metraw.io.labels.attach_labels``); a raw that carries
     a mask already (a .mraw) keeps it unless a label file is asked for."""
     if labels == "none" or (labels == "auto" and image.mask is not None):
         return image
     from metraw.io.labels import attach_labels
 
-    return attach_labels(image, path, labels)
+    return attach_labels(image, path, labels, car_classes=car_classes)
 
 
 def read_mraw(path: str | os.PathLike) -> RawImage:

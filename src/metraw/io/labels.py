@@ -1,8 +1,9 @@
 """Car labels of processed images: YOLO box files and mask images -> per-pixel car area fraction.
 
 YOLO: one text line per object, ``class cx cy w h`` with the centre and size normalised by the
-image width / height; boxes are axis-aligned rectangles. Class names come from a ``*.names``
-file (or ``classes.txt``) next to the images; the car classes are ``CAR_CLASS_NAMES``. The mask
+image width / height; boxes are axis-aligned rectangles. Class names come from a ``*.names``,
+``classes.txt`` or ``data.yaml`` (``names:``) next to the images; the car classes are those named
+(``labels_class``), by default ``CAR_CLASS_NAMES``. The mask
 is the exact area fraction of each pixel covered by the union of the car boxes (pixel i spans
 [i, i+1) in box coordinates) -- box-approximate, since a box is not a car's outline.
 """
@@ -21,23 +22,62 @@ CAR_CLASS_NAMES = frozenset({"car", "truck", "bus", "minibus", "van", "pickup", 
 MASK_SUFFIXES = ("_mask.png", ".mask.png")
 
 
-def find_class_names(directory: Path) -> list[str] | None:
-    """Class names from the single ``*.names`` file (or ``classes.txt``) in ``directory``, else None."""
-    candidates = sorted(directory.glob("*.names")) or sorted(directory.glob("classes.txt"))
-    if not candidates:
-        return None
-    if len(candidates) > 1:
-        raise MetrawError(f"{directory}: several class-name files ({', '.join(c.name for c in candidates)})")
-    names = [line.strip() for line in candidates[0].read_text(errors="replace").splitlines()]
-    while names and not names[-1]:
-        names.pop()
+#: Files that name a YOLO data set's classes, beside its images: Darknet's ``*.names`` / ``classes.txt`` (one name a
+#: line) and the Ultralytics ``data.yaml`` (``names:`` a list, or a map of class id to name).
+CLASS_FILE_PATTERNS = ("*.names", "classes.txt", "data.yaml", "data.yml")
+
+
+def _names_from_file(path: Path) -> list[str]:
+    """The class names one class-name file lists, in class-id order (``MetrawError`` naming the file)."""
+    if path.suffix in (".yaml", ".yml"):
+        from metraw.errors import read_yaml
+
+        data = read_yaml(path, "YOLO data set file")
+        names = data.get("names") if isinstance(data, dict) else None
+        if isinstance(names, dict):
+            try:
+                ids = sorted(int(k) for k in names)
+            except (TypeError, ValueError):
+                raise MetrawError(f"{path}: names: map keys must be class ids 0, 1, ...") from None
+            if ids != list(range(len(ids))):
+                raise MetrawError(f"{path}: names: class ids {ids} are not 0 .. {len(ids) - 1}")
+            names = [names.get(i, names.get(str(i))) for i in ids]
+        if not isinstance(names, list):
+            raise MetrawError(f"{path}: no names: list or map of the classes")
+        names = ["" if n is None else str(n).strip() for n in names]
+    else:
+        names = [line.strip() for line in path.read_text(errors="replace").splitlines()]
+        while names and not names[-1]:
+            names.pop()
     if not names or any(not n for n in names):
-        raise MetrawError(f"{candidates[0]}: class-name file has empty entries")
+        raise MetrawError(f"{path}: class-name file has empty entries")
     return names
 
 
-def car_class_ids(names: list[str]) -> set[int]:
-    return {i for i, n in enumerate(names) if n.lower() in CAR_CLASS_NAMES}
+def find_class_names(directory: Path) -> list[str] | None:
+    """Class names from the class-name files in ``directory`` (``CLASS_FILE_PATTERNS``), else None; several files
+    must list the same names."""
+    candidates = sorted({c for pattern in CLASS_FILE_PATTERNS for c in directory.glob(pattern) if c.is_file()})
+    if not candidates:
+        return None
+    lists = [_names_from_file(c) for c in candidates]
+    if any(names != lists[0] for names in lists[1:]):
+        raise MetrawError(f"{directory}: class-name files list different classes "
+                          f"({', '.join(c.name for c in candidates)})")
+    return lists[0]
+
+
+def car_class_ids(names: list[str], car_classes: list[str] | tuple[str, ...] | None = None) -> set[int]:
+    """Ids of the classes counted as cars: those named in ``car_classes`` (params ``labels_class``, case-insensitive;
+    a name the data set does not list is a ``MetrawError``), by default those in ``CAR_CLASS_NAMES``."""
+    if not car_classes:
+        return {i for i, n in enumerate(names) if n.lower() in CAR_CLASS_NAMES}
+    wanted = {c.lower() for c in car_classes}
+    unknown = sorted(wanted - {n.lower() for n in names})
+    if unknown:
+        raise MetrawError(f"car class {', '.join(unknown)} (labels_class) is not among the data set's classes "
+                          f"{names}")
+    return {i for i, n in enumerate(names) if n.lower() in wanted}
 
 
 def read_yolo(path: Path) -> np.ndarray:
@@ -100,7 +140,8 @@ def box_area_fraction(rects: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 
 
 def read_mask_image(path: Path, shape: tuple[int, int]) -> np.ndarray:
-    """A label mask image (PNG/TIFF) -> car area fraction in [0, 1]: 0/1 as is, else / dtype max."""
+    """A label mask image (PNG/TIFF) -> car area fraction in [0, 1] (``mask_fraction``); colour channels must agree
+    (an alpha channel is dropped), the size must be the image's."""
     from metraw.io.pictures import decode_image
 
     m = decode_image(path)
@@ -112,30 +153,67 @@ def read_mask_image(path: Path, shape: tuple[int, int]) -> np.ndarray:
         m = m[..., 0]
     if m.shape != shape:
         raise MetrawError(f"{path}: mask shape {m.shape} differs from the image shape {shape}")
-    if m.dtype.kind not in "ub":
-        raise MetrawError(f"{path}: mask dtype {m.dtype} not supported (need 8/16-bit integer or bool)")
-    if m.dtype.kind == "b" or m.max() <= 1:
+    return mask_fraction(m, path)
+
+
+def mask_fraction(m: np.ndarray, path: Path | str) -> np.ndarray:
+    """Mask values -> car area fraction (float32): 0 / 1 as they are; integers up to 255 / 255 (the 0-255
+    convention, whatever the bit depth); a 16-bit mask with values above 255 / 65535; floats in [0, 1] as they are.
+    Anything else (negative values, 32-bit values above 255, floats outside [0, 1]) is a ``MetrawError``."""
+    kind = m.dtype.kind
+    if kind == "b":
         return m.astype(np.float32)
-    return (m.astype(np.float64) / np.iinfo(m.dtype).max).astype(np.float32)
+    if kind in "iu":
+        lo, hi = (int(m.min()), int(m.max())) if m.size else (0, 0)
+        if lo >= 0 and hi <= 1:
+            return m.astype(np.float32)
+        if lo >= 0 and hi <= 255:
+            return (m.astype(np.float64) / 255.0).astype(np.float32)
+        if lo >= 0 and m.dtype == np.uint16:
+            return (m.astype(np.float64) / 65535.0).astype(np.float32)
+        raise MetrawError(f"{path}: mask values {lo}..{hi} outside 0 / 1 and 0-255 (area fraction; 0-65535 in a "
+                          "16-bit mask)")
+    if kind == "f":
+        lo, hi = (float(np.min(m)), float(np.max(m))) if m.size else (0.0, 0.0)
+        if not (np.isfinite(lo) and np.isfinite(hi) and 0.0 <= lo and hi <= 1.0):
+            raise MetrawError(f"{path}: mask values {lo:g}..{hi:g} outside [0, 1] (a float mask is the car area "
+                              "fraction)")
+        return m.astype(np.float32)
+    raise MetrawError(f"{path}: mask dtype {m.dtype} not supported (need 8/16-bit integer, bool or float)")
 
 
 def mask_file_for(image_path: Path) -> Path | None:
+    """The mask image of ``image_path``: ``STEM_mask.png`` or ``STEM.mask.png`` beside it, the suffix in lower or
+    upper case (``STEM_mask.PNG``, ``STEM_MASK.PNG``)."""
     for suffix in MASK_SUFFIXES:
-        candidate = image_path.with_name(image_path.stem + suffix)
-        if candidate.is_file():
-            return candidate
+        stem, ext = suffix.rsplit(".", 1)
+        for name in (suffix, f"{stem}.{ext.upper()}", suffix.upper()):
+            candidate = image_path.with_name(image_path.stem + name)
+            if candidate.is_file():
+                return candidate
     return None
 
 
 def is_label_file(path: Path) -> bool:
-    return any(path.name.endswith(s) for s in MASK_SUFFIXES)
+    return any(path.name.lower().endswith(s) for s in MASK_SUFFIXES)
 
 
-def attach_labels(image, path: Path, labels: str = "auto", class_names: list[str] | None = None):
+def image_of_mask(path: Path) -> str:
+    """The image stem a mask file names (``IMG_0001_mask.png`` -> ``IMG_0001``)."""
+    name = path.name
+    for s in MASK_SUFFIXES:
+        if name.lower().endswith(s):
+            return name[: -len(s)]
+    return path.stem
+
+
+def attach_labels(image, path: Path, labels: str = "auto", class_names: list[str] | None = None,
+                  car_classes: list[str] | tuple[str, ...] | None = None):
     """``image`` (a RawImage read from ``path``) with its car mask from the label file beside it.
 
     ``labels``: "mask" (``STEM_mask.png``, exact), "yolo" (``STEM.txt`` boxes: box-approximate, said so in
-    ``meta['mask_kind']``), "auto" (whichever exists, else none) or "none". A required label file that is
+    ``meta['mask_kind']``; ``car_classes``: which classes are cars, ``car_class_ids``), "auto" (whichever exists,
+    else none) or "none". A required label file that is
     missing, or a mask of another size than the image, is a ``MetrawError`` naming the file.
     """
     from metraw.raw.image import RawImage
@@ -151,12 +229,13 @@ def attach_labels(image, path: Path, labels: str = "auto", class_names: list[str
             raise MetrawError(f"{path}: no YOLO label file {yolo.name}")
         names = class_names if class_names is not None else find_class_names(path.parent)
         if names is None:
-            raise MetrawError(f"{path}: YOLO labels need class names (a *.names or classes.txt file next to it)")
+            raise MetrawError(f"{path}: YOLO labels need class names (a *.names, classes.txt or data.yaml "
+                              "with names: next to it)")
         boxes = read_yolo(yolo)
         bad = sorted({int(c) for c in boxes[:, 0] if int(c) >= len(names)})
         if bad:
             raise MetrawError(f"{yolo}: class ids {bad} not in the {len(names)} class names")
-        cars = car_class_ids(names)
+        cars = car_class_ids(names, car_classes)
         is_car = np.isin(boxes[:, 0].astype(int), sorted(cars))
         mask = box_area_fraction(boxes_to_pixels(boxes[is_car], shape), shape)
         counts = {names[c]: int(np.sum(boxes[:, 0] == c)) for c in range(len(names))}

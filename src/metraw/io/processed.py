@@ -104,10 +104,10 @@ def approximate_raw(rgb8: np.ndarray, camera: CalibrationProfile, rng: np.random
 
 def read_processed(path: Path, camera: CalibrationProfile, *, labels: str = "auto", seed: int = 0,
                    white_fraction: float = 1.0, gsd_m: float | None = None,
-                   class_names: list[str] | None = None) -> RawImage:
+                   class_names: list[str] | None = None, car_classes=None) -> RawImage:
     """Read a processed RGB image (+ labels) as an approximate raw (see module docstring)."""
     rgb = decode_image(path)
     image = approximate_raw(rgb, camera, seed_for(path, seed), white_fraction=white_fraction, gsd_m=gsd_m,
                             source=str(path))
     image.provenance[0]["params"]["seed"] = int(seed)
-    return attach_labels(image, path, labels, class_names=class_names)
+    return attach_labels(image, path, labels, class_names=class_names, car_classes=car_classes)

@@ -157,9 +157,7 @@ class CalibrationProfile:
         if not isinstance(data, dict):
             raise MetrawError(f"profile must be an object of fields, got {type(data).__name__}")
         data = dict(data)
-        version = data.pop("schema_version", None)
-        if version is None:
-            raise MetrawError("profile has no schema_version")
+        version = data.pop("schema_version", SCHEMA_VERSION)  # a hand-written profile: the current schema
         if version != SCHEMA_VERSION:
             raise MetrawError(f"profile schema_version {version} is not supported (this metraw reads {SCHEMA_VERSION})")
         fields = dataclasses.fields(cls)
@@ -238,7 +236,8 @@ def check_claims(profile: CalibrationProfile) -> CalibrationProfile:
 def load_profile(path: str | Path, base: CalibrationProfile | None = None) -> CalibrationProfile:
     """A calibration profile the user supplies in a JSON file, checked with `check_claims`.
 
-    The file holds a full profile (``CalibrationProfile.to_json``, with ``schema_version``) or, when
+    The file holds a full profile (``CalibrationProfile.to_json``, or written by hand from docs/noise-model.md's
+    fields: a missing ``schema_version`` means the current one) or, when
     ``base`` is given, an object of fields replacing base's (e.g. ``{"gain_dn_per_e": 0.5}``): a field
     stated there loses base's "unknown" mark (infinite uncertainty) unless the file gives its own
     ``uncertainty``. Every problem is one ``MetrawError`` naming the file.

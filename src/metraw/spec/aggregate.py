@@ -23,6 +23,7 @@ import csv
 import io
 import json
 import math
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -31,6 +32,7 @@ import numpy as np
 
 from metraw.atomic import atomic_path
 from metraw.errors import MetrawError
+from metraw.spec import resolution
 
 DEFAULT_METRICS = "{results}/{point}/metrics.json"
 DEFAULT_COMPRESSION = "{results}/{point}/compression.json"
@@ -270,6 +272,7 @@ def _aggregate(options: AggregateOptions, params: dict, required: float, rows: l
     from metraw.study.points import CATEGORICAL, NOMINAL, swept_parameters, target_params
 
     real = _sim_to_real(options, rows)
+    res = resolution.resolution(rows, options.metrics_pattern.format(results=options.results, point=NOMINAL))
     all_names = swept_parameters(params)
     names = [n for n in all_names if n not in CATEGORICAL]  # the GP's axes
     categorical = [n for n in all_names if n in CATEGORICAL]
@@ -298,7 +301,7 @@ def _aggregate(options: AggregateOptions, params: dict, required: float, rows: l
     model = study_network(rows)
     spec = build_spec(tols, nominal, required, nominal_row.get("_signal"), choices=choices,
                       context={"params_file": str(options.params), "loo_share_inside_2sigma": iou_loo["share_inside"],
-                               **({"model": model} if model else {})},
+                               **({"model": model} if model else {}), **resolution.spec_context(res)},
                       property_model=prop_model, model_at=nominal_row.get("properties"))
 
     for r, rec in zip(gp_rows, iou_loo["points"]):
@@ -338,6 +341,7 @@ def _aggregate(options: AggregateOptions, params: dict, required: float, rows: l
             "properties": prop_model.names, "kernel": prop_model.gp.kernel_description(),
             "white_sd": math.sqrt(prop_model.gp.white_variance), "leave_one_out": prop_model.gp.leave_one_out()},
     }
+    summary["resolution"] = res  # the test split and the smallest IoU difference it resolves (spec/resolution.py)
     if real is not None:
         summary["sim_to_real"] = real
     spec.save(out / "spec.yaml")
@@ -423,6 +427,10 @@ def _aggregate(options: AggregateOptions, params: dict, required: float, rows: l
         print(f"  grid {' x '.join(g['axes'])}: {len(g['points'])} measured points, "
               f"{sum(p['meets_requirement'] for p in g['points'])} meet {required:g}; GP region "
               f"{100 * g['share_of_grid_ok']:.0f} % of the grid box")
+    info, *warnings = resolution.log_lines(res)
+    print(info)
+    for line in warnings:  # to the aggregate's log
+        print(line, file=sys.stderr)
     print(f"wrote {out / 'spec.yaml'}, {out / 'aggregate.json'}, {figdir}/, {plotdir}/")
     return 0
 

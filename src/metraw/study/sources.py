@@ -9,12 +9,15 @@
   they state it (exposure time, focal length), and ``raws.gsd_m`` (sets the altitude) when given.
 - ``photos``: processed 8-bit photos (PNG, JPEG) with boxes or masks at a stated GSD, ingested as approximate raws.
 
-``source_files`` checks the folders before anything runs (one ``MetrawError`` line naming what is missing).
+``source_files`` checks the folders before anything runs (one ``MetrawError`` line naming what is missing);
+the workflow's first rule for a raws or photos source then reads the whole folder once (``metraw check-folder``,
+``check_folder_arguments``; ``metraw.study.folder``) and reports every problem it finds before the calibration.
 Paths are relative to the workflow folder (``base``).
 """
 
 from __future__ import annotations
 
+import shlex
 from pathlib import Path
 from typing import Any
 
@@ -68,3 +71,21 @@ def source_files(params: dict[str, Any], origin: str = "params.yaml", base: str 
         return files
     except MetrawError as exc:
         raise MetrawError(f"{origin}: {exc}") from None
+
+
+def car_class_arguments(section: dict[str, Any]) -> str:
+    """`` --car-class NAME`` for each class of the source's ``labels_class`` (a name or a list), else ""."""
+    names = section.get("labels_class") or []
+    names = [names] if isinstance(names, str) else list(names)
+    return "".join(f" --car-class {shlex.quote(str(n))}" for n in names)
+
+
+def check_folder_arguments(params: dict[str, Any]) -> str:
+    """The arguments of ``metraw check-folder`` for a raws or photos source: its folder, kind, labels, car classes
+    and the training's train/test split (the split the study will score on)."""
+    kind = params["source"]["dataset"]
+    section = params["source"][kind]
+    training = params.get("training") or {}
+    labels = section.get("labels", "mask" if kind == "raws" else "yolo")
+    return (f"{shlex.quote(section['path'])} --kind {kind} --labels {labels}{car_class_arguments(section)}"
+            f" --test-fraction {training.get('test_fraction', 0.2)} --split-seed {training.get('split_seed', 0)}")
