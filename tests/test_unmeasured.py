@@ -234,3 +234,67 @@ def test_metrics_written_before_the_verdict_still_mark_a_model_that_predicts_not
     for k in ("degenerate", "degenerate_reason"):
         single.pop(k)
     assert point_status(single)["models"][0]["degenerate_reason"] == EVERYTHING  # from its per-image records
+
+
+# ----------------------------------------------------------------------------- metraw evaluate on a collapsed model
+@pytest.fixture(scope="module")
+def collapsed(tmp_path_factory):
+    """A toy store and a tiny model with one replicate, trained for one epoch, whose models' output layers are then set
+    to call every pixel background (logit -50): what a training that collapsed leaves behind."""
+    from metraw.segment.toy import toy_store
+    from metraw.segment.train import TrainConfig, train_store
+
+    root = tmp_path_factory.mktemp("collapsed")
+    toy_store(root / "toy.zarr", 12, 96, seed=2)
+    config = TrainConfig(epochs=1, learning_rate=3e-3, batch_size=4, crop_px=32, base_channels=4, depth=2, seed=0,
+                         test_fraction=0.25, replicates=2)
+    train_store(root / "toy.zarr", root / "model", config, device="cpu", progress=False)
+    return root
+
+
+def _set_head_bias(model_dir: Path, value: float) -> None:
+    import torch
+
+    from metraw.segment.train import CHECKPOINT
+
+    ckpt = torch.load(model_dir / CHECKPOINT, weights_only=False)
+    (key,) = [k for k in ckpt["state_dict"] if k.endswith("head.bias")]
+    ckpt["state_dict"][key] = torch.full_like(ckpt["state_dict"][key], value)
+    torch.save(ckpt, model_dir / CHECKPOINT)
+
+
+def test_evaluate_marks_a_collapsed_model_and_its_point(collapsed, tmp_path, capsys):
+    from metraw.cli import main
+
+    model = collapsed / "model"
+    _set_head_bias(model, -50.0)  # the first model calls nothing car; its replicate still works
+    assert main(["evaluate", str(collapsed / "toy.zarr"), "--model", str(model), "--out", str(tmp_path / "a.json")]) == 0
+    m = json.loads((tmp_path / "a.json").read_text())
+    first, second = m["replicates"]
+    assert first["degenerate"] and first["degenerate_reason"] == NOTHING and first["predicted_car_px"] == 0
+    assert first["true_car_px"] == pytest.approx(sum(r["tp"] + r["fn"] for r in m["per_image"]))
+    assert first["scored_px"] == sum(math.prod(r["shape"]) for r in m["per_image"]) == 3 * 96 * 96
+    assert not second["degenerate"] and second["predicted_car_px"] > 0
+    assert len(second["per_image_counts"]) == 3
+    assert not m["degenerate"] and m["n_degenerate_models"] == 1 and m["n_models"] == 2
+    assert m["iou"] == 0.0 and m["precision"] is None and m["predicted_car_px"] == 0
+    _set_head_bias(model / "replicate-1", 50.0)  # and the replicate every pixel
+    assert main(["evaluate", str(collapsed / "toy.zarr"), "--model", str(model), "--out", str(tmp_path / "b.json")]) == 0
+    m = json.loads((tmp_path / "b.json").read_text())
+    assert m["degenerate"] and m["n_degenerate_models"] == 2 and m["degenerate_reason"] == NOTHING
+    assert m["replicates"][1]["degenerate_reason"] == EVERYTHING
+    assert m["replicates"][1]["predicted_car_px"] == 3 * 96 * 96
+    capsys.readouterr()
+    # a tiny study of such models: every point unmeasured, named, no spec and exit 2
+    from metraw.study.points import parameter_points
+
+    params = _params(tmp_path / "study")
+    for point in parameter_points(params):
+        (tmp_path / "study" / "results" / point).mkdir(parents=True)
+        (tmp_path / "study" / "results" / point / "metrics.json").write_text(json.dumps(m))
+    assert _aggregate(tmp_path / "study") == 2
+    cap = capsys.readouterr()
+    assert "no point was measured" in cap.err and not (tmp_path / "study" / "out").exists()
+    named = [ln for ln in cap.out.splitlines() if "unmeasured:" in ln]
+    assert len(named) == 6 and "every pixel predicted car; no predicted car pixel" in named[0]
+    assert f"0 of {3 * 96 * 96} px predicted car" in named[0]

@@ -33,6 +33,11 @@ car area (a box is not an outline): each image and the pooled record say "box-ap
 "exact" or (pooled) "mixed". On box-labelled images ``evaluate_store`` also scores every predicted
 object as its axis-aligned bounding box against the boxes ("box_iou", "box_precision", "box_recall":
 box against box, like a detector; ``metraw.segment.objects.object_boxes``).
+
+Degenerate models (issue #71, ``metraw.segment.degenerate``): a model that calls no pixel car on the whole scored
+split, or every pixel, is marked ("degenerate", "degenerate_reason", "predicted_car_px", "true_car_px", "scored_px")
+in each ``replicates`` record; the top level holds the first model's counts and the point's verdict ("degenerate":
+every model is; "n_degenerate_models" of "n_models"). The aggregate leaves such a point out of the fit.
 """
 
 from __future__ import annotations
