@@ -278,6 +278,7 @@ def test_evaluate_marks_a_collapsed_model_and_its_point(collapsed, tmp_path, cap
     assert len(second["per_image_counts"]) == 3
     assert not m["degenerate"] and m["n_degenerate_models"] == 1 and m["n_models"] == 2
     assert m["iou"] == 0.0 and m["precision"] is None and m["predicted_car_px"] == 0
+    assert "1 of 2 model(s) degenerate: no predicted car pixel (0 of 27648 px" in capsys.readouterr().err
     _set_head_bias(model / "replicate-1", 50.0)  # and the replicate every pixel
     assert main(["evaluate", str(collapsed / "toy.zarr"), "--model", str(model), "--out", str(tmp_path / "b.json")]) == 0
     m = json.loads((tmp_path / "b.json").read_text())
