@@ -19,8 +19,9 @@ from typing import Any, Iterable
 NOTHING = "no predicted car pixel"
 EVERYTHING = "every pixel predicted car"
 #: What to change when a point's models are degenerate (printed by `metraw aggregate`).
-LEVERS = ("train longer (more epochs: training.profiles / training.pretrain finetune_epochs) or on more images, "
-          "or run the default config instead of workflow/config/quick.yaml")
+LEVERS = ("train on more images (a photo set of 15 collapsed, one of 41 trained with the default config), or longer "
+          "(training.pretrain epochs and finetune_epochs), or with the default config where this run used "
+          "workflow/config/quick.yaml")
 
 
 def degeneracy(per_image: Iterable[dict[str, Any]]) -> dict[str, Any]:
