@@ -105,7 +105,7 @@ def _unmeasured_marks(ax, x: Sequence[float], y: Sequence[float] | None) -> None
         ax.plot(x, [0.0] * len(x), "x", color="tab:red", ms=8, mew=2, clip_on=False,
                 transform=ax.get_xaxis_transform(), label=UNMEASURED_LABEL)
     else:
-        ax.plot(x, y, "x", color="tab:red", ms=8, mew=2, label=UNMEASURED_LABEL)
+        ax.plot(x, y, "x", color="tab:red", ms=8, mew=2, clip_on=False, zorder=5, label=UNMEASURED_LABEL)
 
 
 def _finish_line(fig, ax, path: str | Path, name: str, ylabel: str, title: str, log_x: bool) -> None:
