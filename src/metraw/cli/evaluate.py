@@ -55,6 +55,13 @@ def run(args) -> int:
     print(f"metraw evaluate: {metrics['n_images']} {what} in {time.perf_counter() - t0:.2f} s", file=sys.stderr)
     if not metrics["gsd_matched"]:
         print(f"metraw evaluate: note: {metrics['gsd_note']}", file=sys.stderr)
+    if metrics.get("n_degenerate_models"):  # issue #71: a failed training, not a measurement
+        from metraw.segment.degenerate import describe
+
+        models = metrics.get("replicates") or [metrics]
+        print(f"metraw evaluate: note: {metrics['n_degenerate_models']} of {metrics['n_models']} model(s) degenerate"
+              f"{' (the point measured nothing)' if metrics['degenerate'] else ''}: "
+              + "; ".join(describe(m) for m in models if m["degenerate"]), file=sys.stderr)
     keys = ("iou", "precision", "recall", "box_iou", "box_precision", "box_recall", "object_recall",
             "object_precision", "mean_image_iou", "n_images", "split", "labels", "transforms")
     print(json.dumps({k: metrics[k] for k in keys if k in metrics}))

@@ -33,6 +33,11 @@ car area (a box is not an outline): each image and the pooled record say "box-ap
 "exact" or (pooled) "mixed". On box-labelled images ``evaluate_store`` also scores every predicted
 object as its axis-aligned bounding box against the boxes ("box_iou", "box_precision", "box_recall":
 box against box, like a detector; ``metraw.segment.objects.object_boxes``).
+
+Degenerate models (issue #71, ``metraw.segment.degenerate``): a model that calls no pixel car on the whole scored
+split, or every pixel, is marked ("degenerate", "degenerate_reason", "predicted_car_px", "true_car_px", "scored_px")
+in each ``replicates`` record; the top level holds the first model's counts and the point's verdict ("degenerate":
+every model is; "n_degenerate_models" of "n_models"). The aggregate leaves such a point out of the fit.
 """
 
 from __future__ import annotations
@@ -44,6 +49,7 @@ import numpy as np
 
 from metraw.errors import MetrawError
 from metraw.raw.cfa import PACKED_GEOMETRY, pack_planes, unpack_planes
+from metraw.segment.degenerate import degeneracy
 from metraw.segment.data import (TRANSFORM_SETS, PreparedImage, canonical_pack, canonical_window, check_transforms,
                                  undo_dihedral)
 from metraw.segment.objects import (MIN_OBJECT_AREA_M2, drop_small_objects, object_boxes, object_counts,
@@ -435,25 +441,43 @@ def evaluate_store(store_path, model_dir, device: str | None = None, progress: b
                 "upsample": ckpt["upsample"], "pool": ckpt.get("pool", 1), "device": device, "config": ckpt["config"],
                 "packed_shape": packed_shape, "threshold": THRESHOLD, "min_object_area_m2": MIN_OBJECT_AREA_M2,
                 "transforms": transforms})
+    out.update(degeneracy(records))  # the first model's counts; "degenerate" is reset below for the point
     if replicas:
         out.update(replicate_summary(out, [(TrainConfig.from_dict(c["config"]).seed, recs)
                                            for (_, c), recs in zip(replicas, rep_records)], config.seed))
+    out.update(point_degeneracy(out))
     return out
+
+
+def point_degeneracy(metrics: dict[str, Any]) -> dict[str, Any]:
+    """The point's verdict over its models (issue #71): "degenerate" when every model (the first and its replicates)
+    is degenerate (``metraw.segment.degenerate``), its "degenerate_reason" then the first model's, and
+    "n_degenerate_models" of "n_models". Each replicate's own verdict and counts are in ``metrics["replicates"]``;
+    the top-level counts (predicted_car_px, true_car_px, scored_px) are the first model's, as its "iou" is."""
+    models = metrics.get("replicates") or [metrics]
+    bad = sum(bool(m["degenerate"]) for m in models)
+    every = bad == len(models)
+    return {"degenerate": every, "degenerate_reason": metrics["degenerate_reason"] if every else None,
+            "n_degenerate_models": bad, "n_models": len(models)}
 
 
 def replicate_summary(primary: dict[str, Any], replicas: list[tuple[int, list[dict[str, Any]]]],
                       primary_seed: int) -> dict[str, Any]:
-    """Scores of every replicate model (same images) and the IoU's mean and spread over the training seeds.
+    """Scores of every replicate model (same images) and the IoU's mean and spread over the training seeds; each
+    model's degenerate verdict and counts (``metraw.segment.degenerate.degeneracy``).
 
     ``iou_replicate_mean``: mean of the pooled IoUs of the model and its replicates; ``iou_replicate_sd``: their
     standard deviation (training-to-training); ``iou_replicate_se`` = sd / sqrt(n) (the mean's seed error; the
     test-image sampling error comes on top, the test images being the same for all).
     """
     keys = ("iou", "precision", "recall", "object_f1")
-    reps = [{"seed": primary_seed, **{k: primary.get(k) for k in keys}}]
+    reps = [{"seed": primary_seed, **{k: primary.get(k) for k in keys}, **degeneracy(primary["per_image"])}]
     for seed, recs in replicas:
         summ = summarise(recs)
-        reps.append({"seed": seed, **{k: summ.get(k) for k in keys}})
+        # each model's degenerate verdict, and its per-image (tp, fp, fn): the aggregate's test-image error of a
+        # point whose first model is degenerate comes from the first model that is not (metraw.spec.unmeasured)
+        reps.append({"seed": seed, **{k: summ.get(k) for k in keys}, **degeneracy(recs),
+                     "per_image_counts": [[r["tp"], r["fp"], r["fn"]] for r in recs]})
     ious = np.array([r["iou"] for r in reps if r["iou"] is not None], dtype=np.float64)
     sd = float(ious.std(ddof=1)) if ious.size > 1 else None
     return {"replicates": reps, "n_replicates": len(reps),

@@ -94,8 +94,13 @@ def with_replicate_means(metrics: dict[str, Any]) -> dict[str, Any]:
 def _read_measured(path: Path, what: str) -> tuple[dict[str, Any], tuple[float, float]]:
     """A metrics file with its scores averaged over replicates (``with_replicate_means``), and (IoU, variance of
     that IoU) (``iou_measurement``)."""
-    metrics = with_replicate_means(_read_json(path, what))
-    return metrics, iou_measurement(metrics, str(path))
+    return _measured(_read_json(path, what), str(path))
+
+
+def _measured(metrics: dict[str, Any], where: str) -> tuple[dict[str, Any], tuple[float, float]]:
+    """``_read_measured`` of metrics already read."""
+    metrics = with_replicate_means(metrics)
+    return metrics, iou_measurement(metrics, where)
 
 
 def iou_measurement(metrics: dict[str, Any], where: str) -> tuple[float, float]:
@@ -130,6 +135,7 @@ def load_point_results(params: dict[str, Any], results: str, metrics_pattern: st
                        real_pattern: str = "", gap_tolerance: float | None = None) -> list[dict[str, Any]]:
     """One record per point of params.yaml: parameters, IoU (+variance), compression (+variance) and, with
     ``real_pattern``, the real-image columns (``metraw.study.sim_to_real.real_columns``)."""
+    from metraw.spec import unmeasured
     from metraw.study.points import CATEGORICAL, parameter_points, swept_parameters, target_params
     from metraw.study.sim_to_real import GAP_TOLERANCE, real_columns
 
@@ -147,7 +153,10 @@ def load_point_results(params: dict[str, Any], results: str, metrics_pattern: st
                 missing.append(str(path))
         if missing:
             continue
-        metrics, (iou, iou_var) = _read_measured(mpath, "metrics file")
+        # degenerate models (issue #71): the point's verdict; a degenerate replicate of a measured point is dropped
+        raw = _read_json(mpath, "metrics file")
+        status = unmeasured.point_status(raw)
+        metrics, (iou, iou_var) = _measured(unmeasured.drop_models(raw, status["dropped"]), str(mpath))
         tp = target_params(params, point)
         row = {"point": point, **{n: tp[n] if n in CATEGORICAL else float(tp[n]) for n in names}, "iou": iou, "iou_sd": math.sqrt(iou_var),
                "precision": metrics.get("precision"), "recall": metrics.get("recall"),
@@ -166,9 +175,11 @@ def load_point_results(params: dict[str, Any], results: str, metrics_pattern: st
                                                          if c in im.get("channels", {})]) for c in comp["channels"]},
                         "_signal": comp.get("signal_e")})
         if rpath is not None:
-            real, (real_iou, real_var) = _read_measured(rpath, "real-image metrics file")
+            real, (real_iou, real_var) = _measured(unmeasured.drop_models(
+                _read_json(rpath, "real-image metrics file"), status["dropped"]), str(rpath))
             row.update(real_columns(row, real, real_iou, iou_var, real_var,
                                     GAP_TOLERANCE if gap_tolerance is None else gap_tolerance))
+        row.update(unmeasured.row_fields(status, len(status["models"])))
         rows.append(row)
     if missing:
         raise MetrawError(f"{len(missing)} per-point result file(s) missing, e.g. {missing[0]}")
@@ -266,11 +277,15 @@ def _inputs(options: AggregateOptions) -> tuple[dict, float, list[dict]]:
 
 
 def _aggregate(options: AggregateOptions, params: dict, required: float, rows: list[dict]) -> int:
-    from metraw.spec import figures
+    from metraw.spec import figures, unmeasured
     from metraw.spec.builder import build_spec
     from metraw.spec.tolerance import BAND_SIGMA, ResponseGP, categorical_choice, joint_region, tolerance_interval
     from metraw.study.points import CATEGORICAL, NOMINAL, swept_parameters, target_params
 
+    rows, skipped = unmeasured.split(rows)  # points whose every model is degenerate: out of every fit (issue #71)
+    for r in skipped:
+        print(unmeasured.line(r))
+    unmeasured.require_measured(rows, skipped)
     real = _sim_to_real(options, rows)
     res = resolution.resolution(rows, options.metrics_pattern.format(results=options.results, point=NOMINAL))
     all_names = swept_parameters(params)
@@ -280,6 +295,7 @@ def _aggregate(options: AggregateOptions, params: dict, required: float, rows: l
     at = {n: float(nominal[n]) for n in names}
     # the GP spans the numeric parameters at the nominal category; categories are compared by measurement
     gp_rows = [r for r in rows if all(r[c] == nominal[c] for c in categorical)]
+    unmeasured.require_measured(rows, skipped, len(gp_rows))
     X = np.array([[r[n] for n in names] for r in gp_rows])
 
     iou_gp = ResponseGP(names, X, [r["iou"] for r in gp_rows], [r["iou_sd"] ** 2 for r in gp_rows], seed=options.seed)
@@ -287,21 +303,25 @@ def _aggregate(options: AggregateOptions, params: dict, required: float, rows: l
     tols = {n: tolerance_interval(iou_gp, n, required, at, extrapolate=options.extrapolate) for n in names}
     joint = joint_region(iou_gp, required, tols, seed=options.seed)
     choices = {c: categorical_choice({r[c]: (r["iou"], r["iou_sd"]) for r in rows if _on_line(r, c, nominal, all_names)},
-                                     nominal[c], required) for c in categorical}
+                                     nominal[c], required) for c in categorical
+               if any(_on_line(r, c, nominal, all_names) for r in rows)}  # none: every value unmeasured (#71)
     has_ratio = bool(options.compression_pattern)
     ratio_gp = ratio_loo = None
     if has_ratio:
         ratio_gp = ResponseGP(names, X, [r["ratio"] for r in gp_rows], [r["ratio_sd"] ** 2 for r in gp_rows],
                               seed=options.seed)
         ratio_loo = ratio_gp.leave_one_out()
-    grids = [_grid_summary(params, grid, rows, nominal, all_names, required, options.seed)
-             for grid in params["target"].get("grids") or []]
-    nominal_row = next(r for r in rows if r["point"] == NOMINAL)
+    grids = _grid_summaries(params, rows, skipped, nominal, all_names, required, options.seed)
+    nominal_row = next(r for r in rows + skipped if r["point"] == NOMINAL)
     prop_model = _property_model(options, rows) if options.stores_pattern else None
-    model = study_network(rows)
+    if prop_model is not None and "properties" not in nominal_row:  # an unmeasured nominal: its images' properties
+        nominal_row["properties"] = _store_properties(options, nominal_row)
+    unmeasured_list = [unmeasured.entry(r, all_names) for r in skipped]
+    model = study_network(rows + skipped)
     spec = build_spec(tols, nominal, required, nominal_row.get("_signal"), choices=choices,
                       context={"params_file": str(options.params), "loo_share_inside_2sigma": iou_loo["share_inside"],
-                               **({"model": model} if model else {}), **resolution.spec_context(res)},
+                               **({"model": model} if model else {}), **resolution.spec_context(res),
+                               **({"unmeasured_points": unmeasured_list} if skipped else {})},
                       property_model=prop_model, model_at=nominal_row.get("properties"))
 
     for r, rec in zip(gp_rows, iou_loo["points"]):
@@ -344,6 +364,8 @@ def _aggregate(options: AggregateOptions, params: dict, required: float, rows: l
     summary["resolution"] = res  # the test split and the smallest IoU difference it resolves (spec/resolution.py)
     if real is not None:
         summary["sim_to_real"] = real
+    if skipped:
+        summary["unmeasured_points"] = unmeasured_list
     spec.save(out / "spec.yaml")
     _write_text(out / "aggregate.json", json.dumps(summary, indent=2, default=float) + "\n")
     pcols = ["point", *all_names, "iou", "iou_sd", "iou_loo_pred", "iou_loo_sd", "iou_loo_inside", "precision", "recall",
@@ -366,7 +388,8 @@ def _aggregate(options: AggregateOptions, params: dict, required: float, rows: l
                               tolerance=tols[n], title=f"IoU vs {n} (others nominal)",
                               real_points=[(r[n], r["real_iou"], r["real_iou_sd"]) for r in on_line if "real_iou" in r],
                               real_label=REAL_LABEL,
-                              replicate_points=[(r[n], y) for r in on_line for y in r.get("replicate_ious", [])])
+                              replicate_points=[(r[n], y) for r in on_line for y in r.get("replicate_ious", [])],
+                              unmeasured=[r[n] for r in skipped if _on_line(r, n, nominal, all_names)])
         if ratio_gp is not None:
             t = figures.line_table(ratio_gp, n, at)
             _write_text(plotdir / f"ratio_{n}.csv", _csv([dict(zip(t, v)) for v in zip(*t.values())], list(t)))
@@ -380,7 +403,8 @@ def _aggregate(options: AggregateOptions, params: dict, required: float, rows: l
     for c, choice in choices.items():
         figures.categorical_bars(c, {v: (r["iou"], r["iou_sd"]) for v, r in choice["values"].items()},
                                  figdir / f"iou_{c}.png", ylabel="IoU (test split)", required=required,
-                                 title=f"IoU per {c} (others nominal)")
+                                 title=f"IoU per {c} (others nominal)",
+                                 unmeasured=[r[c] for r in skipped if _on_line(r, c, nominal, all_names)])
         if has_ratio:
             on_line = [r for r in rows if _on_line(r, c, nominal, all_names)]
             figures.categorical_bars(c, {r[c]: (r["ratio"], r["ratio_sd"]) for r in on_line},
@@ -393,17 +417,20 @@ def _aggregate(options: AggregateOptions, params: dict, required: float, rows: l
     for model, g in grids:
         a, b = g["axes"]
         figures.grid_map(model, g, figdir / f"fig7b_iou_grid_{a}_{b}.png", required=required,
-                         title=f"IoU over {a} x {b} (measured grid; fixed: {g['fixed'] or 'others nominal'})")
+                         title=f"IoU over {a} x {b} (measured grid; fixed: {g['fixed'] or 'others nominal'})",
+                         unmeasured=[(r[a], r[b]) for r in skipped if r["point"] in g.get("unmeasured_points", [])])
     if "focal_length_m" in names and "diameter_m" in names and not grids:
         figures.response_map(iou_gp, "focal_length_m", "diameter_m", at, figdir / "fig7b_iou_map.png",
                              label="IoU (GP mean)", required=required,
                              points=[(r["focal_length_m"], r["diameter_m"]) for r in rows],
-                             title="IoU over focal length x diameter (exposure nominal)")
+                             title="IoU over focal length x diameter (exposure nominal)",
+                             unmeasured=[(r["focal_length_m"], r["diameter_m"]) for r in skipped])
     if examples:
         figures.example_images(examples, figdir / "fig6_examples.png")
     print(f"aggregate: {len(rows)} points; IoU LOO share inside 2 sigma {iou_loo['share_inside']:.2f} "
           f"(+- {iou_loo['share_inside_se']:.2f}, expected {iou_loo['expected_share']:.3f})"
-          + ("" if ratio_loo is None else f"; ratio LOO {ratio_loo['share_inside']:.2f}"))
+          + ("" if ratio_loo is None else f"; ratio LOO {ratio_loo['share_inside']:.2f}")
+          + (f"; {len(skipped)} more unmeasured (left out, listed above and in aggregate.json)" if skipped else ""))
     if real is not None and real["nominal"] is not None:
         nom = real["nominal"]
         print(f"  sim-to-real at nominal: synthetic IoU {nom['synthetic_iou']:.3f}, real IoU {nom['real_iou']:.3f}, "
@@ -454,6 +481,38 @@ def _property_model(options, rows: list[dict[str, Any]]):
     return PropertyModel.from_points(points, seed=options.seed)
 
 
+def _store_properties(options, row: dict[str, Any]) -> dict[str, float]:
+    """The image properties of one point's store (``_property_model`` reads every fitted point's alike)."""
+    from metraw.io.store import RawStore
+    from metraw.spec.property_model import store_properties
+
+    spath = Path(options.stores_pattern.format(point=row["point"], results=options.results))
+    if not spath.exists():
+        raise MetrawError(f"store {spath} of point {row['point']} is missing (needed for its image properties)")
+    return store_properties(RawStore.open(spath))
+
+
+def _grid_summaries(params: dict[str, Any], rows: list[dict[str, Any]], skipped: list[dict[str, Any]],
+                    nominal: dict[str, Any], names: list[str], required: float, seed: int) -> list:
+    """``_grid_summary`` of every ``target.grids`` entry over the measured ``rows``. With unmeasured points
+    (``skipped``, issue #71) a grid lists its own under ``unmeasured_points``, and a grid left with fewer than the 3
+    measured points a 2-D GP needs is skipped with a printed line instead of failing the aggregate."""
+    from metraw.study.points import grid_axes
+
+    out = []
+    for grid in params["target"].get("grids") or []:
+        lost = [r["point"] for r in _grid_members(grid, skipped, nominal, names)]
+        if lost and len(_grid_members(grid, rows, nominal, names)) < 3:
+            print(f"  grid {' x '.join(grid_axes(grid)[0])}: skipped, "
+                  f"{len(lost)} of its points unmeasured ({', '.join(lost)}) and fewer than 3 measured")
+            continue
+        model, summary = _grid_summary(params, grid, rows, nominal, names, required, seed)
+        if lost:
+            summary["unmeasured_points"] = lost
+        out.append((model, summary))
+    return out
+
+
 def _on_line(row: dict[str, Any], name: str, nominal: dict[str, Any], names: list[str]) -> bool:
     """Whether ``row`` lies on the one-at-a-time line of ``name``: every other swept parameter nominal."""
     from metraw.study.points import same_value
@@ -476,19 +535,28 @@ def _channel_series(rows: list[dict[str, Any]], name: str) -> dict[str, list[tup
     return out
 
 
-def _grid_summary(params: dict[str, Any], grid: dict[str, Any], rows: list[dict[str, Any]], nominal: dict[str, Any],
-                  names: list[str], required: float, seed: int):
-    """(2-D GP, summary) of one ``target.grids`` entry from its measured points (`metraw.spec.tolerance.grid_region`)."""
-    from metraw.spec.tolerance import grid_region
+def _grid_members(grid: dict[str, Any], rows: list[dict[str, Any]], nominal: dict[str, Any], names: list[str]
+                  ) -> list[dict[str, Any]]:
+    """The rows on one ``target.grids`` entry (its two axes' values, the others at its fixed or the nominal values)."""
     from metraw.study.points import grid_axes, same_value
 
     axes, fixed = grid_axes(grid)
     if len(axes) != 2:
         raise MetrawError(f"target.grids entry {grid} must have exactly two list-valued axes for its IoU map")
     want = {m: fixed.get(m, nominal[m]) for m in names if m not in axes}
-    members = [r for r in rows if all(same_value(r[m], v) for m, v in want.items())
-               and any(same_value(r[axes[0]], v) for v in grid[axes[0]])
-               and any(same_value(r[axes[1]], v) for v in grid[axes[1]])]
+    return [r for r in rows if all(same_value(r[m], v) for m, v in want.items())
+            and any(same_value(r[axes[0]], v) for v in grid[axes[0]])
+            and any(same_value(r[axes[1]], v) for v in grid[axes[1]])]
+
+
+def _grid_summary(params: dict[str, Any], grid: dict[str, Any], rows: list[dict[str, Any]], nominal: dict[str, Any],
+                  names: list[str], required: float, seed: int):
+    """(2-D GP, summary) of one ``target.grids`` entry from its measured points (`metraw.spec.tolerance.grid_region`)."""
+    from metraw.spec.tolerance import grid_region
+    from metraw.study.points import grid_axes
+
+    axes, fixed = grid_axes(grid)
+    members = _grid_members(grid, rows, nominal, names)
     if len(members) < 3:
         raise MetrawError(f"grid {' x '.join(axes)} has {len(members)} measured points; a 2-D GP needs >= 3")
     X = np.array([[r[axes[0]], r[axes[1]]] for r in members])

@@ -64,10 +64,11 @@ def response_line(model: ResponseGP, name: str, at: Mapping[str, float], path: s
                   points: Sequence[tuple[float, float, float]] = (), required: float | None = None,
                   tolerance: Tolerance | None = None, title: str = "",
                   real_points: Sequence[tuple[float, float, float]] = (), real_label: str = "real images (2 sd)",
-                  replicate_points: Sequence[tuple[float, float]] = ()) -> None:
+                  replicate_points: Sequence[tuple[float, float]] = (), unmeasured: Sequence[float] = ()) -> None:
     """GP mean with 2-sigma band along ``name``; ``points``: (x, y, sd) measured on that line;
     ``real_points``: a second measured series (x, y, sd), drawn as a curve through its points;
-    ``replicate_points``: (x, y) of every replicate model (training seeds), drawn as small dots."""
+    ``replicate_points``: (x, y) of every replicate model (training seeds), drawn as small dots;
+    ``unmeasured``: x of the points whose every model is degenerate (issue #71), red crosses on the x axis (no IoU)."""
     plt = _plt()
     t = line_table(model, name, at)
     fig, ax = plt.subplots(figsize=(4.8, 3.4))
@@ -86,10 +87,25 @@ def response_line(model: ResponseGP, name: str, at: Mapping[str, float], path: s
         ax.errorbar(rx, ry, yerr=2 * rs, fmt="s-", color="tab:orange", ms=4, lw=1.2, capsize=2, label=real_label)
     if required is not None:
         ax.axhline(required, color="tab:red", ls="--", lw=1, label=f"required {required:g}")
+    if unmeasured:
+        _unmeasured_marks(ax, list(unmeasured), None)
     if tolerance is not None and tolerance.meets_requirement:
         ax.axvspan(tolerance.min, tolerance.max, color="tab:green", alpha=0.10, label="tolerance")
         ax.axvline(tolerance.optimal, color="tab:green", lw=1, ls=":")
     _finish_line(fig, ax, path, name, ylabel, title, model.axes[model.names.index(name)].kind == "log")
+
+
+#: Legend label of the points that measured nothing (every model degenerate, issue #71).
+UNMEASURED_LABEL = "unmeasured: degenerate model"
+
+
+def _unmeasured_marks(ax, x: Sequence[float], y: Sequence[float] | None) -> None:
+    """Red crosses at ``x`` (and ``y``; None: on the x axis, below the curves) for the unmeasured points."""
+    if y is None:
+        ax.plot(x, [0.0] * len(x), "x", color="tab:red", ms=8, mew=2, clip_on=False,
+                transform=ax.get_xaxis_transform(), label=UNMEASURED_LABEL)
+    else:
+        ax.plot(x, y, "x", color="tab:red", ms=8, mew=2, clip_on=False, zorder=5, label=UNMEASURED_LABEL)
 
 
 def _finish_line(fig, ax, path: str | Path, name: str, ylabel: str, title: str, log_x: bool) -> None:
@@ -107,8 +123,9 @@ def _finish_line(fig, ax, path: str | Path, name: str, ylabel: str, title: str, 
 
 def response_map(model: ResponseGP, xname: str, yname: str, at: Mapping[str, float], path: str | Path, *,
                  label: str, required: float | None = None, points: Sequence[tuple[float, float]] = (),
-                 n: int = 80, title: str = "") -> dict[str, np.ndarray]:
-    """GP mean over (xname, yname) with the others at ``at``; returns the grids drawn."""
+                 n: int = 80, title: str = "", unmeasured: Sequence[tuple[float, float]] = ()) -> dict[str, np.ndarray]:
+    """GP mean over (xname, yname) with the others at ``at``; returns the grids drawn. ``unmeasured``: (x, y) of
+    the points whose every model is degenerate, red crosses."""
     plt = _plt()
     gx, gy = line_grid(model, xname, n), line_grid(model, yname, n)
     X, Y = np.meshgrid(gx, gy)
@@ -126,6 +143,9 @@ def response_map(model: ResponseGP, xname: str, yname: str, at: Mapping[str, flo
     if points:
         px, py = zip(*points)
         ax.plot(px, py, "o", mfc="none", mec="w", ms=5)
+    if unmeasured:
+        _unmeasured_marks(ax, *zip(*unmeasured))
+        ax.legend(fontsize=7, loc="best")
     for axis, nm in ((ax.xaxis, xname), (ax.yaxis, yname)):
         if model.axes[model.names.index(nm)].kind == "log":
             (ax.set_xscale if axis is ax.xaxis else ax.set_yscale)("log")
@@ -138,11 +158,12 @@ def response_map(model: ResponseGP, xname: str, yname: str, at: Mapping[str, flo
 
 
 def grid_map(model: ResponseGP, summary: Mapping[str, Any], path: str | Path, *, required: float,
-             title: str = "") -> None:
+             title: str = "", unmeasured: Sequence[tuple[float, float]] = ()) -> None:
     """Left: measured IoU at the grid points (cells in grid order, value and 2 sd written in each; a
     frame marks points whose measured lower bound meets ``required``). Right: the 2-D GP's lower 2-sigma
     band on the mesh of ``summary`` (`metraw.spec.tolerance.grid_region`), the region meeting ``required``
-    outlined, the measured points marked."""
+    outlined, the measured points marked; ``unmeasured``: (x, y) of grid points whose every model is degenerate,
+    red crosses (no cell of their own on the left: they measured nothing)."""
     plt = _plt()
     a, b = summary["axes"]
     pts = summary["points"]
@@ -173,6 +194,9 @@ def grid_map(model: ResponseGP, summary: Mapping[str, Any], path: str | Path, *,
     if lower.min() < required < lower.max():
         ax1.contour(A, B, lower, levels=[required], colors="tab:red", linewidths=1.5)
     ax1.plot([p[a] for p in pts], [p[b] for p in pts], "o", mfc="none", mec="w", ms=5)
+    if unmeasured:
+        _unmeasured_marks(ax1, *zip(*unmeasured))
+        ax1.legend(fontsize=7, loc="best")
     for setter, nm in ((ax1.set_xscale, a), (ax1.set_yscale, b)):
         if model.axes[model.names.index(nm)].kind == "log":
             setter("log")
@@ -201,14 +225,18 @@ def channel_lines(name: str, series: Mapping[str, Sequence[tuple[float, float, f
 
 
 def categorical_bars(name: str, values: Mapping[str, tuple[float, float]], path: str | Path, *, ylabel: str,
-                     required: float | None = None, title: str = "") -> None:
-    """A measured outcome per category: ``values[label]`` = (y, sd), drawn with 2 sd bars."""
+                     required: float | None = None, title: str = "", unmeasured: Sequence[str] = ()) -> None:
+    """A measured outcome per category: ``values[label]`` = (y, sd), drawn with 2 sd bars; ``unmeasured``: the
+    categories whose every model is degenerate, a red cross on the axis after the measured bars (no bar)."""
     plt = _plt()
     fig, ax = plt.subplots(figsize=(3.6, 3.2))
     labels = list(values)
     y = np.array([values[v][0] for v in labels], dtype=float)
     sd = np.array([values[v][1] for v in labels], dtype=float)
     ax.bar(range(len(labels)), y, yerr=2 * sd, capsize=3, color="tab:blue", alpha=0.7)
+    if unmeasured:
+        _unmeasured_marks(ax, list(range(len(labels), len(labels) + len(unmeasured))), None)
+        labels = [*labels, *unmeasured]
     if required is not None:
         ax.axhline(required, color="tab:red", ls="--", lw=1, label=f"required {required:g}")
         ax.legend(fontsize=7)
