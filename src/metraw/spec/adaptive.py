@@ -302,8 +302,9 @@ def round_figures(model: ResponseGP, rows: Sequence[Mapping[str, Any]], rounds: 
 
     plt = _plt()
     figdir = Path(figdir)
-    n_rounds = max(rounds.values(), default=0) + 1
-    cmap = plt.get_cmap("viridis", max(n_rounds, 2))
+
+    def cmap(r):  # one colour per round (tab10's, round 0 in blue, then orange, green, red, ...)
+        return f"C{r % 10}"
     written = []
     for name in model.names:
         others = [m for m in model.names if m != name]
@@ -311,10 +312,10 @@ def round_figures(model: ResponseGP, rows: Sequence[Mapping[str, Any]], rounds: 
         t = line_table(model, name, at)
         doubt = line_doubt(model, name, at, level)
         fig, ax = plt.subplots(figsize=(4.8, 3.4))
-        ax.fill_between(t[name], t["lower"], t["upper"], color="tab:blue", alpha=0.2, lw=0, label="GP 2$\\sigma$ band")
-        ax.plot(t[name], t["mean"], color="tab:blue", lw=1.5, label="GP mean")
+        ax.fill_between(t[name], t["lower"], t["upper"], color="0.6", alpha=0.3, lw=0, label="GP 2$\\sigma$ band")
+        ax.plot(t[name], t["mean"], color="0.2", lw=1.5, label="GP mean")
         for i, st in enumerate(doubt["stretches"]):
-            ax.axvspan(st["low"], st["high"], color="tab:orange", alpha=0.2, lw=0,
+            ax.axvspan(st["low"], st["high"], color="gold", alpha=0.35, lw=0,
                        label="straddle > 0 (doubt)" if i == 0 else None)
         ax.axhline(level, color="tab:red", ls="--", lw=1, label=f"required {level:g}")
         for r in on:
@@ -322,7 +323,7 @@ def round_figures(model: ResponseGP, rows: Sequence[Mapping[str, Any]], rounds: 
             ax.errorbar(float(r[name]), r["iou"], yerr=2 * r["iou_sd"], fmt="o", color=c, ms=4, capsize=2)
             ax.annotate(str(rounds[r["point"]]), (float(r[name]), r["iou"]), textcoords="offset points",
                         xytext=(4, 4), fontsize=7, color=c)
-        ax.plot([], [], "o", color="k", ms=4, label="trained (number: round)")
+        ax.plot([], [], "o", color="C0", ms=4, label="trained (colour, number: round)")
         if model.axes[model.names.index(name)].kind == "log":
             ax.set_xscale("log")
         ax.set_xlabel(LABELS.get(name, name))

@@ -296,9 +296,10 @@ def _aggregate(options: AggregateOptions, params: dict, required: float, rows: l
     nominal_row = next(r for r in rows if r["point"] == NOMINAL)
     prop_model = _property_model(options, rows) if options.stores_pattern else None
     model = study_network(rows)
+    adaptive = _adaptive_summary(params, iou_gp, tols, at, required)  # None unless target.adaptive is on (#70)
     spec = build_spec(tols, nominal, required, nominal_row.get("_signal"), choices=choices,
                       context={"params_file": str(options.params), "loo_share_inside_2sigma": iou_loo["share_inside"],
-                               **({"model": model} if model else {})},
+                               **({"model": model} if model else {}), **({"adaptive": adaptive} if adaptive else {})},
                       property_model=prop_model, model_at=nominal_row.get("properties"))
 
     for r, rec in zip(gp_rows, iou_loo["points"]):
@@ -340,6 +341,8 @@ def _aggregate(options: AggregateOptions, params: dict, required: float, rows: l
     }
     if real is not None:
         summary["sim_to_real"] = real
+    if adaptive:
+        summary["adaptive"] = adaptive
     spec.save(out / "spec.yaml")
     _write_text(out / "aggregate.json", json.dumps(summary, indent=2, default=float) + "\n")
     pcols = ["point", *all_names, "iou", "iou_sd", "iou_loo_pred", "iou_loo_sd", "iou_loo_inside", "precision", "recall",
@@ -397,6 +400,11 @@ def _aggregate(options: AggregateOptions, params: dict, required: float, rows: l
                              title="IoU over focal length x diameter (exposure nominal)")
     if examples:
         figures.example_images(examples, figdir / "fig6_examples.png")
+    if adaptive:
+        from metraw.spec.adaptive import round_figures
+        from metraw.study.points import point_rounds
+
+        round_figures(iou_gp, gp_rows, point_rounds(params), at, required, figdir, [g["axes"] for _, g in grids])
     print(f"aggregate: {len(rows)} points; IoU LOO share inside 2 sigma {iou_loo['share_inside']:.2f} "
           f"(+- {iou_loo['share_inside_se']:.2f}, expected {iou_loo['expected_share']:.3f})"
           + ("" if ratio_loo is None else f"; ratio LOO {ratio_loo['share_inside']:.2f}"))
@@ -425,6 +433,18 @@ def _aggregate(options: AggregateOptions, params: dict, required: float, rows: l
               f"{100 * g['share_of_grid_ok']:.0f} % of the grid box")
     print(f"wrote {out / 'spec.yaml'}, {out / 'aggregate.json'}, {figdir}/, {plotdir}/")
     return 0
+
+
+def _adaptive_summary(params, iou_gp, tols, at, required) -> dict[str, Any] | None:
+    """The adaptive sweep's block of aggregate.json and spec.yaml's context (`metraw.spec.adaptive.summary`), or None
+    for a study of listed points."""
+    from metraw.study.points import adaptive_settings
+
+    if not adaptive_settings(params)["enabled"]:
+        return None
+    from metraw.spec.adaptive import summary
+
+    return summary(params, iou_gp, tols, at, required)
 
 
 def _property_model(options, rows: list[dict[str, Any]]):
@@ -474,13 +494,20 @@ def _grid_summary(params: dict[str, Any], grid: dict[str, Any], rows: list[dict[
     from metraw.spec.tolerance import grid_region
     from metraw.study.points import grid_axes, same_value
 
+    from metraw.study.points import adaptive_settings
+
     axes, fixed = grid_axes(grid)
     if len(axes) != 2:
         raise MetrawError(f"target.grids entry {grid} must have exactly two list-valued axes for its IoU map")
     want = {m: fixed.get(m, nominal[m]) for m in names if m not in axes}
+
+    def on_grid(r, a):  # a listed value of the axis; an adaptive sweep's cells: anywhere in the grid's box
+        if adaptive_settings(params)["enabled"]:
+            return min(grid[a]) <= r[a] <= max(grid[a])
+        return any(same_value(r[a], v) for v in grid[a])
+
     members = [r for r in rows if all(same_value(r[m], v) for m, v in want.items())
-               and any(same_value(r[axes[0]], v) for v in grid[axes[0]])
-               and any(same_value(r[axes[1]], v) for v in grid[axes[1]])]
+               and on_grid(r, axes[0]) and on_grid(r, axes[1])]
     if len(members) < 3:
         raise MetrawError(f"grid {' x '.join(axes)} has {len(members)} measured points; a 2-D GP needs >= 3")
     X = np.array([[r[axes[0]], r[axes[1]]] for r in members])

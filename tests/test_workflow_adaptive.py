@@ -1,0 +1,68 @@
+"""The adaptive sweep's driver (workflow/scripts/adaptive.py, issue #70) on the smoke study (workflow/config/smoke.yaml,
+its 9 points are the initial design, sim-to-real off): rounds run as Snakemake runs, each round's record, the spec's
+adaptive block; the same command again runs zero jobs; a larger budget runs only the new round's point.
+
+Its IoUs are those of a 2-epoch network (docs: they only show that every rule runs), so the required IoU is set to the
+median of the initial design's IoUs: the GP then has a crossing to locate and the rule rounds to run.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+import yaml
+
+from workflow_workspace import REPO, file_digests, make_workspace, needs_tools, run
+
+pytestmark = [pytest.mark.workflow, needs_tools]
+
+
+def driver(root: Path, budget: int, required: float) -> tuple[str, dict]:
+    (root / "adaptive.yaml").write_text(yaml.safe_dump({
+        "target": {"adaptive": {"enabled": True, "budget": budget, "points_per_round": 1, "stop_width": 0.001,
+                                "line_candidates": 11, "grid_candidates": 5}},
+        "spec": {"required_iou": required}}))
+    proc = run(["python", str(REPO / "workflow" / "scripts" / "adaptive.py"), "--cores", "2", "--configfile",
+                "smoke.yaml", "adaptive.yaml"], root)
+    return proc.stderr, {p.name: json.loads(p.read_text()) for p in (root / "results" / "adaptive").glob("round_*.json")}
+
+
+def test_rounds_cache_and_a_larger_budget(tmp_path):
+    params = yaml.safe_load((REPO / "params.yaml").read_text())
+    params["sim_to_real"] = {"enabled": False}
+    root = make_workspace(tmp_path / "ws", params)
+    shutil.copy2(REPO / "workflow" / "config" / "smoke.yaml", root / "smoke.yaml")
+    # round 0 only (budget = the initial design): the IoUs it measured set the required IoU of the sweep
+    log, records = driver(root, 9, 0.01)
+    assert list(records) == ["round_0.json"] and records["round_0.json"]["stop"]["stopped"]
+    ious = sorted(t["iou"] for t in records["round_0.json"]["trained"])
+    required = round(ious[len(ious) // 2], 4)
+
+    log, records = driver(root, 11, required)
+    assert sorted(records) == ["round_0.json", "round_1.json", "round_2.json"]
+    assert "adaptive round 0: 9 points trained (0 jobs run)" in log  # the initial design was cached
+    first = records["round_0.json"]
+    assert len(first["chosen"]) == 1 and first["chosen"][0]["straddle"] > 0
+    assert first["chosen"][0]["straddle"] == max(c["straddle"] for c in first["candidates"] if c["eligible"])
+    assert records["round_2.json"]["stop"]["reason"] == "budget of 11 trained points spent"
+    aggregate = json.loads((root / "results" / "aggregate.json").read_text())
+    spec = yaml.safe_load((root / "results" / "spec.yaml").read_text())
+    assert aggregate["adaptive"]["n_points"] == 11 and len(aggregate["points"]) == 11
+    assert [len(r) for r in spec["context"]["adaptive"]["rounds"]] == [9, 1, 1]
+    assert (root / "results" / "figures" / "adaptive_iou_focal_length_m.png").is_file()
+    before = file_digests(root / "results")
+
+    # the same command again: every round replayed, zero jobs, the same bytes
+    log, again = driver(root, 11, required)
+    assert log.count("(0 jobs run)") == 3 and "0 in all" in log
+    assert again == records and file_digests(root / "results") == before
+
+    # one more point of budget: one new round, one new point's chain and the whole-workflow jobs after it
+    log, more = driver(root, 12, required)
+    assert sorted(more) == ["round_0.json", "round_1.json", "round_2.json", "round_3.json"]
+    assert log.count("(0 jobs run)") == 3  # rounds 0-2 (the last one's choice is its first new point)
+    new = more["round_2.json"]["chosen"][0]["name"]
+    assert (root / "results" / "points" / new / "metrics.json").is_file()
