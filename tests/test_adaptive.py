@@ -204,3 +204,23 @@ def test_tolerance_ends_state_their_uncertainty():
     assert end["band"]["low"] < records[-1]["lines"]["focal_length_m"]["mean_crossings"][0] < end["band"]["high"]
     assert end["doubt"]["width"] <= 0.05
     assert s["tolerance_ends"]["focal_length_m"]["min"]["limited_by"] == "sampled_range"
+
+
+@pytest.mark.parametrize("adaptive_settings, word", [
+    ({"enabled": False}, "target.adaptive.enabled is false"),
+    ({"enabled": True, "budget": 5}, "less than the initial design's 17 points"),
+    ({"enabled": True, "points_per_round": 0}, "points_per_round"),
+])
+def test_the_driver_refuses_bad_settings_in_one_line_and_writes_nothing(tmp_path, adaptive_settings, word):
+    import subprocess
+    import sys
+
+    (tmp_path / "params.yaml").write_text((REPO / "params.yaml").read_text())
+    (tmp_path / "my.yaml").write_text(yaml.safe_dump({"target": {"adaptive": adaptive_settings}}))
+    before = sorted(p.name for p in tmp_path.rglob("*"))
+    proc = subprocess.run([sys.executable, str(REPO / "workflow" / "scripts" / "adaptive.py"), "--cores", "1",
+                           "--configfile", "my.yaml"], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 2
+    (line,) = proc.stderr.strip().splitlines()
+    assert line.startswith("metraw adaptive: error: ") and word in line
+    assert sorted(p.name for p in tmp_path.rglob("*")) == before

@@ -2,8 +2,9 @@
 its 9 points are the initial design, sim-to-real off): rounds run as Snakemake runs, each round's record, the spec's
 adaptive block; the same command again runs zero jobs; a larger budget runs only the new round's point.
 
-Its IoUs are those of a 2-epoch network (docs: they only show that every rule runs), so the required IoU is set to the
-median of the initial design's IoUs: the GP then has a crossing to locate and the rule rounds to run.
+Its IoUs are those of a 2-epoch network (they only show that every rule runs): about 0.03-0.04, each with an sd of about
+0.03 (2026-12-08), so the GP takes their spread for noise and its mean is flat. The required IoU is therefore set to the
+median of the GP mean over the candidates after round 0: the doubt then spans every line and the rule rounds to run.
 """
 
 from __future__ import annotations
@@ -38,8 +39,8 @@ def test_rounds_cache_and_a_larger_budget(tmp_path):
     # round 0 only (budget = the initial design): the IoUs it measured set the required IoU of the sweep
     log, records = driver(root, 9, 0.01)
     assert list(records) == ["round_0.json"] and records["round_0.json"]["stop"]["stopped"]
-    ious = sorted(t["iou"] for t in records["round_0.json"]["trained"])
-    required = round(ious[len(ious) // 2], 4)
+    means = sorted(c["mean"] for c in records["round_0.json"]["candidates"])
+    required = means[len(means) // 2]
 
     log, records = driver(root, 11, required)
     assert sorted(records) == ["round_0.json", "round_1.json", "round_2.json"]

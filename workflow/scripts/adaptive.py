@@ -115,7 +115,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"adaptive: {len(points)} points in {r + 1} rounds; the whole workflow ran {jobs} jobs, "
               f"{total_jobs} in all", file=sys.stderr)
     except MetrawError as exc:
-        sys.stderr.write(f"adaptive: error: {exc}\n")
+        sys.stderr.write(f"metraw adaptive: error: {exc}\n")
         return 2
     return 0
 
