@@ -204,13 +204,14 @@ def plan_round(params: dict[str, Any], rows: Sequence[Mapping[str, Any]], round_
     mean, sd, s, picks = choose(model, X, level, n_pick, eligible) if len(cands) else (
         np.zeros(0), np.zeros(0), np.zeros(0), [])
     chosen = []
-    for p in picks:
+    for i, p in enumerate(picks):
         c = cands[p["index"]]
+        conditioned = f"; sd conditioned on this round's {i} earlier choice(s)" if i else ""
         chosen.append({"name": c["name"], "overrides": c["overrides"], "kind": c["kind"], "where": c["where"],
                        "straddle": p["straddle"], "mean": float(mean[p["index"]]), "latent_sd": p["latent_sd"],
                        "why": f"largest straddle {p['straddle']:.4g} among the {int(eligible.sum())} eligible candidates "
-                              f"(1.96 x {p['latent_sd']:.4g} - |{mean[p['index']]:.4g} - {level:g}|, sd conditioned "
-                              f"on the round's earlier choices); unresolved lines: {', '.join(unresolved)}"})
+                              f"(1.96 x {p['latent_sd']:.4g} - |{mean[p['index']]:.4g} - {level:g}|{conditioned}); "
+                              f"unresolved lines: {', '.join(unresolved)}"})
     if not unresolved:
         reason = f"every stretch of doubt of every line is at most {width:g} of its range"
     elif left <= 0:
@@ -359,7 +360,7 @@ def round_figures(model: ResponseGP, rows: Sequence[Mapping[str, Any]], rounds: 
                 setter("log")
         ax.set_xlabel(LABELS.get(a, a))
         ax.set_ylabel(LABELS.get(b, b))
-        ax.set_title(f"adaptive sweep over {a} x {b}: points by round, red: mean = {level:g}", fontsize=9)
+        ax.set_title(f"adaptive sweep: points by round; red: GP mean = {level:g}", fontsize=8)
         path = figdir / f"adaptive_grid_{a}_{b}.png"
         _save(fig, path)
         written.append(path)
