@@ -492,9 +492,7 @@ def _grid_summary(params: dict[str, Any], grid: dict[str, Any], rows: list[dict[
                   names: list[str], required: float, seed: int):
     """(2-D GP, summary) of one ``target.grids`` entry from its measured points (`metraw.spec.tolerance.grid_region`)."""
     from metraw.spec.tolerance import grid_region
-    from metraw.study.points import grid_axes, same_value
-
-    from metraw.study.points import adaptive_settings
+    from metraw.study.points import adaptive_settings, grid_axes, same_value
 
     axes, fixed = grid_axes(grid)
     if len(axes) != 2:
