@@ -154,6 +154,9 @@ def build(params: dict[str, Any]) -> dict[str, Any]:
     """The dvc.yaml mapping for these params (structure from params; values as DVC templates)."""
     sweeps = params["target"].get("sweeps") or {}
     nominal = params["target"]["nominal"]
+    if (params["target"].get("adaptive") or {}).get("enabled"):
+        raise MetrawError("target.adaptive.enabled: the adaptive sweep's points are chosen round by round, which "
+                          "dvc.yaml's fixed stages cannot follow; run it with workflow/scripts/adaptive.py")
     for parameter, values in sweeps.items():
         same = [v for v in values if same_value(v, nominal[parameter])]
         if same:

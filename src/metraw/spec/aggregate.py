@@ -318,10 +318,12 @@ def _aggregate(options: AggregateOptions, params: dict, required: float, rows: l
         nominal_row["properties"] = _store_properties(options, nominal_row)
     unmeasured_list = [unmeasured.entry(r, all_names) for r in skipped]
     model = study_network(rows + skipped)
+    adaptive = _adaptive_summary(params, iou_gp, tols, at, required)  # None unless target.adaptive is on (#70)
     spec = build_spec(tols, nominal, required, nominal_row.get("_signal"), choices=choices,
                       context={"params_file": str(options.params), "loo_share_inside_2sigma": iou_loo["share_inside"],
                                **({"model": model} if model else {}), **resolution.spec_context(res),
-                               **({"unmeasured_points": unmeasured_list} if skipped else {})},
+                               **({"unmeasured_points": unmeasured_list} if skipped else {}),
+                               **({"adaptive": adaptive} if adaptive else {})},
                       property_model=prop_model, model_at=nominal_row.get("properties"))
 
     for r, rec in zip(gp_rows, iou_loo["points"]):
@@ -366,6 +368,8 @@ def _aggregate(options: AggregateOptions, params: dict, required: float, rows: l
         summary["sim_to_real"] = real
     if skipped:
         summary["unmeasured_points"] = unmeasured_list
+    if adaptive:
+        summary["adaptive"] = adaptive
     spec.save(out / "spec.yaml")
     _write_text(out / "aggregate.json", json.dumps(summary, indent=2, default=float) + "\n")
     pcols = ["point", *all_names, "iou", "iou_sd", "iou_loo_pred", "iou_loo_sd", "iou_loo_inside", "precision", "recall",
@@ -427,6 +431,11 @@ def _aggregate(options: AggregateOptions, params: dict, required: float, rows: l
                              unmeasured=[(r["focal_length_m"], r["diameter_m"]) for r in skipped])
     if examples:
         figures.example_images(examples, figdir / "fig6_examples.png")
+    if adaptive:
+        from metraw.spec.adaptive import round_figures
+        from metraw.study.points import point_rounds
+
+        round_figures(iou_gp, gp_rows, point_rounds(params), at, required, figdir, [g["axes"] for _, g in grids])
     print(f"aggregate: {len(rows)} points; IoU LOO share inside 2 sigma {iou_loo['share_inside']:.2f} "
           f"(+- {iou_loo['share_inside_se']:.2f}, expected {iou_loo['expected_share']:.3f})"
           + ("" if ratio_loo is None else f"; ratio LOO {ratio_loo['share_inside']:.2f}")
@@ -460,6 +469,18 @@ def _aggregate(options: AggregateOptions, params: dict, required: float, rows: l
         print(line, file=sys.stderr)
     print(f"wrote {out / 'spec.yaml'}, {out / 'aggregate.json'}, {figdir}/, {plotdir}/")
     return 0
+
+
+def _adaptive_summary(params, iou_gp, tols, at, required) -> dict[str, Any] | None:
+    """The adaptive sweep's block of aggregate.json and spec.yaml's context (`metraw.spec.adaptive.summary`), or None
+    for a study of listed points."""
+    from metraw.study.points import adaptive_settings
+
+    if not adaptive_settings(params)["enabled"]:
+        return None
+    from metraw.spec.adaptive import summary
+
+    return summary(params, iou_gp, tols, at, required)
 
 
 def _property_model(options, rows: list[dict[str, Any]]):
@@ -497,12 +518,13 @@ def _grid_summaries(params: dict[str, Any], rows: list[dict[str, Any]], skipped:
     """``_grid_summary`` of every ``target.grids`` entry over the measured ``rows``. With unmeasured points
     (``skipped``, issue #71) a grid lists its own under ``unmeasured_points``, and a grid left with fewer than the 3
     measured points a 2-D GP needs is skipped with a printed line instead of failing the aggregate."""
-    from metraw.study.points import grid_axes
+    from metraw.study.points import adaptive_settings, grid_axes
 
     out = []
     for grid in params["target"].get("grids") or []:
-        lost = [r["point"] for r in _grid_members(grid, skipped, nominal, names)]
-        if lost and len(_grid_members(grid, rows, nominal, names)) < 3:
+        box = adaptive_settings(params)["enabled"]
+        lost = [r["point"] for r in _grid_members(grid, skipped, nominal, names, box)]
+        if lost and len(_grid_members(grid, rows, nominal, names, box)) < 3:
             print(f"  grid {' x '.join(grid_axes(grid)[0])}: skipped, "
                   f"{len(lost)} of its points unmeasured ({', '.join(lost)}) and fewer than 3 measured")
             continue
@@ -535,28 +557,34 @@ def _channel_series(rows: list[dict[str, Any]], name: str) -> dict[str, list[tup
     return out
 
 
-def _grid_members(grid: dict[str, Any], rows: list[dict[str, Any]], nominal: dict[str, Any], names: list[str]
-                  ) -> list[dict[str, Any]]:
-    """The rows on one ``target.grids`` entry (its two axes' values, the others at its fixed or the nominal values)."""
+def _grid_members(grid: dict[str, Any], rows: list[dict[str, Any]], nominal: dict[str, Any], names: list[str],
+                  box: bool = False) -> list[dict[str, Any]]:
+    """The rows on one ``target.grids`` entry (its two axes' values, the others at its fixed or the nominal values);
+    ``box``: anywhere in the grid's box on its two axes (an adaptive sweep's cells, #70)."""
     from metraw.study.points import grid_axes, same_value
 
     axes, fixed = grid_axes(grid)
     if len(axes) != 2:
         raise MetrawError(f"target.grids entry {grid} must have exactly two list-valued axes for its IoU map")
     want = {m: fixed.get(m, nominal[m]) for m in names if m not in axes}
+
+    def on_grid(r, a):  # a listed value of the axis; with box, anywhere between its ends
+        if box:
+            return min(grid[a]) <= r[a] <= max(grid[a])
+        return any(same_value(r[a], v) for v in grid[a])
+
     return [r for r in rows if all(same_value(r[m], v) for m, v in want.items())
-            and any(same_value(r[axes[0]], v) for v in grid[axes[0]])
-            and any(same_value(r[axes[1]], v) for v in grid[axes[1]])]
+            and on_grid(r, axes[0]) and on_grid(r, axes[1])]
 
 
 def _grid_summary(params: dict[str, Any], grid: dict[str, Any], rows: list[dict[str, Any]], nominal: dict[str, Any],
                   names: list[str], required: float, seed: int):
     """(2-D GP, summary) of one ``target.grids`` entry from its measured points (`metraw.spec.tolerance.grid_region`)."""
     from metraw.spec.tolerance import grid_region
-    from metraw.study.points import grid_axes
+    from metraw.study.points import adaptive_settings, grid_axes
 
     axes, fixed = grid_axes(grid)
-    members = _grid_members(grid, rows, nominal, names)
+    members = _grid_members(grid, rows, nominal, names, adaptive_settings(params)["enabled"])
     if len(members) < 3:
         raise MetrawError(f"grid {' x '.join(axes)} has {len(members)} measured points; a 2-D GP needs >= 3")
     X = np.array([[r[axes[0]], r[axes[1]]] for r in members])

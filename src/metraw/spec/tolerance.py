@@ -172,6 +172,24 @@ class ResponseGP:
         # the band of a new measurement intended here.
         return Prediction(np.asarray(mean), np.asarray(sd_total), k)
 
+    def latent_sd(self, X: np.ndarray, added: np.ndarray | None = None) -> np.ndarray:
+        """Posterior sd of the mean response (the latent GP, without the white noise a new measurement adds) at X
+        (n, d), in the outcome's unit; ``added``: (m, d) points to condition on as well, as if measured with the
+        mean of the fitted points' noise (the fitted kernel kept; their outcomes do not enter an sd). What training
+        more points can reduce: the adaptive sweep's straddle rule (metraw.spec.adaptive)."""
+        k = self.gp.kernel_
+        latent, white = k.k1, float(k.k2.noise_level)
+        F = self._features(self.X)
+        noise = np.asarray(self.gp.alpha, dtype=np.float64) * np.ones(len(F)) + white
+        if added is not None and len(added):
+            F = np.vstack([F, self._features(added)])
+            noise = np.concatenate([noise, np.full(len(added), float(np.mean(noise)))])
+        C = self._features(X)
+        K = latent(F) + np.diag(noise)
+        Kc = latent(C, F)
+        var = latent.diag(C) - np.einsum("ij,ji->i", Kc, np.linalg.solve(K, Kc.T))
+        return np.sqrt(np.clip(var, 0.0, None)) * float(self.gp._y_train_std)
+
     def line(self, name: str, values: np.ndarray, at: Mapping[str, float], k: float = BAND_SIGMA) -> Prediction:
         """Prediction along one parameter with the others fixed at ``at`` (e.g. nominal)."""
         j = self.names.index(name)

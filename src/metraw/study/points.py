@@ -182,7 +182,14 @@ def _check_categorical(parameter: str, values: list, nominal: dict[str, Any]) ->
 
 
 def parameter_points(params: dict[str, Any]) -> dict[str, dict[str, Any]]:
-    """Ordered mapping point name -> target overrides relative to the nominal point.
+    """Ordered mapping point name -> target overrides relative to the nominal point: the listed points
+    (`listed_points`), or with ``target.adaptive.enabled`` the adaptive sweep's (`adaptive_points`)."""
+    listed = listed_points(params)  # checks the sweeps and grids either way
+    return adaptive_points(params) if adaptive_settings(params)["enabled"] else listed
+
+
+def listed_points(params: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """Ordered mapping point name -> target overrides relative to the nominal point (the fixed study).
 
     ``nominal`` has no overrides; each sweep value gives ``"<parameter>-<value>"`` (e.g. ``diameter_m-0.5``,
     ``cfa_pattern-mono``). A sweep value equal to the nominal value is the nominal point itself and is not
@@ -210,6 +217,117 @@ def parameter_points(params: dict[str, Any]) -> dict[str, dict[str, Any]]:
             continue
         points[grid_point_name(overrides)] = overrides
     return points
+
+
+#: ``target.adaptive`` where params.yaml leaves a key out (issue #70; the rule: metraw.spec.adaptive, the driver:
+#: workflow/scripts/adaptive.py, docs/statistics.md "An adaptive sweep"). ``budget``: trained points in all, the
+#: initial design included; ``stop_width``: the widest a stretch of a line may be where the GP cannot tell which
+#: side of the required IoU the response lies, as a fraction of the line's range (working axis); ``chosen``: the
+#: points the driver chose, round by round (lists of overrides), written by the driver, not by hand.
+ADAPTIVE_DEFAULTS = {"enabled": False, "budget": 24, "points_per_round": 2, "stop_width": 0.1, "line_candidates": 41,
+                     "grid_candidates": 11, "chosen": []}
+
+
+def adaptive_settings(params: dict[str, Any]) -> dict[str, Any]:
+    """``target.adaptive`` with ``ADAPTIVE_DEFAULTS`` filled in."""
+    return {**ADAPTIVE_DEFAULTS, **(params["target"].get("adaptive") or {})}
+
+
+def numeric_ranges(params: dict[str, Any]) -> dict[str, tuple[float, float]]:
+    """(low, high) of every numeric swept parameter (`swept_parameters` less the categorical ones) over its sweep
+    values, its grid values and the nominal value: the adaptive sweep's lines."""
+    target = params["target"]
+    values: dict[str, list[float]] = {}
+    for name in swept_parameters(params):
+        if name in CATEGORICAL:
+            continue
+        found = [float(v) for v in (target.get("sweeps") or {}).get(name, [])]
+        for grid in target.get("grids") or []:
+            v = grid.get(name)
+            found += [float(x) for x in (v if isinstance(v, list) else [] if v is None else [v])]
+        values[name] = found + [float(target["nominal"][name])]
+    return {n: (min(v), max(v)) for n, v in values.items()}
+
+
+def _without_nominal(params: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
+    nominal = params["target"]["nominal"]
+    return {k: v for k, v in overrides.items() if not same_value(v, nominal[k])}
+
+
+def _name_of(overrides: dict[str, Any]) -> str:
+    if not overrides:
+        return NOMINAL
+    return point_name(*next(iter(overrides.items()))) if len(overrides) == 1 else grid_point_name(overrides)
+
+
+def _add(points: dict[str, dict[str, Any]], overrides: dict[str, Any]) -> None:
+    key = _override_key(overrides)
+    if not any(_override_key(o) == key for o in points.values()):
+        points[_name_of(overrides)] = overrides
+
+
+def named_point(params: dict[str, Any], overrides: dict[str, Any]) -> tuple[str, dict[str, Any]]:
+    """(name, overrides) of the point at ``overrides``: values equal to the nominal dropped, named as
+    `parameter_points` names it (``nominal``, `point_name`, or `grid_point_name` in the overrides' order)."""
+    overrides = _without_nominal(params, overrides)
+    return _name_of(overrides), overrides
+
+
+def initial_design(params: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """The adaptive sweep's first round: the nominal, both ends of each numeric parameter's range
+    (`numeric_ranges`), every categorical sweep value (measured, never adapted) and each grid's corners
+    (its fixed values kept); a point equal to one already listed is that point (names as `parameter_points`)."""
+    import itertools
+
+    points: dict[str, dict[str, Any]] = {NOMINAL: {}}
+    for name, (low, high) in numeric_ranges(params).items():
+        for value in (low, high):
+            _add(points, _without_nominal(params, {name: value}))
+    for name, values in (params["target"].get("sweeps") or {}).items():
+        if name in CATEGORICAL:
+            for value in values:
+                _add(points, _without_nominal(params, {name: value}))
+    for grid in params["target"].get("grids") or []:
+        axes, fixed = grid_axes(grid)
+        for combo in itertools.product(*((min(grid[a]), max(grid[a])) for a in axes)):
+            values = {**fixed, **dict(zip(axes, combo))}
+            _add(points, _without_nominal(params, {k: values[k] for k in grid}))
+    return points
+
+
+def adaptive_points(params: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """The adaptive sweep's points so far: `initial_design`, then each round of ``target.adaptive.chosen`` (every
+    chosen value a numeric swept parameter's, inside its range). One line when the budget cannot hold the initial
+    design, or the chosen points exceed it."""
+    settings = adaptive_settings(params)
+    points = initial_design(params)
+    if settings["budget"] < len(points):
+        raise MetrawError(f"target.adaptive.budget {settings['budget']} is less than the initial design's "
+                          f"{len(points)} points (the nominal, each range's ends, categorical values, grid corners)")
+    ranges = numeric_ranges(params)
+    for r, chosen in enumerate(settings["chosen"], start=1):
+        for overrides in chosen:
+            for k, v in overrides.items():
+                if k not in ranges:
+                    raise MetrawError(f"target.adaptive.chosen round {r}: {k!r} is not a numeric swept parameter "
+                                      f"({', '.join(ranges)})")
+                if isinstance(v, (bool, str)) or not ranges[k][0] <= float(v) <= ranges[k][1]:
+                    raise MetrawError(f"target.adaptive.chosen round {r}: {k} = {v!r} lies outside its range "
+                                      f"[{ranges[k][0]:g}, {ranges[k][1]:g}]")
+            _add(points, _without_nominal(params, overrides))
+    if len(points) > settings["budget"]:
+        raise MetrawError(f"target.adaptive.chosen: {len(points)} points exceed the budget of {settings['budget']}")
+    return points
+
+
+def point_rounds(params: dict[str, Any]) -> dict[str, int]:
+    """Point name -> the adaptive round that added it (0: the initial design)."""
+    settings = adaptive_settings(params)
+    rounds = {name: 0 for name in initial_design(params)}
+    for r, chosen in enumerate(settings["chosen"], start=1):
+        for overrides in chosen:
+            rounds.setdefault(_name_of(_without_nominal(params, overrides)), r)
+    return rounds
 
 
 def grid_overrides(params: dict[str, Any]) -> list[dict[str, Any]]:
