@@ -384,8 +384,11 @@ def test_changing_one_sweep_value_reruns_only_that_point(tmp_path):
     retrained = {f"{rule}[{point}]": 1 for point in points for rule in ("train", "evaluate")}
     assert snakemake_dry(root, *targets) == {"pretrain": 1, **retrained, "aggregate": 1}
     _run(["python", str(SCRIPT)], root)
-    changed = dvc_changed(root, "aggregate", "--with-deps")
-    assert {"pretrain_RGGB", "aggregate", "train_nominal", "evaluate_nominal", "train_grid_0"} <= set(changed)
-    assert len(changed) == 2 + 2 * len(points), changed  # one train_ and one evaluate_ stage a point
-    assert all(s.startswith(("train_", "evaluate_", "pretrain_RGGB", "aggregate")) for s in changed), changed
+    # DVC's status names the stages whose own params or dependencies changed (training, the factory file): the
+    # pretraining and every point's training; their evaluations and the aggregate follow in `dvc repro` when the
+    # models they read change. No scenes, emulation or compression stage
+    changed = set(dvc_changed(root, "aggregate", "--with-deps"))
+    trainings = {s for s in changed if s.startswith("train_")}
+    assert changed == {"pretrain_RGGB"} | trainings and len(trainings) == len(points), changed
+    assert {"train_nominal", "train_grid_0"} <= trainings
     print(json.dumps({k: round(v, 1) for k, v in timings.items()}))
