@@ -8,6 +8,7 @@ import contextlib
 import hashlib
 import io
 import json
+import os
 import shutil
 import sys
 
@@ -34,13 +35,13 @@ def build(in_channels, out_channels, width=6):
 
 
 def _run(argv, cwd) -> int:
-    here = __import__("os").getcwd()
-    __import__("os").chdir(cwd)
+    here = os.getcwd()
+    os.chdir(cwd)
     try:
         with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()) as err:
             status = main(argv)
     finally:
-        __import__("os").chdir(here)
+        os.chdir(here)
     assert status == 0, err.getvalue()[-2000:]
     return status
 
@@ -121,7 +122,7 @@ def test_foreign_network_pads_and_crops_any_size(tmp_path):
     assert config.condition is False  # only metraw's U-Net takes the payload: the record says so
 
 
-def test_python_factory_trains_evaluates_predicts_and_is_recorded(tmp_path, toy):
+def test_python_factory_trains_evaluates_predicts_and_is_recorded(tmp_path, toy, monkeypatch):
     work = tmp_path / "study"
     work.mkdir()
     shutil.copytree(toy, work / "toy.zarr")
@@ -144,7 +145,8 @@ def test_python_factory_trains_evaluates_predicts_and_is_recorded(tmp_path, toy)
     # the workflow folder moved: the factory is found again by its relative path (same bytes)
     moved = tmp_path / "moved"
     work.rename(moved)
-    model, _, _ = load_model(moved / "m", "cpu") if _chdir(moved) else (None, None, None)
+    monkeypatch.chdir(moved)
+    model, _, _ = load_model(moved / "m", "cpu")
     assert sum(p.numel() for p in model.parameters()) == net["parameters"]
     # an edited factory file: refused (the weights belong to the network that was trained)
     (moved / "net.py").write_text(NET.replace("width=6", "width=7"))
@@ -153,11 +155,6 @@ def test_python_factory_trains_evaluates_predicts_and_is_recorded(tmp_path, toy)
     (moved / "net.py").unlink()
     with pytest.raises(MetrawError, match="cannot be rebuilt: training.model factory 'net.py:build': no file"):
         load_model(moved / "m", "cpu")
-
-
-def _chdir(folder) -> bool:
-    __import__("os").chdir(folder)
-    return True
 
 
 def test_module_factory_whose_network_changed_is_refused(tmp_path, toy, monkeypatch):
