@@ -182,6 +182,13 @@ def test_fine_tuning_refuses_a_pretraining_of_another_network(tmp_path, toy):
     assert len(pretrained_states(tmp_path / "pre", 1, model={"kind": "metraw"})) == 1
     with pytest.raises(MetrawError, match="holds a pretraining of metraw U-Net; this training uses python"):
         pretrained_states(tmp_path / "pre", 1, model={"kind": "python", "factory": f"{tmp_path}/net.py:build"})
+    # a factory's pretraining: the same file by another path is the same network, other kwargs are not
+    _params(tmp_path, {"kind": "python", "factory": "net.py:build", "kwargs": {"width": 5}}, replicates=1)
+    _run(["train", "toy.zarr", "--out", "pre_py", "--params", "p.yaml"], tmp_path)
+    same = {"kind": "python", "factory": f"{tmp_path}/./net.py:build", "kwargs": {"width": 5}}
+    assert len(pretrained_states(tmp_path / "pre_py", 1, model=same)) == 1
+    with pytest.raises(MetrawError, match="holds a pretraining of python .*net.py:build; this training uses python"):
+        pretrained_states(tmp_path / "pre_py", 1, model={**same, "kwargs": {"width": 6}})
 
 
 def test_workflow_inputs_are_the_factory_files(tmp_path, monkeypatch):

@@ -137,9 +137,6 @@ class _GridWrapper(nn.Module):
         """Length of the conditioning vector the network takes (0: none)."""
         return 0
 
-    def run_core(self, x: torch.Tensor, condition: torch.Tensor | None) -> torch.Tensor:
-        return self.core(x)
-
     def forward(self, x: torch.Tensor, condition: torch.Tensor | None = None) -> torch.Tensor:
         h, w = x.shape[-2:]
         f, p = self.upsample, self.pool
@@ -148,7 +145,8 @@ class _GridWrapper(nn.Module):
         if p > 1:
             x = F.avg_pool2d(_pad_to(x, p), p)
         hn, wn = x.shape[-2:]
-        y = self.run_core(_pad_to(x, self.multiple), condition)[..., :hn, :wn]
+        x = _pad_to(x, self.multiple)
+        y = (self.core(x, condition) if self.n_condition else self.core(x))[..., :hn, :wn]
         if f > 1:
             y = F.avg_pool2d(y, f)
         if p > 1:
@@ -176,9 +174,6 @@ class Segmenter(_GridWrapper):
     @property
     def n_condition(self) -> int:
         return self.unet.n_condition
-
-    def run_core(self, x: torch.Tensor, condition: torch.Tensor | None) -> torch.Tensor:
-        return self.unet(x, condition)
 
 
 class ForeignSegmenter(_GridWrapper):

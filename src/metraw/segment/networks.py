@@ -23,6 +23,7 @@ from __future__ import annotations
 import hashlib
 import importlib
 import importlib.util
+import json
 import math
 import sys
 from dataclasses import dataclass, field
@@ -86,11 +87,28 @@ class ModelSpec:
                    multiple)
 
     def to_dict(self) -> dict[str, Any]:
-        """The ``training.model`` mapping of this spec (only its kind's keys)."""
-        full = {"kind": self.kind, "arch": self.arch, "encoder": self.encoder, "encoder_weights": self.encoder_weights,
-                "factory": self.factory, "kwargs": self.kwargs, "pad_multiple": self.pad_multiple}
-        return {k: v for k, v in full.items() if k in _KEYS[self.kind] and (k == "kind" or v not in (None, {}))
-                or k == "encoder_weights" and self.kind == "smp"}
+        """The ``training.model`` mapping of this spec: its kind's keys, ``kwargs`` and ``pad_multiple`` when set."""
+        out: dict[str, Any] = {"kind": self.kind}
+        if self.kind == "smp":
+            out.update(arch=self.arch, encoder=self.encoder, encoder_weights=self.encoder_weights)
+        elif self.kind == "python":
+            out["factory"] = self.factory
+        if self.kwargs:
+            out["kwargs"] = self.kwargs
+        if self.pad_multiple is not None:
+            out["pad_multiple"] = self.pad_multiple
+        return out
+
+    def identity(self) -> tuple:
+        """What makes two specs build the same network: kind, smp names, the factory (its resolved file, or the
+        module as written, and the function), kwargs and input multiple; a factory file's path as written does not
+        count (a checkpoint records it resolved)."""
+        factory = None
+        if self.kind == "python":
+            target, name = self.factory.rsplit(":", 1)
+            factory = (str(self.factory_file() or target), name)
+        return (self.kind, self.arch, self.encoder, self.encoder_weights, factory,
+                json.dumps(self.kwargs, sort_keys=True), self.pad_multiple)
 
     def describe(self) -> str:
         """A short name: "metraw U-Net", "smp Unet (resnet18)", "python my_model.py:build"."""
@@ -211,18 +229,18 @@ def check_contract(model, spec: ModelSpec, in_channels: int = 4) -> None:
     generator = torch.Generator().manual_seed(0)
     x = torch.randn(2, in_channels, side, 2 * side, generator=generator)
     device = next((p.device for p in core.parameters()), torch.device("cpu"))
+    x = x.to(device)
+    args = (x, torch.zeros(2, model.n_condition, device=device)) if model.n_condition else (x,)  # FiLM's payload
     was_training = core.training
     core.eval()
     try:
         with torch.no_grad():
-            y = core(x.to(device)) if not getattr(model, "n_condition", 0) else None
+            y = core(*args)
     except Exception as exc:
         raise MetrawError(f"{where}: its forward pass on a ({', '.join(map(str, x.shape))}) batch raised "
                           f"{type(exc).__name__}: {_one_line(exc)}") from None
     finally:
         core.train(was_training)
-    if y is None:  # metraw's conditioned U-Net: checked by its own tests
-        return
     if not isinstance(y, torch.Tensor):
         raise MetrawError(f"{where}: returns a {type(y).__name__}, not a tensor of logits")
     if tuple(y.shape) != tuple(x.shape):

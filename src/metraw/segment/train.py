@@ -283,7 +283,9 @@ def resolved_config(config: TrainConfig, device: str) -> TrainConfig:
 
 def check_network(config: TrainConfig, in_channels: int = PACKED_CELL_PX ** 2) -> None:
     """Build ``config``'s network on the CPU and check its contract on one dummy batch
-    (``networks.check_contract``): one line naming the model and what is wrong, before any data is prepared."""
+    (``networks.check_contract``): one line naming the model and what is wrong, before any data is prepared. The
+    trainings' entry points (``train_store``, ``onthefly.train_store_on_the_fly``, ``pretrain.pretrain_stores``) call
+    it once, not every replicate's ``new_network``."""
     from metraw.segment.networks import ModelSpec, check_contract
 
     check_contract(build_model(in_channels, config, 1, 1), ModelSpec.from_dict(config.model), in_channels)
@@ -299,16 +301,12 @@ def grid_factors(images: list[PreparedImage], config: TrainConfig, upsample: int
 def new_network(images: list[PreparedImage], config: TrainConfig, device: str, upsample: int | None = None):
     """Seed torch (``set_determinism``) and build a fresh network sized for ``images``:
     (model on ``device``, upsampling factor, pooling factor, input channels)."""
-    from metraw.segment.networks import ModelSpec, check_contract
-
     set_determinism(config.seed, config.threads, device)
     f, pool = grid_factors(images, config, upsample)
     in_ch = PACKED_CELL_PX ** 2
     if len({cfa_family(img.pattern) for img in images}) > 1:
         raise MetrawError("cannot train on a mix of mono and CFA images")
-    model = build_model(in_ch, config, f, pool).to(device)
-    check_contract(model, ModelSpec.from_dict(config.model), in_ch)  # eval mode, no gradient: changes no state
-    return model, f, pool, in_ch
+    return build_model(in_ch, config, f, pool).to(device), f, pool, in_ch
 
 
 def fit(images: list[PreparedImage], config: TrainConfig, device: str | None = None,
@@ -493,9 +491,7 @@ def pretrained_states(model_dir: str | os.PathLike, n: int, sensor: str | None =
         from metraw.segment.networks import ModelSpec, spec_from_record
 
         pretrained, wanted = spec_from_record(ckpts[0].get("network")), ModelSpec.from_dict(model)
-        if (pretrained.describe(), pretrained.kwargs) != (wanted.describe(), wanted.kwargs) \
-                and not (pretrained.kind == wanted.kind == "python"
-                         and pretrained.factory_file() == wanted.factory_file()):
+        if pretrained.identity() != wanted.identity():
             raise MetrawError(f"{model_dir} holds a pretraining of {pretrained.describe()}; this training uses "
                               f"{wanted.describe()}: pretrain with the same training.model")
     if sensor is not None and have != sensor:
