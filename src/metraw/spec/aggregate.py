@@ -317,11 +317,11 @@ def _aggregate(options: AggregateOptions, params: dict, required: float, rows: l
     if prop_model is not None and "properties" not in nominal_row:  # an unmeasured nominal: its images' properties
         nominal_row["properties"] = _store_properties(options, nominal_row)
     unmeasured_list = [unmeasured.entry(r, all_names) for r in skipped]
-    model = study_network(rows + skipped)
+    network = study_network(rows + skipped)
     adaptive = _adaptive_summary(params, iou_gp, tols, at, required)  # None unless target.adaptive is on (#70)
     spec = build_spec(tols, nominal, required, nominal_row.get("_signal"), choices=choices,
                       context={"params_file": str(options.params), "loo_share_inside_2sigma": iou_loo["share_inside"],
-                               **({"model": model} if model else {}), **resolution.spec_context(res),
+                               **({"model": network} if network else {}), **resolution.spec_context(res),
                                **({"unmeasured_points": unmeasured_list} if skipped else {}),
                                **({"adaptive": adaptive} if adaptive else {})},
                       property_model=prop_model, model_at=nominal_row.get("properties"))
@@ -346,7 +346,7 @@ def _aggregate(options: AggregateOptions, params: dict, required: float, rows: l
     out = Path(options.out)
     figdir, plotdir = out / "figures", out / "plots"
     summary = {
-        "required_iou": required, "band_sigma": BAND_SIGMA, "model": model, "parameters": all_names,
+        "required_iou": required, "band_sigma": BAND_SIGMA, "model": network, "parameters": all_names,
         "gp_parameters": names,
         "nominal": {**at, **{c: nominal[c] for c in categorical}},
         "points": [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows],
