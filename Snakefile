@@ -68,7 +68,7 @@ include: "workflow/rules/common.smk"
 
 # a point wildcard is one of the parameter points (common.smk), so no rule's pattern swallows another's
 wildcard_constraints:
-    point="|".join(re.escape(p) for p in POINTS),
+    point="|".join(re.escape(p) for p in dict.fromkeys(POINTS + SCREEN_POINTS)),
 
 
 include: "workflow/rules/source.smk"

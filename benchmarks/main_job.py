@@ -1,6 +1,6 @@
 """Where the main job's time goes: wall time, job and CPU time per rule and the run's start-to-end, from a Snakemake log.
 
-usage: python benchmarks/main_job.py [.snakemake/log/<run>.snakemake.log] [--json OUT]
+usage: python benchmarks/main_job.py [.snakemake/log/<run>.snakemake.log ...] [--json OUT]
 
 Reads the newest log under .snakemake/log/ by default (the run of `snakemake --cores all` in this folder) and prints
 the host's CPU (model, AVX-512 or not, and ATEN_CPU_CAPABILITY when set: an AVX-512 host run as an AVX2-only one),
@@ -105,10 +105,18 @@ def cpu_per_rule(jobs, root: Path) -> dict[str, dict[str, float]]:
     return out if any(c["jobs"] > c["no_data"] for c in out.values()) else {}
 
 
-def summary(path: str | Path, root: str | Path | None = None) -> dict:
-    """The run's timing; ``root``: the folder it ran in (its job logs; default: the log's .snakemake/log/../..)."""
-    jobs, cores = parse(path)
-    root = Path(root) if root is not None else Path(path).resolve().parents[2]
+def summary(path: str | Path | list, root: str | Path | None = None) -> dict:
+    """The run's timing; ``path``: its Snakemake log, or several (an adaptive sweep's: one per round and the whole
+    workflow's, taken as one run); ``root``: the folder it ran in (its job logs; default: the log's
+    .snakemake/log/../..)."""
+    paths = [path] if isinstance(path, (str, Path)) else list(path)
+    jobs, cores = [], None
+    for p in paths:
+        more, c = parse(p)
+        jobs += more
+        cores = cores or c
+    path = paths[0] if len(paths) == 1 else f"{paths[0]} and {len(paths) - 1} more"
+    root = Path(root) if root is not None else Path(paths[0]).resolve().parents[2]
     if not jobs:
         raise SystemExit(f"{path}: no finished job in this log")
     t0, t1 = min(j[1] for j in jobs), max(j[2] for j in jobs)
@@ -128,12 +136,16 @@ def summary(path: str | Path, root: str | Path | None = None) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("log", nargs="?", default=None, help="Snakemake log (default: the newest in .snakemake/log/)")
+    ap.add_argument("log", nargs="*", default=None,
+                    help="Snakemake log (default: the newest in .snakemake/log/); several: one run (an adaptive sweep's "
+                    "rounds: .snakemake/log/*.snakemake.log)")
     ap.add_argument("--root", default=None,
                     help="the folder the run ran in, where its logs/ are (default: the one holding the log's .snakemake)")
     ap.add_argument("--json", default=None, help="also write the summary as JSON here")
     args = ap.parse_args(argv)
     path = args.log or (sorted(glob.glob(".snakemake/log/*.snakemake.log")) or [None])[-1]
+    if isinstance(path, list) and len(path) == 1:
+        path = path[0]
     if path is None:
         print("main_job: no Snakemake log under .snakemake/log/ (run snakemake here first, or name a log)",
               file=sys.stderr)

@@ -224,3 +224,116 @@ def test_the_driver_refuses_bad_settings_in_one_line_and_writes_nothing(tmp_path
     (line,) = proc.stderr.strip().splitlines()
     assert line.startswith("metraw adaptive: error: ") and word in line
     assert sorted(p.name for p in tmp_path.rglob("*")) == before
+
+
+# ---------------------------------------------------------------------- screening by the box model
+#: The synthetic box model: the curve less what fine-tuning adds (BOX_OFFSET), with its own seeded noise.
+BOX_OFFSET = 0.012
+
+
+def write_box_scores(params: dict, results: Path, seed: int) -> None:
+    """``screen.json`` of every screen point as `metraw evaluate` writes it (IoU, its replicates and per-image
+    counts omitted: the IoU's variance is then 0, so the rows' sd is the offset's alone)."""
+    from metraw.spec.aggregate import DEFAULT_SCREEN
+    from metraw.study.points import screen_points
+
+    for name, overrides in screen_points(params).items():
+        f = float(overrides.get("focal_length_m", params["target"]["nominal"]["focal_length_m"]))
+        noise = np.random.default_rng([seed, 7, int(round(f * 1e6))]).normal(0.0, NOISE_SD)
+        path = Path(DEFAULT_SCREEN.format(results=results, point=name))
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps({"iou": iou_curve(f) - BOX_OFFSET + noise}))
+
+
+def run_screened_sweep(params: dict, seed: int, results: Path) -> tuple[dict, list[dict]]:
+    """`run_sweep` with the screening: every round the box model scores the screen points, the GP takes them."""
+    from metraw.spec.aggregate import box_model_scores
+    from metraw.spec.screening import screened_rows
+
+    params = copy.deepcopy(params)
+    records = []
+    for r in range(100):
+        rows = measure(params, seed)
+        write_box_scores(params, results, seed)
+        screened, record = screened_rows(params, box_model_scores(params, str(results)), rows)
+        records.append(adaptive.plan_round(params, rows, r, screened=screened, screening=record))
+        if records[-1]["stop"]["stopped"]:
+            return params, records
+        params["target"]["adaptive"].setdefault("chosen", []).append([c["overrides"] for c in records[-1]["chosen"]])
+    raise AssertionError("no stop in 100 rounds")
+
+
+def test_screening_trains_the_nominal_and_the_categories_and_scores_the_ends():
+    from metraw.study.points import screen_points, target_params
+
+    params = repo_params()
+    params["target"]["adaptive"].update(enabled=True, screen=True, budget=10)
+    validate_params(params)  # a budget of 10 holds the screened design
+    assert list(initial_design(params)) == ["nominal", "cfa_pattern-mono"]
+    screen = screen_points(params)
+    # the nominal, the 11 range ends and the 4 grid corners: the unscreened design less the mono point
+    unscreened = copy.deepcopy(params)
+    unscreened["target"]["adaptive"]["screen"] = False
+    assert set(screen) == set(initial_design(unscreened)) - {"cfa_pattern-mono"} and len(screen) == 16
+    assert target_params(params, "diameter_m-0.5")["diameter_m"] == 0.5  # an untrained point resolves
+    params["target"]["adaptive"]["chosen"] = [[{"focal_length_m": 1.3}]]
+    assert "focal_length_m-1.3" in screen_points(params)  # a trained point is scored both ways (a pair)
+    off = copy.deepcopy(params)
+    off["target"]["adaptive"]["enabled"] = False
+    assert screen_points(off) == {} and parameter_points(off) == listed_points(off)
+
+
+def test_the_offset_and_its_spread():
+    from metraw.spec.screening import offset
+
+    pairs = [{"fine_tuned": a, "box": b} for a, b in [(0.21, 0.20), (0.30, 0.27), (0.10, 0.10)]]
+    got = offset(pairs, 0.02)
+    d = np.array([0.01, 0.03, 0.0])
+    assert math.isclose(got["offset"], d.mean()) and math.isclose(got["offset_sd"], d.std(ddof=1))
+    assert got["offset_sd_from"] == "pairs" and math.isclose(got["added_sd"], d.std(ddof=1) * math.sqrt(4 / 3))
+    two = offset(pairs[:2], 0.02)  # fewer than 3 pairs: the stated prior sd
+    assert two["offset_sd"] == 0.02 and two["offset_sd_from"] == "target.adaptive.screen_offset_sd"
+    with pytest.raises(MetrawError, match="no trained point"):
+        offset([], 0.02)
+
+
+def test_screened_rows_are_the_untrained_points_shifted_by_the_offset(tmp_path):
+    from metraw.spec.aggregate import box_model_scores
+    from metraw.spec.screening import screened_rows
+
+    params = line_params(0.05)
+    params["target"]["adaptive"]["screen"] = True
+    rows = measure(params, 0)
+    assert [r["point"] for r in rows] == ["nominal"]
+    write_box_scores(params, tmp_path, 0)
+    screened, record = screened_rows(params, box_model_scores(params, str(tmp_path)), rows)
+    assert [r["point"] for r in screened] == ["focal_length_m-0.8", "focal_length_m-2.0"]
+    assert record["n_pairs"] == 1 and record["offset_sd"] == 0.02
+    box_nominal = json.loads((tmp_path / "points" / "nominal" / "screen.json").read_text())["iou"]
+    assert math.isclose(record["offset"], rows[0]["iou"] - box_nominal)
+    for r in screened:
+        assert r["screened"] and math.isclose(r["iou"], r["box_iou"] + record["offset"])
+        assert math.isclose(r["iou_sd"], 0.02 * math.sqrt(2))  # the box IoU's variance is 0 here
+    (tmp_path / "points" / "focal_length_m-2.0" / "screen.json").unlink()
+    with pytest.raises(MetrawError, match="box-model score.*focal_length_m-2.0/screen.json"):
+        box_model_scores(params, str(tmp_path))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_screening_finds_the_crossing_with_fewer_trained_points(seed, tmp_path):
+    """The box model (the curve less a constant, its own noise) at the ends in place of their training: the rule
+    reaches the stop width with fewer trained points than without the screening, the offset is recovered within
+    its sampling error, and the crossing is found as well."""
+    width = 0.05
+    _, plain = run_sweep(line_params(width), seed)
+    params = line_params(width)
+    params["target"]["adaptive"]["screen"] = True
+    params, records = run_screened_sweep(params, seed, tmp_path)
+    last = records[-1]
+    assert last["stop"]["reason"].startswith("every stretch of doubt")
+    assert last["n_trained"] < plain[-1]["n_trained"]
+    (found,) = last["lines"]["focal_length_m"]["mean_crossings"]
+    assert abs(found - CROSSING_M) <= width * (2.0 - 0.8)
+    s = last["screening"]
+    # each difference = BOX_OFFSET + (noise of the trained point - noise of the box score): sd sqrt(2) NOISE_SD
+    assert abs(s["offset"] - BOX_OFFSET) <= 3 * math.sqrt(2) * NOISE_SD / math.sqrt(s["n_pairs"])

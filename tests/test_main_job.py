@@ -67,6 +67,22 @@ def test_wall_job_time_and_cpu_per_rule(main_job, tmp_path):
     assert s["cpu_per_rule"]["train"] == {"cpu_s": 55.5, "max_rss_mb": 300.0, "jobs": 2, "no_data": 1}
 
 
+def test_several_logs_are_one_run(main_job, tmp_path, capsys):
+    """An adaptive sweep's rounds: each a Snakemake log; their jobs are summed, the wall spans them all."""
+    logs = []
+    for i, (start, end, rule) in enumerate([("10:00:00", "10:01:40", "pretrain"), ("10:05:00", "10:06:40", "train")]):
+        log = tmp_path / ".snakemake" / "log" / f"run{i}.snakemake.log"
+        log.parent.mkdir(parents=True, exist_ok=True)
+        log.write_text(f"Provided cores: 2\n[Sat Nov 28 {start} 2026]\nrule {rule}:\n    jobid: 1\n"
+                       f"[Sat Nov 28 {end} 2026]\nFinished jobid: 1 (Rule: {rule})\n")
+        logs.append(str(log))
+    s = main_job.summary(logs)
+    assert s["jobs"] == 2 and s["wall_s"] == 400.0  # 10:00:00 -> 10:06:40
+    assert s["rules"]["train"]["sum_s"] == s["rules"]["pretrain"]["sum_s"] == 100.0
+    assert main_job.main([*logs, "--root", str(tmp_path)]) == 0
+    assert "2 jobs on 2 cores" in capsys.readouterr().out
+
+
 def test_without_usage_lines_no_cpu_column(main_job, tmp_path, capsys):
     log = tmp_path / "run.snakemake.log"
     log.write_text(LOG)

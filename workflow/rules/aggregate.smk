@@ -25,8 +25,10 @@ rule compress:
 rule aggregate:
     input:
         metrics=expand("results/points/{point}/metrics.json", point=POINTS),
-        compression=expand("results/points/{point}/compression.json", point=POINTS),
+        # with screening (target.adaptive.screen) the screened points' too: the ratio needs no training
+        compression=expand("results/points/{point}/compression.json", point=dict.fromkeys(POINTS + SCREEN_POINTS)),
         stores=expand("results/points/{point}/target.zarr", point=POINTS),
+        screens=expand(SCREEN_METRICS, point=SCREEN_POINTS),  # the box model's scores (target.adaptive.screen)
         # sim-to-real benchmark (when on): each point's model on its emulated real images, the source model's pair
         real=expand(REAL_POINT_METRICS, point=POINTS) if SIM_TO_REAL else [],
         source_real=[SOURCE_REAL_METRICS, "results/source/metrics.json"] if SIM_TO_REAL else [],
@@ -45,6 +47,7 @@ rule aggregate:
         code=METRAW_CODE,
         # extra aggregate arguments of the sim-to-real benchmark (a function: a params string would be formatted
         # with the job's wildcards, and {point} is the aggregate's own pattern)
+        screen=lambda wildcards: f" --screen-pattern '{SCREEN_METRICS}'" if SCREEN_POINTS else "",
         real=lambda wildcards: (f" --real-metrics-pattern '{REAL_POINT_METRICS}' --source-real-metrics "
                                 f"{SOURCE_REAL_METRICS} --source-metrics results/source/metrics.json"
                                 ) if SIM_TO_REAL else "",
@@ -63,4 +66,4 @@ rule aggregate:
         "metraw aggregate --params {input.params_file} --results results --out results"
         " --metrics-pattern 'results/points/{{point}}/metrics.json'"
         " --compression-pattern 'results/points/{{point}}/compression.json'"
-        " --stores-pattern 'results/points/{{point}}/target.zarr'{params.real} 2> {log}"
+        " --stores-pattern 'results/points/{{point}}/target.zarr'{params.screen}{params.real} 2> {log}"

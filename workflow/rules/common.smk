@@ -5,13 +5,16 @@ import re
 
 from snakemake.exceptions import WorkflowError
 
-from metraw.study.points import parameter_points, target_params
+from metraw.study.points import parameter_points, screen_points, target_params
 from metraw.provenance import code_digest
 from metraw.study.sources import calibration_method, car_class_arguments, check_folder_arguments
 from metraw.study.pretraining import (draws_extra_scenes, fine_tuned_points, point_patterns, pretrain_settings,
                                       pretrained_patterns)
 
 POINTS = list(parameter_points(config))
+# the adaptive sweep's screening (target.adaptive.screen): the points the box model alone is scored on (rule screen)
+SCREEN_POINTS = list(screen_points(config))
+SCREEN_METRICS = "results/points/{point}/screen.json"
 SOURCE_CAMERA = "results/source/camera.json"  # the raws source's calibrated camera (rule source_camera)
 SOURCE_CHECK = "results/source/folder_check.json"  # a raws or photos folder checked (rule source_check)
 METRAW_CODE = code_digest()  # the aggregate's cache key covers metraw's code (workflow/rules/aggregate.smk)

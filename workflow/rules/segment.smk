@@ -115,6 +115,26 @@ rule evaluate:
         "metraw evaluate {input.store} --model {input.model} --out {output} 2> {log}"
 
 
+if SCREEN_POINTS:
+
+    rule screen:
+        """The adaptive sweep's screening (target.adaptive.screen; metraw.spec.screening): the pretrained box model
+        alone, not fine-tuned, scored on the point's test split."""
+        input:
+            store="results/points/{point}/target.zarr",
+            model=PRETRAINED_MODEL.format(cfa_pattern=PRETRAINED_PATTERNS[0]),  # screened points: nominal category
+        output:
+            SCREEN_METRICS,
+        threads: point_model_threads
+        resources:
+            mem_mb=1500,  # as evaluate
+            runtime=20,  # minutes
+        log:
+            "logs/screen/{point}.log",
+        shell:
+            "metraw evaluate {input.store} --model {input.model} --out {output} 2> {log}"
+
+
 rule train_source:
     input:
         source=SOURCE_STORE,

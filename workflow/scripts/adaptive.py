@@ -78,8 +78,10 @@ def main(argv: list[str] | None = None) -> int:
         from threadpoolctl import threadpool_limits
 
         from metraw.spec.adaptive import plan_round
-        from metraw.spec.aggregate import load_point_results
-        from metraw.study.points import adaptive_settings, parameter_points, validate_params
+        from metraw.spec.aggregate import DEFAULT_SCREEN, box_model_scores, load_point_results
+        from metraw.spec.screening import screened_rows
+        from metraw.study.pretraining import pretrain_settings
+        from metraw.study.points import adaptive_settings, parameter_points, screen_points, validate_params
 
         config = merged_config(ours.configfiles)
         config.setdefault("target", {}).setdefault("adaptive", {})["chosen"] = []
@@ -87,6 +89,9 @@ def main(argv: list[str] | None = None) -> int:
         if not adaptive_settings(config)["enabled"]:
             raise MetrawError("target.adaptive.enabled is false: set it in a config file (the listed study runs with "
                               "plain snakemake)")
+        if adaptive_settings(config)["screen"] and not pretrain_settings(config)["enabled"]:
+            raise MetrawError("target.adaptive.screen scores the pretrained box model: it needs "
+                              "training.pretrain.enabled: true")
         chosen: list[list[dict]] = []
         total_jobs = 0
         for r in range(10_000):
@@ -94,13 +99,17 @@ def main(argv: list[str] | None = None) -> int:
             validate_params(config, f"round {r}")
             _write_if_changed(CHOSEN_FILE, yaml.safe_dump({"target": {"adaptive": {"chosen": chosen}}}, sort_keys=False))
             points = list(parameter_points(config))
-            jobs = snakemake(passed, ours.configfiles, [METRICS.format(point=p) for p in points])
+            screens = [DEFAULT_SCREEN.format(results="results", point=p) for p in screen_points(config)]
+            jobs = snakemake(passed, ours.configfiles, [METRICS.format(point=p) for p in points] + screens)
             total_jobs += jobs
             rows = load_point_results(config, "results", METRICS.replace("results/", "{results}/"), "")
+            screened, screening = screened_rows(config, box_model_scores(config, "results"), rows)
             with threadpool_limits(limits=1):
-                record = plan_round(config, rows, r)
+                record = plan_round(config, rows, r, screened=screened, screening=screening)
             _write_if_changed(ADAPTIVE_DIR / f"round_{r}.json", json.dumps(record, indent=2) + "\n")
-            print(f"adaptive round {r}: {len(points)} points trained ({jobs} jobs run); widest doubt "
+            print(f"adaptive round {r}: {len(points)} points trained"
+                  + (f", {len(screened)} more scored by the box model alone" if screening else "")
+                  + f" ({jobs} jobs run); widest doubt "
                   + ", ".join(f"{n} {v['widest']:.3f}" for n, v in record["lines"].items())
                   + (f"; stop: {record['stop']['reason']}" if record["stop"]["stopped"] else
                      "; next: " + ", ".join(c["name"] for c in record["chosen"])), file=sys.stderr)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from metraw.spec.aggregate import DEFAULT_COMPRESSION, DEFAULT_METRICS, AggregateOptions
+from metraw.spec.aggregate import DEFAULT_COMPRESSION, DEFAULT_METRICS, DEFAULT_SCREEN, AggregateOptions
 
 
 def register(sub) -> None:
@@ -20,6 +20,9 @@ def register(sub) -> None:
                    help="path of a point's compression.json ({results}, {point}); '' to leave compression out")
     p.add_argument("--stores-pattern", default="",
                    help="path of a point's emulated store (e.g. 'data/targets/{point}.zarr') for Fig. 6 examples")
+    p.add_argument("--screen-pattern", default=DEFAULT_SCREEN,
+                   help="path of a point's box-model score ({results}, {point}; an adaptive sweep with "
+                   "target.adaptive.screen: rule screen)")
     p.add_argument("--real-metrics-pattern", default="",
                    help="path of a point's metrics on its emulated real images ({results}, {point}), e.g. "
                    "'results/points/{point}/real_metrics.json'; '' (default): no sim-to-real columns")

@@ -181,16 +181,19 @@ def gp_state(model: ResponseGP) -> dict[str, Any]:
             "X": model.X.tolist(), "iou": model.y.tolist(), "iou_sd": np.sqrt(model.y_var).tolist()}
 
 
-def plan_round(params: dict[str, Any], rows: Sequence[Mapping[str, Any]], round_index: int, seed: int = 0
+def plan_round(params: dict[str, Any], rows: Sequence[Mapping[str, Any]], round_index: int, seed: int = 0,
+               screened: Sequence[Mapping[str, Any]] = (), screening: Mapping[str, Any] | None = None
                ) -> dict[str, Any]:
-    """Round ``round_index``'s record: the GP fitted to ``rows`` (every point trained so far), each line's stretches
-    of doubt, every candidate's straddle, the points chosen for the next round and why, or why the sweep stops."""
+    """Round ``round_index``'s record: the GP fitted to ``rows`` (every point trained so far) and ``screened`` (the
+    box model's rows of the points not trained, `metraw.spec.screening`; ``screening`` its record), each line's
+    stretches of doubt, every candidate's straddle, the points chosen for the next round and why, or why the sweep
+    stops."""
     from metraw.study.points import adaptive_settings, parameter_points, point_rounds
 
     settings = adaptive_settings(params)
     level = float(params["spec"]["required_iou"])
     width = float(settings["stop_width"])
-    model, names, at = fit_iou(params, rows, seed)
+    model, names, at = fit_iou(params, [*rows, *screened], seed)
     trained = parameter_points(params)
     lines = {n: line_doubt(model, n, at, level) for n in names}
     for rec in lines.values():
@@ -227,6 +230,7 @@ def plan_round(params: dict[str, Any], rows: Sequence[Mapping[str, Any]], round_
         "n_trained": len(trained),
         "trained": [{"point": r["point"], "round": rounds.get(r["point"], 0), "iou": r["iou"], "iou_sd": r["iou_sd"]}
                     for r in rows],
+        **({"screening": dict(screening)} if screening else {}),
         "gp": gp_state(model),
         "lines": lines,
         "candidates": [{**c, "mean": float(mean[i]), "latent_sd": float(sd[i]), "straddle": float(s[i]),
@@ -273,10 +277,11 @@ def _nearest(found: list[dict[str, float]], u: float) -> dict[str, float] | None
 
 
 def summary(params: dict[str, Any], model: ResponseGP, tolerances: Mapping[str, Tolerance], at: Mapping[str, float],
-            level: float) -> dict[str, Any]:
+            level: float, screening: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """The ``adaptive`` block of aggregate.json and spec.yaml's context: that the points came from an adaptive run,
     its settings, the points each round added, each line's widest stretch of doubt and each tolerance end's
-    uncertainty (`tolerance_ends`)."""
+    uncertainty (`tolerance_ends`); with screening, the points the box model alone measured and its offset
+    (`metraw.spec.screening`)."""
     from metraw.study.points import adaptive_settings, point_rounds
 
     settings = adaptive_settings(params)
@@ -290,15 +295,20 @@ def summary(params: dict[str, Any], model: ResponseGP, tolerances: Mapping[str, 
             "stop_width": float(settings["stop_width"]), "n_points": len(rounds),
             "rounds": [by_round[r] for r in sorted(by_round)],
             "widest_doubt": widest, "all_lines_resolved": all(w <= settings["stop_width"] for w in widest.values()),
-            "tolerance_ends": tolerance_ends(model, tolerances, at, level)}
+            "tolerance_ends": tolerance_ends(model, tolerances, at, level),
+            **({"screening": {"screened_points": [r["point"] for r in screening["rows"]],
+                              "offset": screening["offset"], "offset_sd": screening["offset_sd"],
+                              "n_pairs": screening["n_pairs"], "offset_sd_from": screening["offset_sd_from"]}}
+               if screening else {})}
 
 
 def round_figures(model: ResponseGP, rows: Sequence[Mapping[str, Any]], rounds: Mapping[str, int],
                   at: Mapping[str, float], level: float, figdir: str | Path,
                   grids: Sequence[Sequence[str]] = ()) -> list[Path]:
     """``adaptive_iou_{parameter}.png`` per line (GP mean, 2-sigma band, the stretches of doubt shaded, the trained
-    points on the line coloured and numbered by round) and ``adaptive_grid_{a}_{b}.png`` per grid (the GP mean
-    over the grid's plane, the contour mean = required, the trained points numbered by round). Returns the paths."""
+    points on the line coloured and numbered by round, screened rows (``screened``: the box model's, untrained) as
+    open squares) and ``adaptive_grid_{a}_{b}.png`` per grid (the GP mean over the grid's plane, the contour mean =
+    required, the trained points numbered by round, the screened ones as squares). Returns the paths."""
     from metraw.spec.figures import LABELS, _plt, _save, line_table
 
     plt = _plt()
@@ -324,6 +334,9 @@ def round_figures(model: ResponseGP, rows: Sequence[Mapping[str, Any]], rounds: 
             ax.errorbar(float(r[name]), r["iou"], yerr=2 * r["iou_sd"], fmt="o", color=c, ms=4, capsize=2)
             ax.annotate(str(rounds[r["point"]]), (float(r[name]), r["iou"]), textcoords="offset points",
                         xytext=(4, 4), fontsize=7, color=c)
+        for i, r in enumerate(r for r in rows if r.get("screened") and all(float(r[m]) == at[m] for m in others)):
+            ax.errorbar(float(r[name]), r["iou"], yerr=2 * r["iou_sd"], fmt="s", mfc="none", color="0.35", ms=5,
+                        capsize=2, label="box model + offset (screened, untrained)" if i == 0 else None)
         ax.plot([], [], "o", color="C0", ms=4, label="trained (colour, number: round)")
         if model.axes[model.names.index(name)].kind == "log":
             ax.set_xscale("log")
@@ -350,7 +363,9 @@ def round_figures(model: ResponseGP, rows: Sequence[Mapping[str, Any]], rounds: 
             ax.contour(A, B, mean, levels=[level], colors="tab:red", linewidths=1.2)
         others = [m for m in model.names if m not in (a, b)]
         for r in rows:
-            if r["point"] in rounds and all(float(r[m]) == at[m] for m in others):
+            if r.get("screened") and all(float(r[m]) == at[m] for m in others):
+                ax.plot(float(r[a]), float(r[b]), "s", mfc="none", color="tab:blue", ms=6)
+            elif r["point"] in rounds and all(float(r[m]) == at[m] for m in others):
                 c = cmap(rounds[r["point"]])
                 ax.plot(float(r[a]), float(r[b]), "o", color=c, ms=5)
                 ax.annotate(str(rounds[r["point"]]), (float(r[a]), float(r[b])), textcoords="offset points",
@@ -360,7 +375,7 @@ def round_figures(model: ResponseGP, rows: Sequence[Mapping[str, Any]], rounds: 
                 setter("log")
         ax.set_xlabel(LABELS.get(a, a))
         ax.set_ylabel(LABELS.get(b, b))
-        ax.set_title(f"adaptive sweep: points by round; red: GP mean = {level:g}", fontsize=8)
+        ax.set_title(f"points by round, squares screened; red: mean = {level:g}", fontsize=8)
         path = figdir / f"adaptive_grid_{a}_{b}.png"
         _save(fig, path)
         written.append(path)

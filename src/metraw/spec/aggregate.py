@@ -33,6 +33,7 @@ import numpy as np
 from metraw.atomic import atomic_path
 from metraw.errors import MetrawError
 from metraw.spec import resolution
+from metraw.spec.screening import screened_rows
 
 DEFAULT_METRICS = "{results}/{point}/metrics.json"
 DEFAULT_COMPRESSION = "{results}/{point}/compression.json"
@@ -46,6 +47,10 @@ RATIO_FIGS = {"focal_length_m": "fig8a_ratio_focal_length.png", "exposure_s": "f
               "diameter_m": "fig8c_ratio_diameter.png"}
 
 
+#: A point's box-model score (the adaptive sweep's screening, `metraw.spec.screening`; used with it only).
+DEFAULT_SCREEN = "{results}/points/{point}/screen.json"
+
+
 @dataclass
 class AggregateOptions:
     """What `aggregate` reads and writes (the options of `metraw aggregate`, same names and defaults)."""
@@ -56,6 +61,7 @@ class AggregateOptions:
     metrics_pattern: str = DEFAULT_METRICS
     compression_pattern: str = DEFAULT_COMPRESSION
     stores_pattern: str = ""
+    screen_pattern: str = DEFAULT_SCREEN
     real_metrics_pattern: str = ""
     source_real_metrics: str = ""
     source_metrics: str = ""
@@ -166,14 +172,7 @@ def load_point_results(params: dict[str, Any], results: str, metrics_pattern: st
                "replicate_ious": [q["iou"] for q in metrics.get("replicates", []) if q.get("iou") is not None],
                "_network": metrics.get("network")}
         if cpath is not None:
-            comp = _read_json(cpath, "compression file")
-            row.update({"ratio": float(comp["overall"]["ratio"]),
-                        "ratio_sd": _sd_of_mean([im["ratio"] for im in comp["images"]]),
-                        "bits_per_pixel": float(comp["overall"]["bits_per_pixel"]),
-                        **{f"ratio_{c}": v["ratio"] for c, v in comp["channels"].items()},
-                        **{f"ratio_{c}_sd": _sd_of_mean([im["channels"][c]["ratio"] for im in comp["images"]
-                                                         if c in im.get("channels", {})]) for c in comp["channels"]},
-                        "_signal": comp.get("signal_e")})
+            row.update(compression_columns(cpath))
         if rpath is not None:
             real, (real_iou, real_var) = _measured(unmeasured.drop_models(
                 _read_json(rpath, "real-image metrics file"), status["dropped"]), str(rpath))
@@ -184,6 +183,34 @@ def load_point_results(params: dict[str, Any], results: str, metrics_pattern: st
     if missing:
         raise MetrawError(f"{len(missing)} per-point result file(s) missing, e.g. {missing[0]}")
     return rows
+
+
+def box_model_scores(params: dict[str, Any], results: str, pattern: str = DEFAULT_SCREEN
+                     ) -> dict[str, tuple[float, float]]:
+    """Point -> (IoU, its variance) of the pretrained box model alone at every screen point of an adaptive sweep
+    with ``target.adaptive.screen`` (`metraw.study.points.screen_points`; rule screen); {} without. One line when a
+    score is missing."""
+    from metraw.study.points import screen_points
+
+    points = screen_points(params)
+    missing = [str(p) for p in (Path(pattern.format(results=results, point=q)) for q in points) if not p.is_file()]
+    if missing:
+        raise MetrawError(f"{len(missing)} box-model score(s) missing, e.g. {missing[0]} (rule screen)")
+    return {q: _read_measured(Path(pattern.format(results=results, point=q)), "box-model metrics file")[1]
+            for q in points}
+
+
+def compression_columns(path: Path) -> dict[str, Any]:
+    """A point's compression record (rule compress) as its row's columns: ratio and its sd over the images, bits
+    per pixel, each channel's ratio and sd, and the signal the codec saw."""
+    comp = _read_json(path, "compression file")
+    return {"ratio": float(comp["overall"]["ratio"]),
+            "ratio_sd": _sd_of_mean([im["ratio"] for im in comp["images"]]),
+            "bits_per_pixel": float(comp["overall"]["bits_per_pixel"]),
+            **{f"ratio_{c}": v["ratio"] for c, v in comp["channels"].items()},
+            **{f"ratio_{c}_sd": _sd_of_mean([im["channels"][c]["ratio"] for im in comp["images"]
+                                             if c in im.get("channels", {})]) for c in comp["channels"]},
+            "_signal": comp.get("signal_e")}
 
 
 #: What the aggregate and the spec say of the network the points were trained with (its checkpoint's record,
@@ -296,9 +323,17 @@ def _aggregate(options: AggregateOptions, params: dict, required: float, rows: l
     # the GP spans the numeric parameters at the nominal category; categories are compared by measurement
     gp_rows = [r for r in rows if all(r[c] == nominal[c] for c in categorical)]
     unmeasured.require_measured(rows, skipped, len(gp_rows))
-    X = np.array([[r[n] for n in names] for r in gp_rows])
-
-    iou_gp = ResponseGP(names, X, [r["iou"] for r in gp_rows], [r["iou_sd"] ** 2 for r in gp_rows], seed=options.seed)
+    # an adaptive sweep's screening (#70): the points not trained, in the IoU GP as box model + offset and in the
+    # ratio GP as measured
+    screened, screening = screened_rows(params, box_model_scores(params, options.results, options.screen_pattern),
+                                        gp_rows)
+    iou_rows = gp_rows + screened
+    if options.compression_pattern:  # the compression ratio needs no training: a screened point measures it fully
+        for r in screened:
+            r.update(compression_columns(Path(options.compression_pattern.format(results=options.results,
+                                                                                 point=r["point"]))))
+    iou_gp = ResponseGP(names, np.array([[r[n] for n in names] for r in iou_rows]), [r["iou"] for r in iou_rows],
+                        [r["iou_sd"] ** 2 for r in iou_rows], seed=options.seed)
     iou_loo = iou_gp.leave_one_out()
     tols = {n: tolerance_interval(iou_gp, n, required, at, extrapolate=options.extrapolate) for n in names}
     joint = joint_region(iou_gp, required, tols, seed=options.seed)
@@ -308,17 +343,17 @@ def _aggregate(options: AggregateOptions, params: dict, required: float, rows: l
     has_ratio = bool(options.compression_pattern)
     ratio_gp = ratio_loo = None
     if has_ratio:
-        ratio_gp = ResponseGP(names, X, [r["ratio"] for r in gp_rows], [r["ratio_sd"] ** 2 for r in gp_rows],
-                              seed=options.seed)
+        ratio_gp = ResponseGP(names, np.array([[r[n] for n in names] for r in iou_rows]),
+                              [r["ratio"] for r in iou_rows], [r["ratio_sd"] ** 2 for r in iou_rows], seed=options.seed)
         ratio_loo = ratio_gp.leave_one_out()
-    grids = _grid_summaries(params, rows, skipped, nominal, all_names, required, options.seed)
+    grids = _grid_summaries(params, rows + screened, skipped, nominal, all_names, required, options.seed)
     nominal_row = next(r for r in rows + skipped if r["point"] == NOMINAL)
-    prop_model = _property_model(options, rows) if options.stores_pattern else None
+    prop_model = _property_model(options, rows + screened) if options.stores_pattern else None
     if prop_model is not None and "properties" not in nominal_row:  # an unmeasured nominal: its images' properties
         nominal_row["properties"] = _store_properties(options, nominal_row)
     unmeasured_list = [unmeasured.entry(r, all_names) for r in skipped]
     network = study_network(rows + skipped)
-    adaptive = _adaptive_summary(params, iou_gp, tols, at, required)  # None unless target.adaptive is on (#70)
+    adaptive = _adaptive_summary(params, iou_gp, tols, at, required, screening)  # None unless target.adaptive is on
     spec = build_spec(tols, nominal, required, nominal_row.get("_signal"), choices=choices,
                       context={"params_file": str(options.params), "loo_share_inside_2sigma": iou_loo["share_inside"],
                                **({"model": network} if network else {}), **resolution.spec_context(res),
@@ -370,6 +405,8 @@ def _aggregate(options: AggregateOptions, params: dict, required: float, rows: l
         summary["unmeasured_points"] = unmeasured_list
     if adaptive:
         summary["adaptive"] = adaptive
+    if screening:
+        summary["screening"] = screening
     spec.save(out / "spec.yaml")
     _write_text(out / "aggregate.json", json.dumps(summary, indent=2, default=float) + "\n")
     pcols = ["point", *all_names, "iou", "iou_sd", "iou_loo_pred", "iou_loo_sd", "iou_loo_inside", "precision", "recall",
@@ -435,7 +472,7 @@ def _aggregate(options: AggregateOptions, params: dict, required: float, rows: l
         from metraw.spec.adaptive import round_figures
         from metraw.study.points import point_rounds
 
-        round_figures(iou_gp, gp_rows, point_rounds(params), at, required, figdir, [g["axes"] for _, g in grids])
+        round_figures(iou_gp, iou_rows, point_rounds(params), at, required, figdir, [g["axes"] for _, g in grids])
     print(f"aggregate: {len(rows)} points; IoU LOO share inside 2 sigma {iou_loo['share_inside']:.2f} "
           f"(+- {iou_loo['share_inside_se']:.2f}, expected {iou_loo['expected_share']:.3f})"
           + ("" if ratio_loo is None else f"; ratio LOO {ratio_loo['share_inside']:.2f}")
@@ -471,7 +508,7 @@ def _aggregate(options: AggregateOptions, params: dict, required: float, rows: l
     return 0
 
 
-def _adaptive_summary(params, iou_gp, tols, at, required) -> dict[str, Any] | None:
+def _adaptive_summary(params, iou_gp, tols, at, required, screening=None) -> dict[str, Any] | None:
     """The adaptive sweep's block of aggregate.json and spec.yaml's context (`metraw.spec.adaptive.summary`), or None
     for a study of listed points."""
     from metraw.study.points import adaptive_settings
@@ -480,12 +517,13 @@ def _adaptive_summary(params, iou_gp, tols, at, required) -> dict[str, Any] | No
         return None
     from metraw.spec.adaptive import summary
 
-    return summary(params, iou_gp, tols, at, required)
+    return summary(params, iou_gp, tols, at, required, screening)
 
 
 def _property_model(options, rows: list[dict[str, Any]]):
     """Each point's image properties (medians over its store's images, ``row["properties"]``) and the IoU fit
-    over them (`metraw.spec.property_model`), from every point: lines, grids and categorical points."""
+    over them (`metraw.spec.property_model`), from every point: lines, grids and categorical points (and an adaptive
+    sweep's screened points, `metraw.spec.screening`)."""
     from metraw.io.store import RawStore
     from metraw.raw.cfa import cfa_family
     from metraw.spec.property_model import PropertyModel, store_properties
@@ -593,4 +631,6 @@ def _grid_summary(params: dict[str, Any], grid: dict[str, Any], rows: list[dict[
     summary["fixed"] = fixed
     for p, r in zip(summary["points"], members):
         p["point"] = r["point"]
+        if r.get("screened"):  # the box model's IoU plus the offset (metraw.spec.screening)
+            p["screened"] = True
     return model, summary

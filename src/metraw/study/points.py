@@ -223,9 +223,13 @@ def listed_points(params: dict[str, Any]) -> dict[str, dict[str, Any]]:
 #: workflow/scripts/adaptive.py, docs/statistics.md "An adaptive sweep"). ``budget``: trained points in all, the
 #: initial design included; ``stop_width``: the widest a stretch of a line may be where the GP cannot tell which
 #: side of the required IoU the response lies, as a fraction of the line's range (working axis); ``chosen``: the
-#: points the driver chose, round by round (lists of overrides), written by the driver, not by hand.
+#: points the driver chose, round by round (lists of overrides), written by the driver, not by hand; ``screen``: the
+#: range ends and grid corners are scored by the pretrained box model alone, without training (`screen_points`,
+#: metraw.spec.screening), and only the nominal and the categorical values are trained before the rounds;
+#: ``screen_offset_sd``: the sd of (fine-tuned - box model) IoU taken until 3 trained points measure it (the 10-point
+#: table of docs/training.md: -0.004 to +0.029).
 ADAPTIVE_DEFAULTS = {"enabled": False, "budget": 24, "points_per_round": 2, "stop_width": 0.1, "line_candidates": 41,
-                     "grid_candidates": 11, "chosen": []}
+                     "grid_candidates": 11, "screen": False, "screen_offset_sd": 0.02, "chosen": []}
 
 
 def adaptive_settings(params: dict[str, Any]) -> dict[str, Any]:
@@ -273,25 +277,56 @@ def named_point(params: dict[str, Any], overrides: dict[str, Any]) -> tuple[str,
     return _name_of(overrides), overrides
 
 
-def initial_design(params: dict[str, Any]) -> dict[str, dict[str, Any]]:
-    """The adaptive sweep's first round: the nominal, both ends of each numeric parameter's range
-    (`numeric_ranges`), every categorical sweep value (measured, never adapted) and each grid's corners
-    (its fixed values kept); a point equal to one already listed is that point (names as `parameter_points`)."""
+def _categorical_points(params: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    points: dict[str, dict[str, Any]] = {}
+    for name, values in (params["target"].get("sweeps") or {}).items():
+        if name in CATEGORICAL:
+            for value in values:
+                _add(points, _without_nominal(params, {name: value}))
+    return points
+
+
+def _ends_and_corners(params: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """The nominal, both ends of each numeric parameter's range (`numeric_ranges`) and each grid's corners (its
+    fixed values kept)."""
     import itertools
 
     points: dict[str, dict[str, Any]] = {NOMINAL: {}}
     for name, (low, high) in numeric_ranges(params).items():
         for value in (low, high):
             _add(points, _without_nominal(params, {name: value}))
-    for name, values in (params["target"].get("sweeps") or {}).items():
-        if name in CATEGORICAL:
-            for value in values:
-                _add(points, _without_nominal(params, {name: value}))
     for grid in params["target"].get("grids") or []:
         axes, fixed = grid_axes(grid)
         for combo in itertools.product(*((min(grid[a]), max(grid[a])) for a in axes)):
             values = {**fixed, **dict(zip(axes, combo))}
             _add(points, _without_nominal(params, {k: values[k] for k in grid}))
+    return points
+
+
+def initial_design(params: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """The adaptive sweep's first round of trained points: the nominal, both ends of each numeric parameter's range
+    (`numeric_ranges`), every categorical sweep value (measured, never adapted) and each grid's corners; with
+    ``target.adaptive.screen`` only the nominal and the categorical values (the ends and corners are scored by the
+    box model instead: `screen_points`). A point equal to one already listed is that point (names as
+    `parameter_points`)."""
+    points = {NOMINAL: {}} if adaptive_settings(params)["screen"] else _ends_and_corners(params)
+    for overrides in _categorical_points(params).values():
+        _add(points, overrides)
+    return points
+
+
+def screen_points(params: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """The points the pretrained box model alone is scored on, with ``target.adaptive`` enabled and ``screen`` (else
+    none): the nominal, each numeric range's ends, each grid's corners, and every trained point at the nominal
+    categories (the pairs that measure what fine-tuning adds: metraw.spec.screening)."""
+    settings = adaptive_settings(params)
+    if not (settings["enabled"] and settings["screen"]):
+        return {}
+    points = _ends_and_corners(params)
+    nominal = params["target"]["nominal"]
+    for overrides in adaptive_points(params).values():
+        if all(same_value(overrides.get(c, nominal[c]), nominal[c]) for c in CATEGORICAL if c in nominal):
+            _add(points, overrides)
     return points
 
 
@@ -379,7 +414,7 @@ def target_at(params: dict[str, Any], overrides: dict[str, Any]) -> dict[str, An
 
 def target_params(params: dict[str, Any], point: str) -> dict[str, Any]:
     """The full target parameter set of a point (nominal updated with its overrides, then `pixel_scaled`)."""
-    points = parameter_points(params)
+    points = {**screen_points(params), **parameter_points(params)}
     if point not in points:
         raise MetrawError(f"unknown parameter point {point!r}; known: {', '.join(points)}")
     return target_at(params, points[point])
