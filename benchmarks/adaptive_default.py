@@ -8,7 +8,8 @@ run's IoU GP is refitted from its ``results/aggregate.json`` points as the aggre
 seed: the same GP). For every tolerance end of either run set by the requirement, it prints the fixed run's end and
 the stretch of the line where the fixed GP's 2-sigma band holds ``required_iou`` (`metraw.spec.adaptive.tolerance_ends`:
 where the fixed run cannot tell the side of the requirement), the adaptive run's end, and whether it lies inside;
-then each run's trained points, and the CPU of its fine-tunes and of all its jobs (`benchmarks/main_job.py`: the
+then each run's trained points, each screened row (box model + offset) against the fixed run's fine-tuned IoU
+at the same point, and the CPU of its fine-tunes and of all its jobs (`benchmarks/main_job.py`: the
 adaptive run's Snakemake logs, one per round and the whole workflow's, taken as one run). Nothing is written.
 """
 
@@ -72,6 +73,20 @@ def compare(fixed: dict, adaptive: dict) -> list[dict]:
     return out
 
 
+def screening_check(fixed: dict, adaptive: dict) -> list[dict]:
+    """Each screened row of the adaptive run (box model + offset, its stated sd) against the fixed run's fine-tuned
+    IoU at the same point (trained there): difference and z = difference / sqrt(sd_screened^2 + sd_fixed^2)."""
+    trained = {r["point"]: r for r in fixed["points"]}
+    out = []
+    for r in (adaptive.get("screening") or {}).get("rows", []):
+        f = trained.get(r["point"])
+        if f is not None:
+            d = r["iou"] - f["iou"]
+            out.append({"point": r["point"], "screened": r["iou"], "screened_sd": r["iou_sd"], "fixed": f["iou"],
+                        "fixed_sd": f["iou_sd"], "difference": d, "z": d / float(np.hypot(r["iou_sd"], f["iou_sd"]))})
+    return out
+
+
 def cpu(folder: Path, logs: list[str]) -> dict:
     s = main_job().summary(logs, folder)
     rules = s["cpu_per_rule"]
@@ -115,6 +130,17 @@ def main(argv=None) -> int:
         s = agg["adaptive"]["screening"]
         print(f"screening offset (fine-tuned - box) {s['offset']:+.4f}, sd {s['offset_sd']:.4f} "
               f"({s['offset_sd_from']}, {s['n_pairs']} pairs)")
+    checks = screening_check(agg["fixed"], agg["adaptive"])
+    if checks:
+        print("\nscreened rows (box model + offset) against the fixed run's fine-tuned IoU at the same point:\n")
+        print("| point | screened | fixed (fine-tuned) | difference | z |\n|---|---|---|---|---|")
+        for c in checks:
+            print(f"| {c['point']} | {c['screened']:.3f} +- {c['screened_sd']:.3f} | {c['fixed']:.3f} +- "
+                  f"{c['fixed_sd']:.3f} | {c['difference']:+.3f} | {c['z']:+.2f} |")
+        z = np.array([c["z"] for c in checks])
+        print(f"\n|z| <= 2 at {int((np.abs(z) <= 2).sum())} of {len(z)}; mean z {z.mean():+.2f}, sd of z "
+              f"{z.std(ddof=1) if len(z) > 1 else float('nan'):.2f} (1 if the stated errors hold and are independent)")
+    print()
     for k, folder in runs.items():
         logs = sorted(glob.glob(str(folder / ".snakemake" / "log" / "*.snakemake.log")))
         if k == "fixed":

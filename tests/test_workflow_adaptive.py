@@ -23,10 +23,10 @@ from workflow_workspace import REPO, file_digests, make_workspace, needs_tools, 
 pytestmark = [pytest.mark.workflow, pytest.mark.adaptive, needs_tools]
 
 
-def driver(root: Path, budget: int, required: float) -> tuple[str, dict]:
+def driver(root: Path, budget: int, required: float, screen: bool = False) -> tuple[str, dict]:
     (root / "adaptive.yaml").write_text(yaml.safe_dump({
         "target": {"adaptive": {"enabled": True, "budget": budget, "points_per_round": 1, "stop_width": 0.001,
-                                "line_candidates": 11, "grid_candidates": 5}},
+                                "line_candidates": 11, "grid_candidates": 5, "screen": screen}},
         "spec": {"required_iou": required}}))
     proc = run(["python", str(REPO / "workflow" / "scripts" / "adaptive.py"), "--cores", "2", "--configfile",
                 "smoke.yaml", "adaptive.yaml"], root)
@@ -72,3 +72,37 @@ def test_rounds_cache_and_a_larger_budget(tmp_path):
     assert {**more["round_0.json"], "budget": 10} == records["round_0.json"]  # the same round but for its budget
     added = more["round_1.json"]["chosen"][0]["name"]
     assert (root / "results" / "points" / added / "metrics.json").is_file()
+
+
+def test_screening_scores_the_ends_without_training(tmp_path):
+    """target.adaptive.screen: the nominal and mono are trained, the 7 other points of the smoke study are scored by
+    the box model alone (emulate + screen, no train); a round's point gets its chain and its box-model score (a
+    pair); the aggregate states the screening; the same command again runs zero jobs."""
+    params = yaml.safe_load((REPO / "params.yaml").read_text())
+    params["sim_to_real"] = {"enabled": False}
+    root = make_workspace(tmp_path / "ws", params)
+    shutil.copy2(REPO / "workflow" / "config" / "smoke.yaml", root / "smoke.yaml")
+    log, records = driver(root, 2, 0.01, screen=True)
+    assert "adaptive round 0: 2 points trained, 7 more scored by the box model alone" in log
+    points = root / "results" / "points"
+    assert sorted(p.name for p in points.iterdir() if (p / "model").exists()) == ["cfa_pattern-mono", "nominal"]
+    assert len(list(points.glob("*/screen.json"))) == 8  # the 7 screened and the nominal (its pair)
+    means = sorted(c["mean"] for c in records["round_0.json"]["candidates"])
+    required = means[len(means) // 2]
+
+    log, records = driver(root, 3, required, screen=True)
+    assert "adaptive round 1: 3 points trained, 7 more scored by the box model alone (4 jobs run)" in log
+    new = records["round_0.json"]["chosen"][0]["name"]
+    assert (points / new / "metrics.json").is_file() and (points / new / "screen.json").is_file()
+    aggregate = json.loads((root / "results" / "aggregate.json").read_text())
+    s = aggregate["screening"]
+    assert s["n_pairs"] == 2 and {p["point"] for p in s["pairs"]} == {"nominal", new}
+    assert len(s["rows"]) == 7 and len(aggregate["points"]) == 3
+    for r in s["rows"]:
+        assert abs(r["iou"] - (r["box_iou"] + s["offset"])) < 1e-12 and r["iou_sd"] > r["box_iou_sd"]
+    spec = yaml.safe_load((root / "results" / "spec.yaml").read_text())
+    assert spec["context"]["adaptive"]["screening"]["screened_points"] == [r["point"] for r in s["rows"]]
+    before = file_digests(root / "results")
+    log, again = driver(root, 3, required, screen=True)
+    assert log.count("(0 jobs run)") == 2 and "the whole workflow ran 0 jobs, 0 in all" in log
+    assert again == records and file_digests(root / "results") == before

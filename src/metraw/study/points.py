@@ -286,15 +286,20 @@ def _categorical_points(params: dict[str, Any]) -> dict[str, dict[str, Any]]:
     return points
 
 
-def _ends_and_corners(params: dict[str, Any]) -> dict[str, dict[str, Any]]:
-    """The nominal, both ends of each numeric parameter's range (`numeric_ranges`) and each grid's corners (its
-    fixed values kept)."""
-    import itertools
-
+def _ends(params: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """The nominal and both ends of each numeric parameter's range (`numeric_ranges`)."""
     points: dict[str, dict[str, Any]] = {NOMINAL: {}}
     for name, (low, high) in numeric_ranges(params).items():
         for value in (low, high):
             _add(points, _without_nominal(params, {name: value}))
+    return points
+
+
+def _corners(params: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """Each grid's corners, its fixed values kept."""
+    import itertools
+
+    points: dict[str, dict[str, Any]] = {}
     for grid in params["target"].get("grids") or []:
         axes, fixed = grid_axes(grid)
         for combo in itertools.product(*((min(grid[a]), max(grid[a])) for a in axes)):
@@ -309,8 +314,9 @@ def initial_design(params: dict[str, Any]) -> dict[str, dict[str, Any]]:
     ``target.adaptive.screen`` only the nominal and the categorical values (the ends and corners are scored by the
     box model instead: `screen_points`). A point equal to one already listed is that point (names as
     `parameter_points`)."""
-    points = {NOMINAL: {}} if adaptive_settings(params)["screen"] else _ends_and_corners(params)
-    for overrides in _categorical_points(params).values():
+    screen = adaptive_settings(params)["screen"]
+    points = {NOMINAL: {}} if screen else _ends(params)
+    for overrides in [*_categorical_points(params).values(), *([] if screen else _corners(params).values())]:
         _add(points, overrides)
     return points
 
@@ -322,7 +328,9 @@ def screen_points(params: dict[str, Any]) -> dict[str, dict[str, Any]]:
     settings = adaptive_settings(params)
     if not (settings["enabled"] and settings["screen"]):
         return {}
-    points = _ends_and_corners(params)
+    points = _ends(params)
+    for overrides in _corners(params).values():
+        _add(points, overrides)
     nominal = params["target"]["nominal"]
     for overrides in adaptive_points(params).values():
         if all(same_value(overrides.get(c, nominal[c]), nominal[c]) for c in CATEGORICAL if c in nominal):
