@@ -4,13 +4,14 @@
 
 RUN_DIR: a folder the workflow ran in (``snakemake --cores all`` for the fixed run; ``python
 workflow/scripts/adaptive.py --cores all --configfile workflow/config/adaptive.yaml`` for the adaptive one). The fixed
-run's IoU GP is refitted from its ``results/aggregate.json`` points as the aggregate fits it (same rows, variances and
-seed: the same GP). For every tolerance end of either run set by the requirement, it prints the fixed run's end and
-the stretch of the line where the fixed GP's 2-sigma band holds ``required_iou`` (`metraw.spec.adaptive.tolerance_ends`:
-where the fixed run cannot tell the side of the requirement), the adaptive run's end, and whether it lies inside;
-then each run's trained points, each screened row (box model + offset) against the fixed run's fine-tuned IoU
-at the same point, and the CPU of its fine-tunes and of all its jobs (`benchmarks/main_job.py`: the
-adaptive run's Snakemake logs, one per round and the whole workflow's, taken as one run). Nothing is written.
+run's IoU GP is refitted from its ``results/aggregate.json`` points and its effective params as the aggregate fits
+it (`metraw.spec.adaptive.fit_iou`: the same rows, variances and seed, so the same GP). For every tolerance end of
+either run set by the requirement, it prints the fixed run's end and the stretch of the line where the fixed GP's
+2-sigma band holds ``required_iou`` (`metraw.spec.adaptive.line_bands`: where the fixed run cannot tell the side of
+the requirement), the adaptive run's end, and whether it lies inside; then each run's trained points, each screened
+row (box model + offset) against the fixed run's fine-tuned IoU at the same point, and the CPU of its fine-tunes and
+of all its jobs (`benchmarks/main_job.py`: the adaptive run's Snakemake logs, one per round and the whole
+workflow's, taken as one run). Nothing is written.
 """
 
 from __future__ import annotations
@@ -34,39 +35,25 @@ def main_job():
     return module
 
 
-def fixed_model(aggregate: dict):
-    """The listed run's IoU GP, refitted from its aggregate.json as `metraw.spec.aggregate` fits it."""
-    from metraw.spec.tolerance import ResponseGP
+def compare(fixed: dict, adaptive: dict, params: dict) -> list[dict]:
+    """Per parameter and end: the fixed end, its band stretch, the adaptive end, inside or not. ``params``: the fixed
+    run's effective params; its IoU GP is refitted from its aggregate.json points as the aggregate fits it
+    (`metraw.spec.adaptive.fit_iou`: the same rows, variances and seed)."""
+    from metraw.spec.adaptive import fit_iou, line_bands, nearest_stretch
 
-    names, nominal = aggregate["gp_parameters"], aggregate["nominal"]
-    categorical = [p for p in aggregate["parameters"] if p not in names]
-    rows = [r for r in aggregate["points"] if all(r[c] == nominal[c] for c in categorical)]
-    X = np.array([[r[n] for n in names] for r in rows])
-    model = ResponseGP(names, X, [r["iou"] for r in rows], [r["iou_sd"] ** 2 for r in rows], seed=0)
-    return model, {n: float(nominal[n]) for n in names}
-
-
-def compare(fixed: dict, adaptive: dict) -> list[dict]:
-    """Per parameter and end: the fixed end, its band stretch, the adaptive end, inside or not."""
-    from metraw.spec.adaptive import _nearest, stretches
-    from metraw.spec.tolerance import BAND_SIGMA
-
-    model, at = fixed_model(fixed)
+    model, _, at = fit_iou(params, fixed["points"])
     level = float(fixed["required_iou"])
     out = []
     for name in model.names:
         ax = model.axes[model.names.index(name)]
-        u = np.linspace(0.0, 1.0, 801)
-        x = ax.from_unit(u)
-        p = model.line(name, x, at, BAND_SIGMA)
-        band = stretches(u, x, BAND_SIGMA * p.sd - np.abs(p.mean - level))
+        band, _ = line_bands(model, name, at, level)
         f, a = fixed["tolerances"][name], adaptive["tolerances"].get(name)
         for side in ("min", "max"):
             fb, ab = f[f"{side}_limited_by"], a[f"{side}_limited_by"] if a else None
             if "requirement" not in (fb, ab):
                 continue
             where = a[side] if ab == "requirement" else f[side]
-            near = _nearest(band, float(ax.to_unit(where))) if where is not None else None
+            near = nearest_stretch(band, float(ax.to_unit(where))) if where is not None else None
             inside = (ab == "requirement" and near is not None and near["low"] <= a[side] <= near["high"])
             out.append({"parameter": name, "end": side, "fixed": f[side], "fixed_by": fb, "band": near,
                         "adaptive": a[side] if a else None, "adaptive_by": ab, "inside": inside})
@@ -112,7 +99,11 @@ def main(argv=None) -> int:
     if not agg["adaptive"].get("adaptive"):
         print(f"adaptive_default.py: {runs['adaptive']} holds a listed run, not an adaptive one", file=sys.stderr)
         return 2
-    rows = compare(agg["fixed"], agg["adaptive"])
+    from metraw.study.points import load_params
+
+    effective = runs["fixed"] / ".snakemake" / "metraw" / "params.yaml"  # the params the run used (Snakefile)
+    rows = compare(agg["fixed"], agg["adaptive"], load_params(effective if effective.is_file()
+                                                              else runs["fixed"] / "params.yaml"))
     print(f"required IoU {agg['fixed']['required_iou']}; fixed run's 2-sigma band crossing vs the adaptive end\n")
     print("| parameter | end | fixed (limited by) | fixed GP +-2 sigma holds the requirement | adaptive (limited by) | "
           "inside |\n|---|---|---|---|---|---|")

@@ -234,7 +234,7 @@ BOX_OFFSET = 0.012
 def write_box_scores(params: dict, results: Path, seed: int) -> None:
     """``screen.json`` of every screen point as `metraw evaluate` writes it (IoU, its replicates and per-image
     counts omitted: the IoU's variance is then 0, so the rows' sd is the offset's alone)."""
-    from metraw.spec.aggregate import DEFAULT_SCREEN
+    from metraw.spec.screening import DEFAULT_SCREEN
     from metraw.study.points import screen_points
 
     for name, overrides in screen_points(params).items():

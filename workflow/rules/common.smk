@@ -5,6 +5,7 @@ import re
 
 from snakemake.exceptions import WorkflowError
 
+from metraw.spec.screening import DEFAULT_SCREEN
 from metraw.study.points import parameter_points, screen_points, target_params
 from metraw.provenance import code_digest
 from metraw.study.sources import calibration_method, car_class_arguments, check_folder_arguments
@@ -14,7 +15,7 @@ from metraw.study.pretraining import (draws_extra_scenes, fine_tuned_points, poi
 POINTS = list(parameter_points(config))
 # the adaptive sweep's screening (target.adaptive.screen): the points the box model alone is scored on (rule screen)
 SCREEN_POINTS = list(screen_points(config))
-SCREEN_METRICS = "results/points/{point}/screen.json"
+SCREEN_METRICS = DEFAULT_SCREEN.format(results="results", point="{point}")  # metraw aggregate's default
 SOURCE_CAMERA = "results/source/camera.json"  # the raws source's calibrated camera (rule source_camera)
 SOURCE_CHECK = "results/source/folder_check.json"  # a raws or photos folder checked (rule source_check)
 METRAW_CODE = code_digest()  # the aggregate's cache key covers metraw's code (workflow/rules/aggregate.smk)

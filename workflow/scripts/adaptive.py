@@ -78,8 +78,8 @@ def main(argv: list[str] | None = None) -> int:
         from threadpoolctl import threadpool_limits
 
         from metraw.spec.adaptive import plan_round
-        from metraw.spec.aggregate import DEFAULT_SCREEN, box_model_scores, load_point_results
-        from metraw.spec.screening import screened_rows
+        from metraw.spec.aggregate import box_model_scores, load_point_results
+        from metraw.spec.screening import DEFAULT_SCREEN, screened_rows
         from metraw.study.pretraining import pretrain_settings
         from metraw.study.points import adaptive_settings, parameter_points, screen_points, validate_params
 

@@ -241,39 +241,50 @@ def plan_round(params: dict[str, Any], rows: Sequence[Mapping[str, Any]], round_
 
 
 # ---------------------------------------------------------------------- what the aggregate reports
+def line_bands(model: ResponseGP, name: str, at: Mapping[str, float], level: float, k: float = BAND_SIGMA,
+               n: int = LINE_RESOLUTION) -> tuple[list[dict[str, float]], list[dict[str, float]]]:
+    """Along ``name`` (others at ``at``): the stretches where the GP's k-sigma band (predictive sd) holds ``level``,
+    and the stretches of doubt of the mean (straddle > 0); each with its ends and width (`stretches`)."""
+    ax = model.axes[model.names.index(name)]
+    u = np.linspace(0.0, 1.0, n)
+    x = ax.from_unit(u)
+    X = design_matrix(model.names, at, [{name: v} for v in x])
+    p = model.predict(X, k)
+    return (stretches(u, x, k * p.sd - np.abs(p.mean - level)),
+            stretches(u, x, straddle(p.mean, model.latent_sd(X), level)))
+
+
+def nearest_stretch(found: list[dict[str, float]], u: float) -> dict[str, float] | None:
+    """The stretch of ``found`` nearest to the working-axis unit coordinate ``u`` (one holding it first): low, high,
+    width; None when there is none."""
+    if not found:
+        return None
+    best = min(found, key=lambda f: max(f["u_low"] - u, u - f["u_high"], 0.0))
+    return {"low": best["low"], "high": best["high"], "width": best["width"]}
+
+
 def tolerance_ends(model: ResponseGP, tolerances: Mapping[str, Tolerance], at: Mapping[str, float], level: float,
                    k: float = BAND_SIGMA, n: int = LINE_RESOLUTION) -> dict[str, Any]:
     """Each tolerance end's uncertainty: for an end set by the requirement, the stretch of its line where the GP's
     k-sigma band (predictive sd) holds ``level`` (the end is that stretch's edge: the spec's end moves within it as
     the mean does) and the stretch of doubt of the mean (straddle > 0) nearest to it, each with its width as a
-    fraction of the range (working axis). An end set by the sampled range has no uncertainty of this kind."""
+    fraction of the range (working axis; `line_bands`). An end set by the sampled range has no uncertainty of this
+    kind."""
     out = {}
     for name, t in tolerances.items():
         ax = model.axes[model.names.index(name)]
-        u = np.linspace(0.0, 1.0, n)
-        x = ax.from_unit(u)
-        X = design_matrix(model.names, at, [{name: v} for v in x])
-        p = model.predict(X, k)
-        band = stretches(u, x, k * p.sd - np.abs(p.mean - level))
-        doubt = stretches(u, x, straddle(p.mean, model.latent_sd(X), level))
+        band, doubt = line_bands(model, name, at, level, k, n)
         ends = {}
         for side in ("min", "max"):
             value, by = getattr(t, side), getattr(t, f"{side}_limited_by")
             rec: dict[str, Any] = {"value": value, "limited_by": by}
             if value is not None and by == "requirement":
                 ue = float(ax.to_unit(value))
-                rec["band"] = _nearest(band, ue)
-                rec["doubt"] = _nearest(doubt, ue)
+                rec["band"] = nearest_stretch(band, ue)
+                rec["doubt"] = nearest_stretch(doubt, ue)
             ends[side] = rec
         out[name] = ends
     return out
-
-
-def _nearest(found: list[dict[str, float]], u: float) -> dict[str, float] | None:
-    if not found:
-        return None
-    best = min(found, key=lambda f: max(f["u_low"] - u, u - f["u_high"], 0.0))
-    return {"low": best["low"], "high": best["high"], "width": best["width"]}
 
 
 def summary(params: dict[str, Any], model: ResponseGP, tolerances: Mapping[str, Tolerance], at: Mapping[str, float],

@@ -33,7 +33,7 @@ import numpy as np
 from metraw.atomic import atomic_path
 from metraw.errors import MetrawError
 from metraw.spec import resolution
-from metraw.spec.screening import screened_rows
+from metraw.spec.screening import DEFAULT_SCREEN, screened_rows
 
 DEFAULT_METRICS = "{results}/{point}/metrics.json"
 DEFAULT_COMPRESSION = "{results}/{point}/compression.json"
@@ -45,10 +45,6 @@ IOU_FIGS = {"focal_length_m": "fig7c_iou_focal_length.png", "diameter_m": "fig7d
 REAL_LABEL = "emulated real images (2 sd)"
 RATIO_FIGS = {"focal_length_m": "fig8a_ratio_focal_length.png", "exposure_s": "fig8b_ratio_exposure.png",
               "diameter_m": "fig8c_ratio_diameter.png"}
-
-
-#: A point's box-model score (the adaptive sweep's screening, `metraw.spec.screening`; used with it only).
-DEFAULT_SCREEN = "{results}/points/{point}/screen.json"
 
 
 @dataclass
@@ -192,12 +188,11 @@ def box_model_scores(params: dict[str, Any], results: str, pattern: str = DEFAUL
     score is missing."""
     from metraw.study.points import screen_points
 
-    points = screen_points(params)
-    missing = [str(p) for p in (Path(pattern.format(results=results, point=q)) for q in points) if not p.is_file()]
+    paths = {q: Path(pattern.format(results=results, point=q)) for q in screen_points(params)}
+    missing = [str(p) for p in paths.values() if not p.is_file()]
     if missing:
         raise MetrawError(f"{len(missing)} box-model score(s) missing, e.g. {missing[0]} (rule screen)")
-    return {q: _read_measured(Path(pattern.format(results=results, point=q)), "box-model metrics file")[1]
-            for q in points}
+    return {q: _read_measured(p, "box-model metrics file")[1] for q, p in paths.items()}
 
 
 def compression_columns(path: Path) -> dict[str, Any]:
@@ -332,8 +327,8 @@ def _aggregate(options: AggregateOptions, params: dict, required: float, rows: l
         for r in screened:
             r.update(compression_columns(Path(options.compression_pattern.format(results=options.results,
                                                                                  point=r["point"]))))
-    iou_gp = ResponseGP(names, np.array([[r[n] for n in names] for r in iou_rows]), [r["iou"] for r in iou_rows],
-                        [r["iou_sd"] ** 2 for r in iou_rows], seed=options.seed)
+    X = np.array([[r[n] for n in names] for r in iou_rows])  # the IoU GP's and the ratio GP's points
+    iou_gp = ResponseGP(names, X, [r["iou"] for r in iou_rows], [r["iou_sd"] ** 2 for r in iou_rows], seed=options.seed)
     iou_loo = iou_gp.leave_one_out()
     tols = {n: tolerance_interval(iou_gp, n, required, at, extrapolate=options.extrapolate) for n in names}
     joint = joint_region(iou_gp, required, tols, seed=options.seed)
@@ -343,8 +338,8 @@ def _aggregate(options: AggregateOptions, params: dict, required: float, rows: l
     has_ratio = bool(options.compression_pattern)
     ratio_gp = ratio_loo = None
     if has_ratio:
-        ratio_gp = ResponseGP(names, np.array([[r[n] for n in names] for r in iou_rows]),
-                              [r["ratio"] for r in iou_rows], [r["ratio_sd"] ** 2 for r in iou_rows], seed=options.seed)
+        ratio_gp = ResponseGP(names, X, [r["ratio"] for r in iou_rows], [r["ratio_sd"] ** 2 for r in iou_rows],
+                              seed=options.seed)
         ratio_loo = ratio_gp.leave_one_out()
     grids = _grid_summaries(params, rows + screened, skipped, nominal, all_names, required, options.seed)
     nominal_row = next(r for r in rows + skipped if r["point"] == NOMINAL)

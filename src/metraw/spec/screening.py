@@ -25,6 +25,8 @@ import numpy as np
 
 from metraw.errors import MetrawError
 
+#: A point's box-model score, as the workflow's rule ``screen`` writes it (``metraw aggregate --screen-pattern``).
+DEFAULT_SCREEN = "{results}/points/{point}/screen.json"
 #: Fewest pairs (trained points scored by the box model too) whose sample sd replaces ``screen_offset_sd``.
 MIN_PAIRS_FOR_SD = 3
 
